@@ -1,0 +1,1 @@
+"""Electrostrictive actuator models, temperature-compensated feedforward and calibration."""

@@ -1,0 +1,84 @@
+"""Topic names, message types and QoS of the es_dm contract."""
+
+from __future__ import annotations
+
+import importlib
+from typing import Final
+
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+HEAT_LOAD: Final = "/dm/heat_load"
+TEMPERATURE_RAW: Final = "/dm/temperature/raw"
+TEMPERATURE: Final = "/dm/temperature"
+SETPOINT: Final = "/dm/setpoint"
+COMMAND: Final = "/dm/command"
+DISPLACEMENT: Final = "/dm/displacement"
+DIAGNOSTICS: Final = "/diagnostics"
+CLOCK: Final = "/clock"
+
+#: Every /dm topic of the contract, in data-flow order.
+DM_TOPICS: Final = (HEAT_LOAD, TEMPERATURE_RAW, TEMPERATURE, SETPOINT, COMMAND, DISPLACEMENT)
+
+FLOAT64_MULTI_ARRAY: Final = "std_msgs/msg/Float64MultiArray"
+DIAGNOSTIC_ARRAY: Final = "diagnostic_msgs/msg/DiagnosticArray"
+CLOCK_TYPE: Final = "rosgraph_msgs/msg/Clock"
+
+#: ROS 2 type name of each contract topic.
+TOPIC_TYPES: Final[dict[str, str]] = {
+    **dict.fromkeys(DM_TOPICS, FLOAT64_MULTI_ARRAY),
+    DIAGNOSTICS: DIAGNOSTIC_ARRAY,
+    CLOCK: CLOCK_TYPE,
+}
+
+#: QoS of every /dm topic: reliable, keep last 10, volatile.
+DM_QOS: Final = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=10,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.VOLATILE,
+)
+
+#: QoS of /diagnostics, as diagnostic_updater uses it.
+DIAGNOSTICS_QOS: Final = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=10,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.VOLATILE,
+)
+
+#: QoS of /clock, as rclpy's time source subscribes to it.
+CLOCK_QOS: Final = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=1,
+    reliability=ReliabilityPolicy.BEST_EFFORT,
+    durability=DurabilityPolicy.VOLATILE,
+)
+
+
+def qos_for(topic: str) -> QoSProfile:
+    """Return the contract QoS for ``topic`` (the /dm QoS for any topic not listed)."""
+    if topic == CLOCK:
+        return CLOCK_QOS
+    if topic == DIAGNOSTICS:
+        return DIAGNOSTICS_QOS
+    return DM_QOS
+
+
+def message_class(type_name: str) -> type:
+    """Return the rclpy message class for a ROS 2 type name such as ``std_msgs/msg/Header``.
+
+    Raises:
+        ValueError: if the name is not of the form ``pkg/msg/Name`` or cannot be imported.
+
+    """
+    parts = type_name.split("/")
+    if len(parts) != 3 or parts[1] != "msg" or not all(p.isidentifier() for p in parts):
+        raise ValueError(f"not a ROS 2 message type name: {type_name!r}")
+    try:
+        module = importlib.import_module(f"{parts[0]}.msg")
+        cls = getattr(module, parts[2])
+    except (AttributeError, ImportError) as err:
+        raise ValueError(f"unknown message type {type_name!r}: {err}") from None
+    if not isinstance(cls, type):
+        raise ValueError(f"unknown message type {type_name!r}")
+    return cls

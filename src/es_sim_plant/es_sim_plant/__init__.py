@@ -1,0 +1,1 @@
+"""Deformable-mirror plant simulator: UV heating, thermal network, actuator grid, sensors."""

@@ -1,0 +1,40 @@
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE = "es_sim_plant"
+# executable name (under lib/es_sim_plant/, for `ros2 run`) -> module with main()
+EXECUTABLES = {
+    "plant_node": "es_sim_plant.plant_node",
+    "bringup": "es_sim_plant.bringup",
+    "demo": "es_sim_plant.demo",
+}
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    packages=find_packages(exclude=["test"]),
+    package_data={PACKAGE: ["py.typed"]},
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
+        (f"share/{PACKAGE}", ["package.xml"]),
+        (f"lib/{PACKAGE}", [f"scripts/{exe}" for exe in EXECUTABLES]),
+        *[
+            (f"share/{PACKAGE}/{d}", glob(f"{d}/*"))
+            for d in ("launch", "scenarios", "config")
+            if glob(f"{d}/*")
+        ],
+    ],
+    install_requires=["setuptools"],
+    zip_safe=False,
+    maintainer="es_dm developers",
+    maintainer_email="es-dm@example.com",
+    description="Deformable-mirror plant simulator: UV heating, thermal network, actuator grid, sensors, sim time; scenarios and bring-up.",
+    license="Apache-2.0",
+    entry_points={
+        "console_scripts": [
+            f"{PACKAGE}-{exe.replace('_', '-')} = {module}:main"
+            for exe, module in EXECUTABLES.items()
+        ],
+    },
+)

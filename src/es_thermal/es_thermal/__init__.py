@@ -1,0 +1,1 @@
+"""Per-actuator temperature estimation from noisy, sparse, lagging sensors."""

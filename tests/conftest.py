@@ -1,0 +1,21 @@
+"""Test-wide set-up: isolate ROS 2 traffic of this test process.
+
+Each pytest process gets its own ROS_DOMAIN_ID (derived from its PID) and discovery stays on
+localhost, so parallel test runs and other ROS users on the machine never see each other.
+Node processes started by tests inherit this environment.
+"""
+
+from __future__ import annotations
+
+import os
+
+# Domains 1..200: fast-DDS ports for larger IDs overflow the valid port range.
+os.environ["ROS_DOMAIN_ID"] = str(1 + os.getpid() % 200)
+os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+os.environ.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
+os.environ.setdefault("PYTHONUNBUFFERED", "1")
+
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).parent))  # makes tests/support importable as `support`

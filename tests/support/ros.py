@@ -1,0 +1,97 @@
+"""Start installed node executables as processes and talk to them over DDS.
+
+Processes are started from the installed ``<prefix>/lib/<pkg>/<exe>`` launchers (what
+``ros2 run`` would run) and ended by their own PID only; they inherit the isolated
+ROS_DOMAIN_ID of the test process (see tests/conftest.py).
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from pathlib import Path
+from typing import IO
+
+import rclpy
+from rclpy.node import Node
+
+PREFIX = Path(sys.prefix)
+
+
+def executable(package: str, name: str) -> Path:
+    """Return the installed launcher ``<prefix>/lib/<package>/<name>``."""
+    return PREFIX / "lib" / package / name
+
+
+class NodeProcess:
+    """A node process started by a test; output goes to a temporary log file."""
+
+    def __init__(self, package: str, name: str, args: Sequence[str] = ()) -> None:
+        self.command = [str(executable(package, name)), *args]
+        self._log: IO[bytes] = tempfile.TemporaryFile()  # noqa: SIM115 - lives as long as the process
+        self.process = subprocess.Popen(
+            self.command, stdout=self._log, stderr=subprocess.STDOUT, start_new_session=True
+        )
+
+    @property
+    def pid(self) -> int:
+        """The PID of the started process."""
+        return self.process.pid
+
+    def output(self) -> str:
+        """Return everything the process printed so far."""
+        self._log.seek(0)
+        return self._log.read().decode(errors="replace")
+
+    def stop(self, sig: int = signal.SIGINT, timeout: float = 10.0) -> int:
+        """Send ``sig`` to this process only, wait for it, and return its exit code."""
+        if self.process.poll() is None:
+            os.kill(self.process.pid, sig)
+            try:
+                self.process.wait(timeout)
+            except subprocess.TimeoutExpired:
+                os.kill(self.process.pid, signal.SIGKILL)
+                self.process.wait(timeout)
+        return self.process.returncode
+
+
+@contextmanager
+def node_process(package: str, name: str, args: Sequence[str] = ()) -> Iterator[NodeProcess]:
+    """Run a node process for the duration of the ``with`` block; stop it afterwards."""
+    proc = NodeProcess(package, name, args)
+    try:
+        yield proc
+    finally:
+        proc.stop()
+
+
+@contextmanager
+def test_node(name: str = "es_test") -> Iterator[Node]:
+    """Yield an rclpy node in a fresh context of this process; shut it down afterwards."""
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    node = rclpy.create_node(name, context=context)
+    try:
+        yield node
+    finally:
+        node.destroy_node()
+        rclpy.shutdown(context=context)
+
+
+def spin_until(node: Node, done: Callable[[], bool], timeout: float) -> bool:
+    """Spin ``node`` until ``done()`` is true or ``timeout`` seconds pass; return ``done()``."""
+    executor = rclpy.executors.SingleThreadedExecutor(context=node.context)
+    executor.add_node(node)
+    deadline = time.monotonic() + timeout
+    try:
+        while not done() and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.05)
+    finally:
+        executor.remove_node(node)
+    return done()
