@@ -3,23 +3,37 @@
 Equations: ``shared/docs/physics.md`` (thesis typos corrected). Every inverse returns the
 voltage together with a per-element :class:`Status`, so that a caller can turn what happened
 to each actuator into diagnostics; no inverse ever returns NaN or a voltage beyond ``v_limit``.
+
+Two layers: the functions (``hyperbolic_inverse(z, T, params)``, ...) take temperatures and
+parameters directly; :class:`CompiledLaws` and :class:`LawsAtTemperature` split the work so
+that a feedforward loop evaluates the temperature laws once per temperature update and pays
+only a few array operations per set point (see ``bench/bench_kernels.py``).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from enum import IntEnum
 from typing import Final
 
 import numpy as np
 import numpy.typing as npt
 
-from es_feedforward.params import ActuatorParams, FloatArray
+from es_feedforward.params import (
+    VALIDITY_MARGIN_BELOW_TM,
+    VALIDITY_SPAN_ABOVE_TM,
+    ActuatorParams,
+    FloatArray,
+)
 
 #: Amplifier limit of the thesis set-up [V].
 DEFAULT_V_LIMIT: Final = 350.0
 #: u* = atanh(1/sqrt(3)): where the slope dz/dV of the hyperbolic model peaks.
 U_STAR: Final = float(np.arctanh(1.0 / np.sqrt(3.0)))
+#: Largest z / z_sat handed to atanh(sqrt(.)): keeps the result finite (u <= ~14.5).
+RATIO_CAP: Final = 1.0 - 1e-12
+
+StatusArray = npt.NDArray[np.int8]
 
 
 class Status(IntEnum):
@@ -29,7 +43,15 @@ class Status(IntEnum):
     OUT_OF_VALIDITY = 1  # temperature outside the laws' range: evaluated at the nearest bound
     CLIPPED_LOW = 2  # set point below 0: driven to 0 V
     CLIPPED_HIGH = 3  # set point beyond what v_limit reaches (or z_sat): driven to the limit
-    INVALID = 4  # non-finite input: 0 V
+    INVALID = 4  # non-finite input or parameters: 0 V
+
+
+# Plain-int codes for array work: comparing a numpy scalar with an IntEnum member costs ~6 us.
+CODE_OK: Final = int(Status.OK)
+CODE_OUT_OF_VALIDITY: Final = int(Status.OUT_OF_VALIDITY)
+CODE_CLIPPED_LOW: Final = int(Status.CLIPPED_LOW)
+CODE_CLIPPED_HIGH: Final = int(Status.CLIPPED_HIGH)
+CODE_INVALID: Final = int(Status.INVALID)
 
 
 @dataclass(frozen=True)
@@ -37,17 +59,7 @@ class InverseResult:
     """Voltages [V] and per-element :class:`Status` codes (int8) of an inverse model."""
 
     voltage: FloatArray
-    status: npt.NDArray[np.int8]
-
-
-def clamp_temperature(
-    T: npt.ArrayLike, params: ActuatorParams
-) -> tuple[FloatArray, npt.NDArray[np.bool_]]:
-    """Return T clamped into the laws' validity range and a mask of elements that were outside."""
-    T = np.asarray(T, np.float64)
-    low, high = params.validity_range()
-    clamped = np.clip(T, low, high)
-    return clamped, (clamped != T) & np.isfinite(T)
+    status: StatusArray
 
 
 def z_sat(T: npt.ArrayLike, params: ActuatorParams) -> FloatArray:
@@ -87,17 +99,211 @@ def quadratic_forward(V: npt.ArrayLike, T: npt.ArrayLike, params: ActuatorParams
     return np.asarray(params.M(T) * V * V / params.L, np.float64)
 
 
-def _classify(
-    z: FloatArray, T: FloatArray, params: ActuatorParams
-) -> tuple[FloatArray, FloatArray, npt.NDArray[np.int8]]:
-    """Return (z cleaned of NaN and negatives, T clamped, initial status) for an inverse."""
-    z, T = np.broadcast_arrays(np.asarray(z, np.float64), np.asarray(T, np.float64))
-    finite = np.isfinite(z) & np.isfinite(T)
-    T_eval, outside = clamp_temperature(np.where(finite, T, params.Tm + 10.0), params)
-    status = np.where(outside, Status.OUT_OF_VALIDITY, Status.OK).astype(np.int8)
-    status[z < 0.0] = Status.CLIPPED_LOW
-    status[~finite] = Status.INVALID
-    return np.where(finite & (z > 0.0), z, 0.0), T_eval, status
+def _as_array(value: npt.ArrayLike, shape: tuple[int, ...]) -> FloatArray:
+    return np.array(np.broadcast_to(np.asarray(value, np.float64), shape), np.float64)
+
+
+class CompiledLaws:
+    """Temperature laws of a parameter set, rearranged once for fast repeated evaluation.
+
+    Holds k/L and M/L as polynomials in T* = T - Tm (per-actuator arrays of ``shape``, or
+    scalars for ``shape == ()``), so that :meth:`at` costs a handful of array operations.
+    """
+
+    def __init__(self, params: ActuatorParams, shape: tuple[int, ...] = ()) -> None:
+        self.params = params
+        self.shape = shape
+        L = _as_array(params.L, shape)
+        self.Tm = _as_array(params.Tm, shape)
+        # q(T*) = k / L [1/V] and n(T*) = M / L [m/V^2]: the only combinations the models use.
+        self.q = tuple(_as_array(getattr(params, c), shape) / L for c in ("k2", "k1", "k3"))
+        self.n = tuple(_as_array(getattr(params, c), shape) / L for c in ("m2", "m1", "m3"))
+        self._q_curved = bool(np.any(self.q[2]))
+        self._n_curved = bool(np.any(self.n[2]))
+        # Laws that are positive over the whole validity range stay positive after clamping,
+        # so only parameter sets failing this need a per-call check.
+        self.usable = self.positive_between(VALIDITY_MARGIN_BELOW_TM, VALIDITY_SPAN_ABOVE_TM)
+        self._all_usable = bool(np.all(self.usable))
+
+    def positive_between(self, ts_low: float, ts_high: float) -> npt.NDArray[np.bool_]:
+        """Return, per element, whether k and M stay finite and > 0 for T* in [low, high]."""
+        ok = np.ones(np.broadcast_shapes(self.Tm.shape, *(c.shape for c in self.q)), bool)
+        for c0, c1, c2 in (self.q, self.n):
+            # a quadratic's minimum over an interval is at an end or at its vertex
+            with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
+                vertex = np.where(c2 != 0.0, -c1 / (2.0 * c2), ts_low)
+            vertex = np.clip(vertex, ts_low, ts_high)
+            for ts in (ts_low, ts_high, vertex):
+                value = c0 + ts * (c1 + ts * c2)
+                ok &= np.isfinite(value) & (value > 0.0)
+        return ok & np.isfinite(self.Tm)
+
+    def at(self, T: npt.ArrayLike) -> LawsAtTemperature:
+        """Evaluate the laws at temperatures ``T`` (clamped into the validity range).
+
+        Elements whose law is not positive at their temperature get ``Status.INVALID`` and
+        neutral coefficients (checked only for parameter sets not positive over the range).
+        """
+        T = np.asarray(T, np.float64)
+        ts = np.asarray(T - self.Tm, np.float64)
+        lo = ts.min() if ts.size else VALIDITY_MARGIN_BELOW_TM
+        hi = ts.max() if ts.size else VALIDITY_MARGIN_BELOW_TM
+        status: StatusArray
+        if lo >= VALIDITY_MARGIN_BELOW_TM and hi <= VALIDITY_SPAN_ABOVE_TM:
+            status = np.zeros(ts.shape, np.int8)
+            flagged = False
+        else:  # some temperatures are outside the laws' range or not finite (NaN fails both)
+            finite = np.isfinite(ts)
+            clamped = np.clip(
+                np.where(finite, ts, VALIDITY_MARGIN_BELOW_TM + 10.0),
+                VALIDITY_MARGIN_BELOW_TM,
+                VALIDITY_SPAN_ABOVE_TM,
+            )
+            status = np.where(clamped != ts, CODE_OUT_OF_VALIDITY, CODE_OK).astype(np.int8)
+            status[~finite] = CODE_INVALID
+            ts = clamped
+            flagged = True
+        q = self.q[1] * ts
+        q += self.q[0]
+        n = self.n[1] * ts
+        n += self.n[0]
+        if self._q_curved:
+            q += self.q[2] * ts * ts
+        if self._n_curved:
+            n += self.n[2] * ts * ts
+        q, n = np.asarray(q, np.float64), np.asarray(n, np.float64)
+        if not self._all_usable:
+            bad = ~((q > 0.0) & (n > 0.0) & np.isfinite(q) & np.isfinite(n))
+            status[bad] = CODE_INVALID
+            q = np.where(bad, 1.0, q)
+            n = np.where(bad, 1.0, n)
+            flagged = True
+        inv_zsat = q * q
+        inv_zsat /= n
+        return LawsAtTemperature(
+            q=q, n=n, inv_zsat=np.asarray(inv_zsat, np.float64), status=status, flagged=flagged
+        )
+
+
+@dataclass(frozen=True)
+class LawsAtTemperature:
+    """The model coefficients at one set of temperatures.
+
+    Attributes:
+        q: k / L [1/V] (u = q V).
+        n: M / L [m/V^2] (quadratic model z = n V^2).
+        inv_zsat: 1 / z_sat = q^2 / n [1/m].
+        status: per-element status of the temperatures (OK, OUT_OF_VALIDITY or INVALID).
+        flagged: whether any element of ``status`` is not OK.
+
+    """
+
+    q: FloatArray
+    n: FloatArray
+    inv_zsat: FloatArray
+    status: StatusArray
+    flagged: bool = True
+
+    def z_sat(self) -> FloatArray:
+        """Return z_sat = M L / k^2 [m]."""
+        return np.asarray(1.0 / self.inv_zsat, np.float64)
+
+    def d_max(self) -> FloatArray:
+        """Return the largest slope 4 M / (3 sqrt(3) k) [m/V] of the hyperbolic model."""
+        return np.asarray(4.0 / (3.0 * np.sqrt(3.0)) * self.n / self.q, np.float64)
+
+    def v_max(self) -> FloatArray:
+        """Return the voltage u* L / k [V] of the largest slope."""
+        return np.asarray(U_STAR / self.q, np.float64)
+
+    def hyperbolic_forward(self, V: npt.ArrayLike) -> FloatArray:
+        """Return z = z_sat tanh^2(q V) [m]."""
+        t = np.tanh(self.q * np.asarray(V, np.float64))
+        return np.asarray(t * t / self.inv_zsat, np.float64)
+
+    def hyperbolic_slope(self, V: npt.ArrayLike) -> FloatArray:
+        """Return dz/dV = 2 z_sat q tanh(u) sech^2(u) [m/V]."""
+        t = np.tanh(self.q * np.asarray(V, np.float64))
+        return np.asarray(2.0 * self.q / self.inv_zsat * t * (1.0 - t * t), np.float64)
+
+    def quadratic_forward(self, V: npt.ArrayLike) -> FloatArray:
+        """Return z = M V^2 / L [m]."""
+        V = np.asarray(V, np.float64)
+        return np.asarray(self.n * V * V, np.float64)
+
+    def hyperbolic_inverse(self, z: npt.ArrayLike, v_limit: float) -> InverseResult:
+        """Return V = atanh(sqrt(z / z_sat)) / q with its status (rules of hyperbolic_inverse)."""
+        ratio = np.multiply(z, self.inv_zsat, out=np.empty(self.q.shape))
+        lo = ratio.min() if ratio.size else 0.0
+        hi = ratio.max() if ratio.size else 0.0
+        status = self.status.copy()
+        beyond = None
+        flagged = self.flagged
+        if not (lo >= 0.0 and hi < RATIO_CAP):  # NaN fails too
+            ratio, status, beyond = clean_inputs(ratio, status)
+            flagged = True
+        np.sqrt(ratio, out=ratio)
+        np.arctanh(ratio, out=ratio)
+        voltage = np.divide(ratio, self.q, out=ratio)
+        if beyond is not None:
+            voltage[beyond] = v_limit
+        return limit_voltages(voltage, status, v_limit, flagged)
+
+    def quadratic_inverse(self, z: npt.ArrayLike, v_limit: float) -> InverseResult:
+        """Return V = sqrt(z / n) with its status (rules of quadratic_inverse)."""
+        z = np.multiply(z, 1.0, out=np.empty(self.q.shape))
+        status = self.status.copy()
+        lo = z.min() if z.size else 0.0
+        hi = z.max() if z.size else 0.0
+        flagged = self.flagged
+        if not (lo >= 0.0 and hi < np.inf):  # NaN fails too; the quadratic model has no z_sat
+            z, status, _ = clean_inputs(z, status, cap=np.inf)
+            flagged = True
+        voltage = np.divide(z, self.n, out=z)
+        np.sqrt(voltage, out=voltage)
+        return limit_voltages(voltage, status, v_limit, flagged)
+
+
+def clean_inputs(
+    ratio: FloatArray, status: StatusArray, cap: float = RATIO_CAP
+) -> tuple[FloatArray, StatusArray, npt.NDArray[np.bool_]]:
+    """Return (ratio with bad entries replaced by 0 or the cap, updated status, beyond-cap mask)."""
+    invalid = ~np.isfinite(ratio) | (status == CODE_INVALID)
+    negative = (ratio < 0.0) & ~invalid
+    beyond = (ratio >= cap) & ~invalid
+    status[negative] = np.maximum(status[negative], CODE_CLIPPED_LOW)
+    status[beyond] = np.maximum(status[beyond], CODE_CLIPPED_HIGH)
+    status[invalid] = CODE_INVALID
+    cleaned = np.asarray(np.where(invalid | negative | beyond, 0.0, ratio), np.float64)
+    return cleaned, status, beyond
+
+
+def limit_voltages(
+    voltage: FloatArray, status: StatusArray, v_limit: float, flagged: bool = True
+) -> InverseResult:
+    """Clip voltages to [0, v_limit], mark CLIPPED_HIGH, force 0 V for low/invalid elements.
+
+    ``flagged`` False promises that ``status`` is all OK so far (skips a scan).
+    """
+    if voltage.size and not voltage.max() < v_limit:  # NaN or over the limit
+        over = ~(voltage < v_limit)
+        status[over & (status < CODE_CLIPPED_HIGH)] = CODE_CLIPPED_HIGH
+        voltage[over] = v_limit
+    if flagged and status.size and status.max() >= CODE_CLIPPED_LOW:
+        voltage[(status == CODE_CLIPPED_LOW) | (status == CODE_INVALID)] = 0.0
+    return InverseResult(voltage, status)
+
+
+def broadcast_shape(params: ActuatorParams, *values: npt.ArrayLike) -> tuple[int, ...]:
+    """Return the shape that ``values`` and every parameter field broadcast to."""
+    shapes = [np.shape(v) for v in values]
+    shapes += [np.shape(getattr(params, f.name)) for f in fields(params)]
+    return np.broadcast_shapes(*shapes)
+
+
+def laws_at(T: npt.ArrayLike, params: ActuatorParams, shape: tuple[int, ...]) -> LawsAtTemperature:
+    """Return the coefficients at temperatures ``T`` broadcast to ``shape``."""
+    return CompiledLaws(params, shape).at(np.broadcast_to(np.asarray(T, np.float64), shape))
 
 
 def hyperbolic_inverse(
@@ -109,31 +315,15 @@ def hyperbolic_inverse(
     ``CLIPPED_HIGH``; negative ones 0 V and ``CLIPPED_LOW``; non-finite inputs 0 V and
     ``INVALID``; temperatures outside the laws' range are clamped to it (``OUT_OF_VALIDITY``).
     """
-    z_clean, T_eval, status = _classify(np.asarray(z), np.asarray(T), params)
-    k = params.k(T_eval)
-    M = params.M(T_eval)
-    ratio = z_clean * (k * k) / (M * params.L)
-    # tanh^2 of the limit argument: set points above it are not reachable within v_limit.
-    t_lim = np.tanh(k * v_limit / params.L)
-    ratio_lim = t_lim * t_lim
-    high = ratio >= ratio_lim
-    voltage = params.L / k * np.arctanh(np.sqrt(np.minimum(ratio, ratio_lim)))
-    voltage = np.where(high, v_limit, voltage)
-    status[high & (status < Status.CLIPPED_HIGH)] = Status.CLIPPED_HIGH
-    voltage[status >= Status.CLIPPED_LOW] = np.where(
-        status[status >= Status.CLIPPED_LOW] == Status.CLIPPED_HIGH, v_limit, 0.0
-    )
-    return InverseResult(np.asarray(voltage, np.float64), status)
+    z = np.asarray(z, np.float64)
+    shape = broadcast_shape(params, z, T)
+    return laws_at(T, params, shape).hyperbolic_inverse(np.broadcast_to(z, shape), v_limit)
 
 
 def quadratic_inverse(
     z: npt.ArrayLike, T: npt.ArrayLike, params: ActuatorParams, v_limit: float = DEFAULT_V_LIMIT
 ) -> InverseResult:
     """Return V = sqrt(z L / M) with its status (same clipping rules as the hyperbolic inverse)."""
-    z_clean, T_eval, status = _classify(np.asarray(z), np.asarray(T), params)
-    voltage = np.sqrt(z_clean * params.L / params.M(T_eval))
-    high = voltage >= v_limit
-    status[high & (status < Status.CLIPPED_HIGH)] = Status.CLIPPED_HIGH
-    voltage = np.where(status == Status.CLIPPED_HIGH, v_limit, voltage)
-    voltage = np.where((status == Status.CLIPPED_LOW) | (status == Status.INVALID), 0.0, voltage)
-    return InverseResult(np.asarray(voltage, np.float64), status)
+    z = np.asarray(z, np.float64)
+    shape = broadcast_shape(params, z, T)
+    return laws_at(T, params, shape).quadratic_inverse(np.broadcast_to(z, shape), v_limit)

@@ -71,10 +71,7 @@ class ParameterSpec:
             return f"{self.name}={value!r} is not one of {list(self.choices)}"
         numeric = isinstance(value, int | float) and not isinstance(value, bool)
         in_range = (
-            not numeric
-            or self.low is None
-            or self.high is None
-            or self.low <= value <= self.high  # type: ignore[operator]
+            not numeric or self.low is None or self.high is None or self.low <= value <= self.high  # type: ignore[operator]
         )
         if not in_range:
             return f"{self.name}={value!r} is outside [{self.low}, {self.high}]"

@@ -1,0 +1,132 @@
+"""Benchmark of the feedforward kernels: time per call and ratio to one ``np.sqrt`` (the floor).
+
+Usage (from the repository root, after ./scripts/bootstrap)::
+
+    .venv/bin/python bench/bench_kernels.py [--sizes 1,144,1024,4096,16384]
+
+For each grid size N (a near-square R x C grid with per-actuator parameter maps, set points in
+0-150 nm, temperatures in 40-52 degC) it times:
+
+- ``laws+inverse_hyperbolic``: temperature laws and hyperbolic inverse together
+  (``CompiledLaws.at(T).hyperbolic_inverse(z)``), the issue-3 figure;
+- ``inverse_hyperbolic`` ... ``uncompensated``: ``Feedforward.command(z, t)`` of each mode
+  with the temperature already taken (what the node pays per set point);
+- ``update_temperature``: ``Feedforward.update_temperature`` (once per temperature message).
+
+Each figure is the best of several repeats, and the np.sqrt floor is measured next to it in the
+same repeat, so the ratio holds under the machine's load at that moment.
+:func:`bench_kernels` returns the rows for a benchmark suite; ``main`` prints a table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import timeit
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from es_feedforward.feedforward import Feedforward, FeedforwardConfig, Mode
+from es_feedforward.models import DEFAULT_V_LIMIT, CompiledLaws
+from es_feedforward.params import ActuatorParams
+
+DEFAULT_SIZES = (1, 144, 1024, 4096, 16384)
+
+
+@dataclass(frozen=True)
+class KernelTiming:
+    """One benchmark row."""
+
+    kernel: str
+    size: int
+    seconds_per_call: float
+    sqrt_seconds_per_call: float
+
+    @property
+    def ratio_to_sqrt(self) -> float:
+        """Time per call divided by the time of one np.sqrt over the same number of elements."""
+        return self.seconds_per_call / self.sqrt_seconds_per_call
+
+
+def grid_shape(size: int) -> tuple[int, int]:
+    """Return the most square R x C with R * C == size."""
+    rows = int(np.sqrt(size))
+    while size % rows:
+        rows -= 1
+    return rows, size // rows
+
+
+def _best_time(call: Callable[[], object], repeats: int, budget_s: float) -> float:
+    timer = timeit.Timer(call)
+    number, _ = timer.autorange()
+    number = max(1, int(number * budget_s / 0.2))
+    return min(timer.repeat(repeat=repeats, number=number)) / number
+
+
+def _paired(
+    call: Callable[[], object], floor: Callable[[], object], repeats: int
+) -> tuple[float, float]:
+    """Best time of ``call`` and of ``floor``, measured alternately."""
+    best, best_floor = np.inf, np.inf
+    for _ in range(repeats):
+        best = min(best, _best_time(call, 1, 0.05))
+        best_floor = min(best_floor, _best_time(floor, 1, 0.05))
+    return best, best_floor
+
+
+def bench_kernels(sizes: Sequence[int] = DEFAULT_SIZES, repeats: int = 5) -> list[KernelTiming]:
+    """Time every kernel for every grid size; return one :class:`KernelTiming` per pair."""
+    rows_out: list[KernelTiming] = []
+    for size in sizes:
+        shape = grid_shape(size)
+        rng = np.random.default_rng(size)
+        params = ActuatorParams(
+            m1=rng.uniform(-45e-18, -38e-18, shape),
+            m2=rng.uniform(1300e-18, 1700e-18, shape),
+            k1=rng.uniform(-19e-9, -16e-9, shape),
+            k2=rng.uniform(1100e-9, 1250e-9, shape),
+        )
+        z = rng.uniform(0.0, 150e-9, shape)
+        T = rng.uniform(40.0, 52.0, shape)
+        ratio = rng.uniform(0.0, 0.9, shape)
+
+        def floor(ratio: np.ndarray = ratio) -> object:
+            return np.sqrt(ratio)
+
+        compiled = CompiledLaws(params, shape)
+        kernels: dict[str, Callable[[], object]] = {
+            "laws+inverse_hyperbolic": lambda c=compiled, T=T, z=z: c.at(T).hyperbolic_inverse(
+                z, DEFAULT_V_LIMIT
+            ),
+        }
+        for mode in Mode:
+            ff = Feedforward(FeedforwardConfig(shape=shape, params=params, mode=mode))
+            ff.update_temperature(T, 0.0)
+            kernels[mode.value] = lambda ff=ff, z=z: ff.command(z, 0.0)
+        ff = Feedforward(FeedforwardConfig(shape=shape, params=params))
+        kernels["update_temperature"] = lambda ff=ff, T=T: ff.update_temperature(T, 0.0)
+        for name, call in kernels.items():
+            seconds, sqrt_seconds = _paired(call, floor, repeats)
+            rows_out.append(KernelTiming(name, size, seconds, sqrt_seconds))
+    return rows_out
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Print the benchmark table."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--sizes", default=",".join(map(str, DEFAULT_SIZES)))
+    parser.add_argument("--repeats", type=int, default=5)
+    args = parser.parse_args(argv)
+    sizes = [int(s) for s in args.sizes.split(",")]
+    print(f"{'kernel':26s} {'N':>6s} {'us/call':>10s} {'sqrt us':>9s} {'x sqrt':>8s}")
+    for row in bench_kernels(sizes, args.repeats):
+        print(
+            f"{row.kernel:26s} {row.size:6d} {row.seconds_per_call * 1e6:10.2f} "
+            f"{row.sqrt_seconds_per_call * 1e6:9.3f} {row.ratio_to_sqrt:8.1f}"
+        )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,177 @@
+"""Accuracy of the temperature estimators against the simulator's true actuator temperatures.
+
+Usage (from the repository root, after ./scripts/bootstrap)::
+
+    .venv/bin/python bench/bench_thermal.py [--scenario dm_exposure] [--pitch 2]
+        [--noise 0.01] [--error 0.2] [--pattern mixed|high|low|exact] [--duration S]
+
+The issue-5 goal run (the defaults): ``dm_exposure`` with 0.01 degC sensor noise, one sensor
+per 2 x 2 actuators (at the block centres, reading the bilinear mean of the four), no sensor
+offsets, and the ``model`` estimator's thermal parameters 20 % off the simulator's
+(``mixed``: C_f, G_fa, G_ff +20 %; C_a, G_ab, G_aa -20 %, so gains and time constants are both
+wrong; ``high``/``low``: all +-20 %). The ``lowpass`` estimator is the thesis's: 2nd-order
+Butterworth at 0.1 Hz physical, i.e. 0.1 Hz / time_scale in a shortened scenario, so that
+both see the same dynamics. The first 10 % of the run (start-up) is not scored.
+
+:func:`thermal_accuracy` returns the figures (``thermal_rms_model``, ``thermal_rms_lowpass``
+and more) for the benchmark suite; ``main`` prints them as JSON.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from dataclasses import asdict, fields, replace
+
+import numpy as np
+
+from es_sim_plant.plant import Plant, simulate
+from es_sim_plant.scenario import Scenario, load_scenario
+from es_thermal.estimator import EstimatorConfig
+from es_thermal.evaluation import replay, score
+from es_thermal.interpolation import actuator_positions, block_centre_positions
+from es_thermal.kalman import KalmanTuning
+from es_thermal.lowpass import DEFAULT_CUTOFF_HZ
+from es_thermal.network import NetworkParams
+
+#: Parameters scaled up (the others down) by the ``mixed`` error pattern.
+_MIXED_UP = ("face_capacitance", "face_to_actuator", "face_lateral")
+
+
+def misjudged(params: NetworkParams, error: float, pattern: str) -> NetworkParams:
+    """Return ``params`` as an estimator that gets them ``error`` (relative) wrong believes them."""
+    if pattern == "exact":
+        return params
+    if pattern in ("high", "low"):
+        return params.scaled(1.0 + error if pattern == "high" else 1.0 - error)
+    if pattern != "mixed":
+        raise ValueError(f"unknown error pattern {pattern!r}")
+    return replace(
+        params,
+        **{
+            f.name: getattr(params, f.name) * (1.0 + error if f.name in _MIXED_UP else 1.0 - error)
+            for f in fields(params)
+        },
+    )
+
+
+def goal_scenario(
+    name: str,
+    pitch: int,
+    noise: float,
+    *,
+    duration: float | None = None,
+    time_scale: float | None = None,
+    sensor_rate: float | None = None,
+    effects: dict[str, bool] | None = None,
+) -> Scenario:
+    """Return ``name`` with the goal's sensors.
+
+    One sensor per ``pitch`` x ``pitch`` block, ``noise`` rms, the scenario's quantisation,
+    no offsets; the plant steps at the sensor rate.
+    """
+    sc = load_scenario(name, time_scale=time_scale).with_overrides(
+        duration=duration, sensor_rate=sensor_rate, effects=effects
+    )
+    # Only temperatures matter here: step the plant at the sensor rate (its thermal network
+    # is discretised exactly, so this changes nothing but the actuator work).
+    sc = sc.with_overrides(control_rate=sc.sensor_rate)
+    positions = (
+        None
+        if pitch == 1
+        else tuple((float(r), float(c)) for r, c in block_centre_positions(sc.rows, sc.cols, pitch))
+    )
+    sensors = replace(sc.sensors, positions=positions, noise_sd=noise, offset_sd=0.0, offsets=None)
+    return replace(sc, sensors=sensors)
+
+
+def thermal_accuracy(
+    scenario: str = "dm_exposure",
+    *,
+    pitch: int = 2,
+    noise: float = 0.01,
+    error: float = 0.2,
+    pattern: str = "mixed",
+    duration: float | None = None,
+    time_scale: float | None = None,
+    sensor_rate: float | None = None,
+    effects: dict[str, bool] | None = None,
+) -> dict[str, float]:
+    """Simulate ``scenario`` and score both estimators on it; return the figures [degC, s].
+
+    ``duration`` (sim s), ``time_scale`` and ``sensor_rate`` [Hz] override the scenario's
+    (``None`` keeps them), ``effects`` switches simulator effects (e.g. ``sensor_lag``,
+    compensated by the model estimator with the simulator's tau); a shortened scenario
+    needs a sensor rate above twice the scaled low-pass cut-off.
+
+    Keys: ``thermal_rms_model``, ``thermal_rms_lowpass``, ``thermal_max_model``,
+    ``thermal_max_lowpass``, ``thermal_lag_model``, ``thermal_lag_lowpass``,
+    ``thermal_update_ms_model``, ``thermal_update_ms_lowpass`` (mean wall time per update),
+    ``temperature_span`` (range of the true actuator temperatures).
+    """
+    sc = goal_scenario(
+        scenario,
+        pitch,
+        noise,
+        duration=duration,
+        time_scale=time_scale,
+        sensor_rate=sensor_rate,
+        effects=effects,
+    )
+    plant = Plant(sc)
+    result = simulate(plant, commands=np.zeros(plant.steps))
+    steps = result.sensor_step
+    truth = result.actuator_temperature[steps]
+    positions = (
+        actuator_positions(sc.rows, sc.cols)
+        if sc.sensors.positions is None
+        else np.asarray(sc.sensors.positions, float)
+    )
+    lag = sc.effects.sensor_lag
+    base = EstimatorConfig(
+        rows=sc.rows,
+        cols=sc.cols,
+        positions=positions,
+        sample_period=1.0 / sc.sensor_rate,
+        lowpass_cutoff_hz=DEFAULT_CUTOFF_HZ / sc.time_scale,
+        sensor_tau=lag.tau_s if lag.enabled else 0.0,
+        network=misjudged(NetworkParams(**asdict(sc.thermal)), error, pattern),
+        tuning=KalmanTuning(sensor_noise=max(noise, 1e-4)).time_scaled(sc.time_scale),
+    )
+    skip = len(steps) // 10
+    out: dict[str, float] = {"temperature_span": float(np.ptp(truth))}
+    for kind in ("model", "lowpass"):
+        run = replay(replace(base, kind=kind), result.sensor_time, result.temperature_raw,
+                     result.heat_load[steps])
+        stats = score(run.estimates, truth, base.sample_period, skip=skip,
+                      max_lag=60.0 * sc.time_scale)
+        out[f"thermal_rms_{kind}"] = stats.rms
+        out[f"thermal_max_{kind}"] = stats.max
+        out[f"thermal_lag_{kind}"] = stats.lag
+        out[f"thermal_update_ms_{kind}"] = 1e3 * float(np.mean(run.update_seconds[1:]))
+    return out
+
+
+def main() -> None:
+    """Print the figures of one accuracy run as JSON."""
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--scenario", default="dm_exposure")
+    parser.add_argument("--pitch", type=int, default=2)
+    parser.add_argument("--noise", type=float, default=0.01)
+    parser.add_argument("--error", type=float, default=0.2)
+    parser.add_argument("--pattern", default="mixed", choices=("mixed", "high", "low", "exact"))
+    parser.add_argument("--duration", type=float, default=None, help="sim seconds")
+    parser.add_argument("--time-scale", type=float, default=None)
+    parser.add_argument("--sensor-rate", type=float, default=None, help="Hz")
+    parser.add_argument("--sensor-lag", action="store_true", help="simulate sensor lag")
+    args = parser.parse_args()
+    figures = thermal_accuracy(
+        args.scenario, pitch=args.pitch, noise=args.noise, error=args.error,
+        pattern=args.pattern, duration=args.duration, time_scale=args.time_scale,
+        sensor_rate=args.sensor_rate, effects={"sensor_lag": True} if args.sensor_lag else None,
+    )
+    print(json.dumps(figures, indent=2))
+
+
+if __name__ == "__main__":
+    main()

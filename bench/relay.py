@@ -1,0 +1,38 @@
+"""The benchmark's floor for a node over DDS: a plain rclpy relay /dm/setpoint -> /dm/command.
+
+It republishes every received message unchanged (no conversion, no computation), with the
+contract QoS and the same single-threaded executor the es_dm nodes use, so the feedforward
+node's rate and latency can be compared with what rclpy itself costs for the same message
+size on the same machine. Run as its own process (``bench/run.py`` starts it):
+
+    .venv/bin/python bench/relay.py [--ros-args ...]
+"""
+
+from __future__ import annotations
+
+import sys
+
+from rclpy.node import Node
+from std_msgs.msg import Float64MultiArray
+
+from es_msgs_py.node_main import run_node
+from es_msgs_py.topics import COMMAND, SETPOINT, qos_for
+
+
+class Relay(Node):
+    """Subscribe to /dm/setpoint and publish each message as it is on /dm/command."""
+
+    def __init__(self) -> None:
+        super().__init__("relay")
+        self._publisher = self.create_publisher(Float64MultiArray, COMMAND, qos_for(COMMAND))
+        self.create_subscription(Float64MultiArray, SETPOINT, self._publisher.publish,
+                                 qos_for(SETPOINT))
+
+
+def main() -> int:
+    """Run the relay until SIGINT/SIGTERM."""
+    return run_node(Relay, sys.argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

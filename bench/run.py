@@ -1,0 +1,733 @@
+"""Run the es_dm benchmark suite and write ``bench.md`` (tables) and ``bench.json`` (records).
+
+Usage (from the repository root; ``scripts/bench`` bootstraps the venv and calls this)::
+
+    .venv/bin/python bench/run.py [-o OUT] [--quick] [--only SECTION ...] [--no-profile]
+
+Sections (``--only``): ``kernels`` (bench_kernels.py), ``convert`` (bench_convert.py),
+``feedforward`` (the feedforward node over DDS against a plain rclpy relay, relay.py),
+``lockstep`` (plant, thermal and feedforward processes in lockstep on ``dm_exposure``),
+``recorder`` (the recorder's memory while it records a 32 x 32 lockstep run),
+``calibrate`` (bench_calibrate.py), ``thermal`` (bench_thermal.py). Peak memory of every node
+process comes with the sections that start them.
+
+Every figure is the median of repeated runs with their min and max. ``bench.json`` holds
+``{"date", "command", "machine", "settings", "records", "references", "notes", "failures"}``;
+``records`` has one ``{"name", "n", "median", "min", "max", "unit", "ratio"}`` per figure with
+the names of issue 9 (``ratio`` null where there is no floor or relay); ``references`` holds
+the floors and the relay in the same format. A section that fails is reported in
+``failures`` and in bench.md, the others still run; the exit code is then 1.
+
+DDS runs use ROS_DOMAIN_ID from the environment (default 1 + pid % 200) and localhost
+discovery only. Nothing here is asserted: targets are compared in the notes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import io
+import json
+import os
+import platform
+import pstats
+import re
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+import traceback
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import IO, Any
+
+os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+os.environ.setdefault("ROS_DOMAIN_ID", str(1 + os.getpid() % 200))
+os.environ.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
+os.environ.setdefault("PYTHONUNBUFFERED", "1")
+
+import numpy as np
+
+BENCH_DIR = Path(__file__).resolve().parent
+sys.path.insert(0, str(BENCH_DIR))  # the sibling bench_*.py modules
+
+SECTIONS = ("kernels", "convert", "feedforward", "lockstep", "recorder", "calibrate", "thermal")
+#: Grid shapes of the DDS benchmark (N = 144, 1024, 4096).
+DDS_SHAPES = ((12, 12), (32, 32), (64, 64))
+#: Grids of the lockstep benchmark.
+LOCKSTEP_SHAPES = ((12, 12), (32, 32))
+#: Set points in flight during the rate measurement (below the QoS depth of 10: none dropped).
+RATE_WINDOW = 4
+
+
+@dataclass(frozen=True)
+class Settings:
+    """How long and how often each section measures."""
+
+    repeats: int
+    kernel_sizes: tuple[int, ...]
+    dds_rate_seconds: float
+    dds_latency_samples: int
+    lockstep_duration: float
+    calibrate_grids: tuple[int, ...]
+    calibrate_duration: float
+    calibrate_rate: float
+    profile: bool
+
+    @classmethod
+    def create(cls, quick: bool, profile: bool) -> Settings:
+        """Return the full settings (about 10 minutes) or the quick ones (about 3)."""
+        if quick:
+            return cls(1, (1, 144, 1024, 4096, 16384), 1.5, 300, 5.0, (1, 32), 30.0, 500.0,
+                       False)
+        return cls(3, (1, 144, 1024, 4096, 16384), 3.0, 1000, 30.0, (1, 32), 300.0, 500.0,
+                   profile)
+
+
+@dataclass(frozen=True)
+class Record:
+    """One figure of bench.json: median of repeated runs, their min and max."""
+
+    name: str
+    n: int
+    median: float
+    min: float
+    max: float
+    unit: str
+    ratio: float | None = None
+
+    @classmethod
+    def of(cls, name: str, n: int, samples: Sequence[float], unit: str,
+           ratio: float | None = None) -> Record:
+        """Summarise repeated measurements ``samples``."""
+        values = np.asarray(samples, np.float64)
+        return cls(name, n, float(np.median(values)), float(values.min()), float(values.max()),
+                   unit, None if ratio is None else float(ratio))
+
+
+@dataclass
+class Results:
+    """Everything a run produced."""
+
+    records: list[Record] = field(default_factory=list)
+    references: list[Record] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+    failures: list[str] = field(default_factory=list)
+    profile: str = ""
+
+
+# --- machine -------------------------------------------------------------------------------
+
+def machine_info() -> dict[str, Any]:
+    """Return cores, CPU model, memory, OS, Python and the load when the run started."""
+    model = platform.processor() or "unknown"
+    memory_mib = 0.0
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                model = line.split(":", 1)[1].strip()
+                break
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemTotal"):
+                memory_mib = int(line.split()[1]) / 1024
+                break
+    except OSError:
+        pass
+    return {
+        "cores": os.cpu_count(),
+        "cpu_model": model,
+        "memory_mib": round(memory_mib),
+        "os": f"{platform.system()} {platform.release()}",
+        "python": platform.python_version(),
+        "load_average_at_start": [round(v, 2) for v in os.getloadavg()],
+        "rmw": os.environ.get("RMW_IMPLEMENTATION", ""),
+    }
+
+
+# --- processes -----------------------------------------------------------------------------
+
+def peak_rss_mib(pid: int) -> float | None:
+    """Return VmHWM (peak resident set) of a live process [MiB], or ``None`` if it is gone."""
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 1024
+    except OSError:
+        return None
+    return None
+
+
+class Process:
+    """A node process started by the benchmark, logging to a file, stopped by its PID."""
+
+    def __init__(self, name: str, command: Sequence[str], log_dir: Path) -> None:
+        self.name = name
+        log_dir.mkdir(parents=True, exist_ok=True)
+        self.log_path = log_dir / f"{name}.log"
+        self._log: IO[bytes] = self.log_path.open("wb")
+        self.popen = subprocess.Popen(list(command), stdout=self._log, stderr=subprocess.STDOUT,
+                                      start_new_session=True)
+        self.peak_mib = 0.0
+
+    def sample_rss(self) -> None:
+        """Keep the largest VmHWM seen (call it regularly and right before stopping)."""
+        value = peak_rss_mib(self.popen.pid)
+        if value is not None:
+            self.peak_mib = max(self.peak_mib, value)
+
+    def running(self) -> bool:
+        """Whether the process has not exited yet."""
+        return self.popen.poll() is None
+
+    def stop(self, timeout: float = 10.0) -> int:
+        """Sample its memory, send SIGINT, escalate to SIGKILL; return the exit code."""
+        self.sample_rss()
+        if self.popen.poll() is None:
+            os.kill(self.popen.pid, signal.SIGINT)
+            try:
+                self.popen.wait(timeout)
+            except subprocess.TimeoutExpired:
+                os.kill(self.popen.pid, signal.SIGKILL)
+                self.popen.wait(timeout)
+        self._log.close()
+        return self.popen.returncode
+
+    def output(self) -> str:
+        """Everything the process printed."""
+        if not self._log.closed:
+            self._log.flush()
+        return self.log_path.read_text(errors="replace")
+
+
+@contextmanager
+def processes(*started: Process) -> Iterator[tuple[Process, ...]]:
+    """Stop every started process when the block ends, whatever happened."""
+    try:
+        yield started
+    finally:
+        for proc in started:
+            proc.stop()
+
+
+def launcher(package: str, name: str) -> str:
+    """Return the installed ``lib/<package>/<name>`` launcher (what ``ros2 run`` starts)."""
+    from es_sim_plant.bringup import executable
+
+    return str(executable(package, name))
+
+
+# --- sections: in-process kernels ----------------------------------------------------------
+
+def section_kernels(settings: Settings, results: Results) -> None:
+    """Each mode's per-set-point cost and the laws+inverse kernel, against one np.sqrt."""
+    from bench_kernels import bench_kernels
+
+    runs = [bench_kernels(settings.kernel_sizes, repeats=1) for _ in range(settings.repeats)]
+    keys = [(row.kernel, row.size) for row in runs[0]]
+    for index, (kernel, size) in enumerate(keys):
+        rows = [run[index] for run in runs]
+        name = "kernel_" + kernel.replace("laws+", "laws_")
+        ratio = float(np.median([row.ratio_to_sqrt for row in rows]))
+        results.records.append(Record.of(name, size, [r.seconds_per_call for r in rows], "s",
+                                          ratio))
+    for size in settings.kernel_sizes:
+        floor = [row.sqrt_seconds_per_call for run in runs for row in run if row.size == size]
+        results.references.append(Record.of("floor_np_sqrt", size, floor, "s"))
+    results.notes.append(
+        "kernel_<mode>: Feedforward.command of that mode with the temperature laws already "
+        "evaluated (the cost per set point); kernel_laws_inverse_hyperbolic: laws and "
+        "hyperbolic inverse together; kernel_update_temperature: laws at a new temperature. "
+        "ratio = time / one np.sqrt over the same N, measured alternately in the same run."
+    )
+
+
+def section_convert(settings: Settings, results: Results) -> None:
+    """Numpy <-> Float64MultiArray for the kernel sizes, against a plain copy."""
+    from bench_convert import bench_conversion
+
+    runs = [bench_conversion(settings.kernel_sizes, repeats=5, number=500)
+            for _ in range(settings.repeats)]
+    for index, size in enumerate(settings.kernel_sizes):
+        rows = [run[index] for run in runs]
+        memcpy = [row.memcpy_us * 1e-6 for row in rows]
+        floor = float(np.median(memcpy))
+        to_msg = [row.to_msg_us * 1e-6 for row in rows]
+        from_msg = [row.from_msg_us * 1e-6 for row in rows]
+        results.records.append(Record.of("convert_to_msg", size, to_msg, "s",
+                                          float(np.median(to_msg)) / floor))
+        results.records.append(Record.of("convert_from_msg", size, from_msg, "s",
+                                          float(np.median(from_msg)) / floor))
+        results.references.append(Record.of("floor_copyto", size, memcpy, "s"))
+    results.notes.append("convert_*: ratio = time / one np.copyto of the same array.")
+
+
+def section_calibrate(settings: Settings, results: Results) -> None:
+    """Calibration tool wall time on synthetic measured-data bags."""
+    from bench_calibrate import bench_calibrate
+
+    for grid in settings.calibrate_grids:
+        # A 32 x 32 bag of 5 min at 500 Hz is ~2.5 GB: one run of the large grid only.
+        repeats = settings.repeats if grid * grid <= 144 else 1
+        timings = [bench_calibrate(grid, grid, settings.calibrate_duration,
+                                   settings.calibrate_rate) for _ in range(repeats)]
+        results.records.append(Record.of("calibrate_time", grid * grid,
+                                          [t.calibrate_s for t in timings], "s"))
+        results.notes.append(
+            f"calibrate_time n={grid * grid}: {grid} x {grid}, "
+            f"{settings.calibrate_duration:g} s at {settings.calibrate_rate:g} Hz, "
+            f"{repeats} run(s); generating the bag took "
+            f"{np.median([t.generate_s for t in timings]):.1f} s (not included)."
+        )
+
+
+def section_thermal(settings: Settings, results: Results) -> None:
+    """Estimation accuracy of the thermal issue's accuracy run (degC rms)."""
+    import bench_thermal
+
+    for record in bench_thermal.bench_records(repeats=settings.repeats):
+        results.records.append(Record(**record))
+
+
+# --- sections: DDS -------------------------------------------------------------------------
+
+class DdsClient:
+    """In-process rclpy node that feeds set points and times the commands coming back."""
+
+    def __init__(self, shape: tuple[int, int]) -> None:
+        import rclpy
+        from std_msgs.msg import Float64MultiArray
+
+        from es_feedforward.models import z_sat
+        from es_feedforward.params import ActuatorParams
+        from es_msgs_py.arrays import grid_to_msg
+        from es_msgs_py.topics import COMMAND, SETPOINT, TEMPERATURE, qos_for
+
+        self.shape = shape
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context)
+        self.node = rclpy.create_node("bench_client", context=self.context)
+        self.executor = rclpy.executors.SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.setpoint_pub = self.node.create_publisher(Float64MultiArray, SETPOINT,
+                                                       qos_for(SETPOINT))
+        self.temperature_pub = self.node.create_publisher(Float64MultiArray, TEMPERATURE,
+                                                          qos_for(TEMPERATURE))
+        self.received = 0
+        self.received_at: list[float] = []
+        self.last_command: Float64MultiArray | None = None
+        self.command_sub = self.node.create_subscription(Float64MultiArray, COMMAND,
+                                                         self._on_command, qos_for(COMMAND))
+        # Set points from 10 % to 60 % of z_sat at 46 degC, changing from message to message.
+        reach = float(z_sat(46.0, ActuatorParams()))
+        phases = np.random.default_rng(0).uniform(0, 2 * np.pi, shape)
+        self.messages = [
+            grid_to_msg(reach * (0.35 + 0.25 * np.sin(phases + k * 0.4))) for k in range(16)
+        ]
+        self.temperature = grid_to_msg(np.full(shape, 46.0))
+
+    def _on_command(self, msg: Any) -> None:
+        self.received += 1
+        self.received_at.append(time.perf_counter())
+        self.last_command = msg
+
+    def wait_for_peer(self, timeout: float = 30.0) -> None:
+        """Wait until the node under test subscribes to set points and publishes commands."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if (self.setpoint_pub.get_subscription_count() > 0
+                    and self.command_sub.get_publisher_count() > 0):
+                self.executor.spin_once(timeout_sec=0.3)  # let discovery settle
+                return
+            self.executor.spin_once(timeout_sec=0.05)
+        raise RuntimeError("node under test did not show up on the ROS graph within "
+                           f"{timeout:g} s")
+
+    def _wait_received(self, count: int, timeout: float) -> None:
+        deadline = time.monotonic() + timeout
+        while self.received < count:
+            if time.monotonic() > deadline:
+                raise RuntimeError(f"only {self.received} of {count} commands came back within "
+                                   f"{timeout:g} s")
+            self.executor.spin_once(timeout_sec=0.01)
+
+    def latencies(self, samples: int) -> np.ndarray:
+        """Ping-pong: send one set point, wait for its command; return latencies [s]."""
+        out = np.empty(samples)
+        for i in range(samples):
+            target = self.received + 1
+            start = time.perf_counter()
+            self.setpoint_pub.publish(self.messages[i % len(self.messages)])
+            self._wait_received(target, 5.0)
+            out[i] = self.received_at[-1] - start
+        return out
+
+    def rate(self, seconds: float) -> float:
+        """Keep RATE_WINDOW set points in flight for ``seconds``; return commands per second."""
+        sent = 0
+        first = self.received
+        start = time.perf_counter()
+        last_progress = time.monotonic()
+        seen = self.received
+        while time.perf_counter() - start < seconds:
+            while sent - (self.received - first) < RATE_WINDOW:
+                self.setpoint_pub.publish(self.messages[sent % len(self.messages)])
+                sent += 1
+            self.executor.spin_once(timeout_sec=0.05)
+            if self.received != seen:
+                seen, last_progress = self.received, time.monotonic()
+            elif time.monotonic() - last_progress > 5.0:
+                raise RuntimeError("commands stopped coming back during the rate run")
+        elapsed = time.perf_counter() - start
+        done = self.received - first
+        self._wait_received(first + sent, 10.0)  # drain: nothing may be lost
+        return done / elapsed
+
+    def close(self) -> None:
+        """Destroy the node and shut its context down."""
+        self.node.destroy_node()
+        import rclpy
+
+        rclpy.shutdown(context=self.context)
+
+
+@dataclass
+class DdsRun:
+    """Figures of one node (feedforward or relay) at one grid size, one per repeat."""
+
+    rate_hz: list[float] = field(default_factory=list)
+    p50_s: list[float] = field(default_factory=list)
+    p99_s: list[float] = field(default_factory=list)
+    peak_mib: float = 0.0
+
+
+def _measure_node(kind: str, shape: tuple[int, int], settings: Settings, log_dir: Path,
+                  profile_to: Path | None = None) -> DdsRun:
+    rows, cols = shape
+    if kind == "relay":
+        command = [sys.executable, str(BENCH_DIR / "relay.py"), "--ros-args", "-r",
+                   "__node:=relay"]
+    else:
+        args = ["--ros-args", "-p", f"rows:={rows}", "-p", f"cols:={cols}",
+                "-p", "temperature_timeout:=0.0"]
+        command = (
+            [sys.executable, "-m", "cProfile", "-o", str(profile_to), "-m",
+             "es_feedforward.feedforward_node", *args]
+            if profile_to is not None
+            else [launcher("es_feedforward", "feedforward_node"), *args]
+        )
+    run = DdsRun()
+    client = DdsClient(shape)
+    node = Process(f"{kind}_{rows}x{cols}" + ("_profiled" if profile_to else ""), command,
+                   log_dir)
+    try:
+        with processes(node):
+            client.wait_for_peer()
+            if kind == "feedforward":
+                client.temperature_pub.publish(client.temperature)
+                client.executor.spin_once(timeout_sec=0.2)
+            client.latencies(200)  # warm-up
+            if kind == "feedforward":
+                from es_msgs_py.arrays import msg_to_grid
+
+                assert client.last_command is not None
+                if not np.any(msg_to_grid(client.last_command) > 0.0):
+                    raise RuntimeError("feedforward holds (all 0 V): temperature not taken")
+            for _ in range(settings.repeats):
+                lat = client.latencies(settings.dds_latency_samples)
+                run.p50_s.append(float(np.percentile(lat, 50)))
+                run.p99_s.append(float(np.percentile(lat, 99)))
+                run.rate_hz.append(client.rate(settings.dds_rate_seconds))
+                node.sample_rss()
+            run.peak_mib = node.peak_mib
+    finally:
+        client.close()
+    return run
+
+
+def section_feedforward(settings: Settings, results: Results, log_dir: Path) -> None:
+    """Feedforward node vs a plain relay over DDS: rate, p50/p99 latency, peak memory."""
+    for shape in DDS_SHAPES:
+        n = shape[0] * shape[1]
+        relay = _measure_node("relay", shape, settings, log_dir)
+        ff = _measure_node("feedforward", shape, settings, log_dir)
+        relay_rate = float(np.median(relay.rate_hz))
+        results.records.append(Record.of("feedforward_rate", n, ff.rate_hz, "Hz",
+                                          float(np.median(ff.rate_hz)) / relay_rate))
+        for label, ff_values, relay_values in (("p50", ff.p50_s, relay.p50_s),
+                                               ("p99", ff.p99_s, relay.p99_s)):
+            ms = [v * 1e3 for v in ff_values]
+            results.records.append(Record.of(
+                f"feedforward_latency_{label}", n, ms, "ms",
+                float(np.median(ff_values)) / float(np.median(relay_values))))
+            results.references.append(Record.of(f"relay_latency_{label}", n,
+                                                [v * 1e3 for v in relay_values], "ms"))
+        results.references.append(Record.of("relay_rate", n, relay.rate_hz, "Hz"))
+        results.records.append(Record.of("peak_rss_feedforward", n, [ff.peak_mib], "MiB"))
+        results.references.append(Record.of("peak_rss_relay", n, [relay.peak_mib], "MiB"))
+    results.notes.append(
+        "feedforward_rate: commands per second with "
+        f"{RATE_WINDOW} set points in flight (ratio = feedforward / relay, same message size, "
+        "same run); latency: set point published -> command received in the client, one at "
+        "a time (ratio = feedforward / relay). The client is one rclpy node in the benchmark "
+        "process; its own cost is in both figures alike."
+    )
+    if settings.profile:
+        _profile_feedforward(results, log_dir)
+
+
+def _profile_feedforward(results: Results, log_dir: Path) -> None:
+    """CProfile of the feedforward node process while it serves set points at 64 x 64."""
+    profile = log_dir / "feedforward_64x64.prof"
+    quick = Settings.create(quick=True, profile=False)
+    _measure_node("feedforward", DDS_SHAPES[-1], quick, log_dir, profile_to=profile)
+    if not profile.exists():
+        results.notes.append("profile: the profiled feedforward node wrote no profile")
+        return
+    text = io.StringIO()
+    stats = pstats.Stats(str(profile), stream=text)
+    stats.sort_stats("tottime").print_stats(18)
+    results.profile = text.getvalue()
+
+
+def _plant_speedup(output: str) -> tuple[float, str]:
+    match = re.search(r"finished: (\d+) steps, ([\d.e+-]+) s sim in ([\d.]+) s wall "
+                      r"\(([\d.]+)x real time.*?\); (.*)", output)
+    if match is None:
+        raise RuntimeError("plant_node printed no 'finished' summary:\n" + output[-1500:])
+    return float(match.group(4)), match.group(5).strip()
+
+
+def wait_for_controllers(started: Sequence[Process], timeout: float) -> float:
+    """Wait until the thermal and feedforward nodes are on the graph; return the wait [s].
+
+    The plant is started only then, so that a slow node start-up (the thermal model of a
+    large grid) is not counted in the lockstep figure and is not stepped past.
+    """
+    import rclpy
+    from es_msgs_py import topics
+
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    node = rclpy.create_node("bench_graph_probe", context=context)
+    start = time.monotonic()
+    try:
+        while time.monotonic() - start < timeout:
+            for proc in started:
+                if not proc.running():
+                    raise RuntimeError(f"{proc.name} exited: {proc.output()[-800:]}")
+            if (node.count_subscribers(topics.TEMPERATURE_RAW) > 0
+                    and node.count_subscribers(topics.SETPOINT) > 0
+                    and node.count_publishers(topics.TEMPERATURE) > 0
+                    and node.count_publishers(topics.COMMAND) > 0):
+                return time.monotonic() - start
+            time.sleep(0.1)
+        raise RuntimeError(f"thermal/feedforward nodes not on the graph after {timeout:g} s")
+    finally:
+        node.destroy_node()
+        rclpy.shutdown(context=context)
+
+
+def _run_until_exit(primary: Process, watched: Sequence[Process], timeout: float) -> None:
+    """Sample the memory of ``watched`` until ``primary`` exits; raise after ``timeout``."""
+    deadline = time.monotonic() + timeout
+    while primary.running() and time.monotonic() < deadline:
+        for proc in watched:
+            proc.sample_rss()
+        time.sleep(0.1)
+    if primary.running():
+        raise RuntimeError(f"{primary.name} did not finish within {timeout:g} s")
+    for proc in watched:
+        proc.sample_rss()
+
+
+def section_lockstep(settings: Settings, results: Results, log_dir: Path) -> None:
+    """Plant, thermal and feedforward processes in lockstep: sim/wall factor, peak memory."""
+    from es_sim_plant.bringup import GraphConfig, node_specs
+
+    for rows, cols in LOCKSTEP_SHAPES:
+        n = rows * cols
+        speedups: list[float] = []
+        peaks: dict[str, list[float]] = {}
+        for repeat in range(settings.repeats):
+            config = GraphConfig(
+                scenario="dm_exposure",
+                plant={"rows": rows, "cols": cols, "duration": settings.lockstep_duration},
+            )
+            before, plant_spec = node_specs(config)
+            tag = f"{rows}x{cols}_{repeat}"
+            started = [Process(f"{s.name}_{tag}", s.command, log_dir) for s in before]
+            with processes(*started):
+                ready_s = wait_for_controllers(started, 300.0)
+                plant = Process(f"{plant_spec.name}_{tag}", plant_spec.command, log_dir)
+                with processes(plant):
+                    _run_until_exit(plant, [*started, plant],
+                                    120.0 + 20.0 * settings.lockstep_duration)
+            speedup, counts = _plant_speedup(plant.output())
+            speedups.append(speedup)
+            for spec, proc in zip([*before, plant_spec], [*started, plant], strict=True):
+                peaks.setdefault(spec.name, []).append(proc.peak_mib)
+            results.notes.append(f"lockstep {rows} x {cols} run {repeat + 1}: {speedup:.2f}x "
+                                 f"real time; plant counts: {counts}; thermal and feedforward "
+                                 f"ready {ready_s:.1f} s after their start")
+        results.records.append(Record.of("lockstep_speedup", n, speedups, "sim/wall"))
+        for name, values in peaks.items():
+            if name != "feedforward":  # the DDS section reports the feedforward's memory
+                results.records.append(Record.of(f"peak_rss_{name}", n, values, "MiB"))
+    results.notes.append(
+        f"lockstep_speedup: dm_exposure at 100 Hz control / 10 Hz sensors, "
+        f"{settings.lockstep_duration:g} s sim, plant + thermal (model estimator) + "
+        "feedforward (inverse_hyperbolic) as separate processes, the plant's own sim/wall "
+        "figure (from its first step to its last)."
+    )
+
+
+def section_recorder(results: Results, log_dir: Path) -> None:
+    """Peak memory of the recorder while it records a 32 x 32 lockstep run (all /dm topics)."""
+    from es_sim_plant.bringup import GraphConfig, node_specs
+
+    with tempfile.TemporaryDirectory(prefix="bench_record_") as tmp:
+        config = GraphConfig(scenario="dm_exposure", bag=Path(tmp) / "bag",
+                             plant={"rows": 32, "cols": 32, "duration": 10.0})
+        before, plant_spec = node_specs(config)
+        started = [Process(f"{s.name}_recorded", s.command, log_dir) for s in before]
+        with processes(*started):
+            wait_for_controllers(started, 300.0)
+            plant = Process("plant_recorded", plant_spec.command, log_dir)
+            with processes(plant):
+                _run_until_exit(plant, started, 300.0)
+        recorder = started[0]
+        results.records.append(Record.of("peak_rss_record", 1024, [recorder.peak_mib], "MiB"))
+        speedup, _ = _plant_speedup(plant.output())
+        results.notes.append(f"peak_rss_record: recorder on every /dm topic and /diagnostics "
+                             f"of a 32 x 32 lockstep run of 10 s sim ({speedup:.2f}x real time "
+                             "with the recorder).")
+
+
+# --- report --------------------------------------------------------------------------------
+
+TARGETS = (
+    ("kernel_inverse_hyperbolic", 4096, "ratio", "<=", 10.0, "kernels <= 10x np.sqrt at 4096"),
+    ("feedforward_rate", 4096, "median", ">=", 1000.0, "feedforward >= 1 kHz at 4096"),
+    ("feedforward_latency_p99", 4096, "median", "<=", 2.0, "p99 <= 2 ms at 4096"),
+    ("feedforward_rate", 4096, "ratio", ">=", 0.9, "feedforward >= 0.9x the relay at 4096"),
+    ("lockstep_speedup", 144, "median", ">=", 5.0, "lockstep >= 5x real time at 12 x 12"),
+    ("calibrate_time", 1024, "median", "<=", 60.0, "calibration 32 x 32 x 5 min <= 60 s"),
+)
+
+
+def check_targets(results: Results) -> list[str]:
+    """Return one line per issue-9 target: met or missed, with the measured figure."""
+    lines = []
+    by_key = {(r.name, r.n): r for r in results.records}
+    for name, n, attr, op, bound, label in TARGETS:
+        if name.startswith("kernel_"):
+            kernels = [r for r in results.records if r.name.startswith("kernel_") and r.n == n]
+            if not kernels:
+                lines.append(f"not measured: {label}")
+            for record in kernels:
+                ok = (record.ratio or 0.0) <= bound
+                lines.append(f"{'met' if ok else 'MISSED'}: {label}: {record.name} "
+                             f"{record.ratio or 0.0:.1f}x")
+            continue
+        record = by_key.get((name, n))
+        if record is None:
+            lines.append(f"not measured: {label}")
+            continue
+        value = getattr(record, attr)
+        ok = value <= bound if op == "<=" else value >= bound
+        lines.append(f"{'met' if ok else 'MISSED'}: {label} (measured {value:.3g})")
+    return lines
+
+
+def _fmt(value: float | None) -> str:
+    if value is None:
+        return "-"
+    return f"{value:.3g}"
+
+
+def _table(records: Sequence[Record]) -> list[str]:
+    lines = ["| name | n | median | min | max | unit | ratio |",
+             "|---|---:|---:|---:|---:|---|---:|"]
+    lines += [f"| {r.name} | {r.n} | {_fmt(r.median)} | {_fmt(r.min)} | {_fmt(r.max)} | "
+              f"{r.unit} | {_fmt(r.ratio)} |" for r in records]
+    return lines
+
+
+def write_report(out: Path, results: Results, machine: dict[str, Any], settings: Settings,
+                 *, date: str, command: str) -> None:
+    """Write bench.json and bench.md into ``out``."""
+    out.mkdir(parents=True, exist_ok=True)
+    document = {
+        "date": date, "command": command, "machine": machine, "settings": asdict(settings),
+        "records": [asdict(r) for r in results.records],
+        "references": [asdict(r) for r in results.references],
+        "notes": results.notes, "failures": results.failures,
+    }
+    (out / "bench.json").write_text(json.dumps(document, indent=1) + "\n")
+    cores, model = machine["cores"], machine["cpu_model"]
+    md = [
+        "# es_dm benchmarks", "",
+        f"{date}, {cores} cores, {model}, {machine['memory_mib']} MiB, {machine['os']}, "
+        f"Python {machine['python']}, {machine['rmw']}; load average at start "
+        f"{machine['load_average_at_start']}. Command: `{command}`. Median of "
+        f"{settings.repeats} run(s) with min and max.", "",
+        *_table(results.records), "",
+        "## Targets (issue 9)", "", *[f"- {line}" for line in check_targets(results)], "",
+        "## Floors and relay (same run)", "", *_table(results.references), "",
+        "## Notes", "", *[f"- {note}" for note in results.notes], "",
+    ]
+    if results.failures:
+        md += ["## Failed sections", "", *[f"- {f}" for f in results.failures], ""]
+    if results.profile:
+        md += ["## Profile: feedforward node at 64 x 64 (cProfile, by own time)", "", "```",
+               results.profile.strip(), "```", ""]
+    (out / "bench.md").write_text("\n".join(md))
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the selected sections and write the report; return 1 if a section failed."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    stamp = dt.datetime.now(dt.UTC).strftime("%Y%m%d-%H%M%S")
+    parser.add_argument("-o", "--output", type=Path, default=Path(f"out/bench-{stamp}"))
+    parser.add_argument("--quick", action="store_true",
+                        help="one run of each figure, shorter runs (about 3 minutes)")
+    parser.add_argument("--only", nargs="+", choices=SECTIONS, default=list(SECTIONS))
+    parser.add_argument("--no-profile", action="store_true",
+                        help="skip the cProfile run of the feedforward node")
+    args = parser.parse_args(argv)
+    settings = Settings.create(args.quick, profile=not args.no_profile)
+    machine = machine_info()
+    date = dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
+    command = " ".join(["bench/run.py", *(argv if argv is not None else sys.argv[1:])])
+    log_dir = args.output / "logs"
+    results = Results()
+    sections: dict[str, Callable[[], None]] = {
+        "kernels": lambda: section_kernels(settings, results),
+        "convert": lambda: section_convert(settings, results),
+        "feedforward": lambda: section_feedforward(settings, results, log_dir),
+        "lockstep": lambda: section_lockstep(settings, results, log_dir),
+        "recorder": lambda: section_recorder(results, log_dir),
+        "calibrate": lambda: section_calibrate(settings, results),
+        "thermal": lambda: section_thermal(settings, results),
+    }
+    for name in args.only:
+        start = time.monotonic()
+        print(f"[bench] {name} ...", file=sys.stderr, flush=True)
+        try:
+            sections[name]()
+        except Exception as err:
+            results.failures.append(f"{name}: {type(err).__name__}: {err}".splitlines()[0])
+            traceback.print_exc()
+        print(f"[bench] {name} done in {time.monotonic() - start:.0f} s", file=sys.stderr,
+              flush=True)
+        write_report(args.output, results, machine, settings, date=date, command=command)
+    print(f"[bench] wrote {args.output / 'bench.md'} and {args.output / 'bench.json'}",
+          file=sys.stderr)
+    return 1 if results.failures else 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,294 @@
+"""Align measured topics on the bag's time base and split them into training and held-out data.
+
+The displacement stamps are the sample grid (the measured output). The command is a
+zero-order hold: each displacement sample sees the last command stamped before it (when stamps
+coincide, as in a lock-step simulation, whether "before" includes the same stamp is decided
+from the data, see search.py). The temperature, usually slower, is linearly interpolated onto
+the displacement stamps; its derivative is a Savitzky-Golay slope over ``RATE_WINDOW_S`` on a
+uniform resampling of the temperature. Nothing is extrapolated: samples before the first
+command are dropped. NaN values are dropped per actuator and counted, never propagated.
+
+Training and held-out data are interleaved time blocks (even blocks train, odd blocks are
+held out), so that the held-out score tests interpolation across the run, not extrapolation.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Final
+
+import numpy as np
+import numpy.typing as npt
+from scipy.signal import savgol_filter
+
+from es_feedforward.calibration.model import BoolArray, FloatArray
+
+IndexArray = npt.NDArray[np.intp]
+
+#: Fewest usable displacement samples (after dropping NaN) for a calibration.
+MIN_SAMPLES: Final = 200
+#: Shortest usable record [s].
+MIN_DURATION_S: Final = 2.0
+#: Window of the temperature-rate estimate [s] (the thermal disturbance is slower than 0.1 Hz).
+RATE_WINDOW_S: Final = 2.0
+#: Number of interleaved blocks for long records, and the shortest block [s].
+MAX_BLOCKS: Final = 16
+MIN_BLOCK_S: Final = 1.0
+
+
+class CalibrationInputError(ValueError):
+    """Measured data that cannot be calibrated; the message is one readable line."""
+
+
+@dataclass(frozen=True)
+class MeasuredData:
+    """Topic series of one measured run (times in s on the bag's time base).
+
+    Attributes:
+        command_times, command: (Nc,), (Nc, R, C) [V].
+        displacement_times, displacement: (Nd,), (Nd, R, C) [m].
+        temperature_times, temperature: (Nt,), (Nt, R, C) [degC], on the actuator grid.
+        temperature_source: topic the temperature came from.
+
+    """
+
+    command_times: FloatArray
+    command: FloatArray
+    displacement_times: FloatArray
+    displacement: FloatArray
+    temperature_times: FloatArray
+    temperature: FloatArray
+    temperature_source: str = "/dm/temperature"
+
+
+@dataclass
+class AlignedData:
+    """Topics on the displacement time base (time-major, actuators flattened row-major).
+
+    Attributes:
+        grid: (rows, cols).
+        start_time: bag time of the first kept displacement sample [s].
+        t: sample times since ``start_time`` (N,) [s].
+        displacement: (N, A) [m]; ``valid`` (N, A) marks usable samples.
+        command_times: (Nc,) since ``start_time``; ``command`` (Nc, A), NaN held from the last
+            finite value (for the play operator); ``command_finite`` (Nc, A).
+        temperature_times: uniform (Nt,) since ``start_time``; ``temperature`` and
+            ``temperature_rate`` (Nt, A) [degC, degC/s].
+        train: (N,) True for training samples; ``block_edges`` the block boundaries [s].
+        dropped: counts of dropped values by reason.
+        include_same_stamp: whether a command stamped exactly at a sample is already in effect.
+
+    """
+
+    grid: tuple[int, int]
+    start_time: float
+    t: FloatArray
+    displacement: FloatArray
+    valid: BoolArray
+    command_times: FloatArray
+    command: FloatArray
+    command_finite: BoolArray
+    temperature_times: FloatArray
+    temperature: FloatArray
+    temperature_rate: FloatArray
+    train: BoolArray
+    block_edges: FloatArray
+    temperature_source: str
+    dropped: dict[str, int] = field(default_factory=dict)
+    include_same_stamp: bool = True
+
+    @property
+    def n_actuators(self) -> int:
+        """Return R*C."""
+        return self.grid[0] * self.grid[1]
+
+    @property
+    def sample_rate(self) -> float:
+        """Return the median displacement sample rate [Hz]."""
+        return float(1.0 / np.median(np.diff(self.t)))
+
+    @property
+    def command_period(self) -> float:
+        """Return the median command period [s]."""
+        return float(np.median(np.diff(self.command_times)))
+
+    @property
+    def mean_temperature(self) -> float:
+        """Return the mean temperature over the record and actuators [degC]."""
+        return float(np.mean(self.temperature))
+
+    @property
+    def stamp_tolerance(self) -> float:
+        """Return the distance [s] below which two stamps count as the same instant."""
+        return 1e-3 * self.command_period
+
+    @property
+    def has_same_stamps(self) -> bool:
+        """Return whether some command stamps coincide with displacement stamps."""
+        pos = np.clip(np.searchsorted(self.command_times, self.t), 1, self.command_times.size - 1)
+        nearest = np.minimum(np.abs(self.t - self.command_times[pos - 1]),
+                             np.abs(self.t - self.command_times[pos]))
+        return bool(np.any(nearest < self.stamp_tolerance))
+
+    def command_index(self, rows: IndexArray, delay_s: float = 0.0) -> IndexArray:
+        """Return the index of the command in effect at samples ``rows``, ``delay_s`` earlier.
+
+        -1 where no command was in effect yet. Stamps closer than ``stamp_tolerance`` count as
+        equal (float round-off of recorded stamps must not decide which command applies).
+        """
+        tol = self.stamp_tolerance
+        when = self.t[rows] - delay_s + (tol if self.include_same_stamp else -tol)
+        return np.searchsorted(self.command_times, when, side="right") - 1
+
+    def interpolation(self, rows: IndexArray) -> tuple[IndexArray, FloatArray]:
+        """Return (lower index, weight of the upper) of the temperature at samples ``rows``."""
+        times = self.temperature_times
+        pos = np.clip(np.searchsorted(times, self.t[rows], side="right") - 1, 0, len(times) - 2)
+        w = np.clip((self.t[rows] - times[pos]) / (times[pos + 1] - times[pos]), 0.0, 1.0)
+        return pos, w
+
+    def temperature_at(self, rows: IndexArray, actuators: IndexArray) -> FloatArray:
+        """Return the temperature (A, n) at samples ``rows`` for ``actuators``."""
+        return self._interpolate(self.temperature, rows, actuators)
+
+    def temperature_rate_at(self, rows: IndexArray, actuators: IndexArray) -> FloatArray:
+        """Return dT/dt (A, n) at samples ``rows`` for ``actuators``."""
+        return self._interpolate(self.temperature_rate, rows, actuators)
+
+    def _interpolate(self, series: FloatArray, rows: IndexArray, actuators: IndexArray) -> FloatArray:
+        pos, w = self.interpolation(rows)
+        sub = series[:, actuators]
+        return np.asarray((sub[pos] * (1.0 - w[:, None]) + sub[pos + 1] * w[:, None]).T)
+
+
+def _fill_nan_columns(times: FloatArray, values: FloatArray) -> FloatArray:
+    """Interpolate each column over its NaN entries (columns without NaN are untouched)."""
+    out = values.copy()
+    bad = ~np.isfinite(out)
+    for col in np.flatnonzero(bad.any(axis=0)):  # only columns that had NaN: the rare path
+        good = ~bad[:, col]
+        if good.sum() < 2:
+            raise CalibrationInputError(
+                f"temperature of actuator {col} has fewer than 2 finite samples"
+            )
+        out[:, col] = np.interp(times, times[good], out[good, col])
+    return out
+
+
+def _check_series(name: str, times: FloatArray, values: FloatArray, grid: tuple[int, ...]) -> None:
+    if values.ndim != 3 or values.shape[0] != times.shape[0]:
+        raise CalibrationInputError(f"{name}: expected (N, rows, cols) samples, got {values.shape}")
+    if values.shape[1:] != grid:
+        raise CalibrationInputError(
+            f"mismatched grid sizes: {name} is {values.shape[1]} x {values.shape[2]}, "
+            f"displacement is {grid[0]} x {grid[1]}"
+        )
+    if times.size < 2:
+        raise CalibrationInputError(f"{name}: too short to fit ({times.size} messages)")
+    if np.any(np.diff(times) < 0):
+        raise CalibrationInputError(f"{name}: time stamps go backwards")
+
+
+def align(data: MeasuredData, n_blocks: int | None = None) -> AlignedData:
+    """Align ``data`` on the displacement stamps and split it; raise CalibrationInputError."""
+    grid = tuple(int(s) for s in data.displacement.shape[1:])
+    if len(grid) != 2:
+        raise CalibrationInputError(f"displacement: expected a grid, got shape {grid}")
+    rows_cols = (grid[0], grid[1])
+    _check_series("displacement", data.displacement_times, data.displacement, rows_cols)
+    _check_series("command", data.command_times, data.command, rows_cols)
+    _check_series("temperature", data.temperature_times, data.temperature, rows_cols)
+    A = rows_cols[0] * rows_cols[1]
+    dropped: dict[str, int] = {}
+
+    # samples before the first command have no known input: drop them
+    keep = data.displacement_times > data.command_times[0]
+    dropped["displacement before first command"] = int((~keep).sum())
+    t_abs = data.displacement_times[keep]
+    if t_abs.size < MIN_SAMPLES:
+        raise CalibrationInputError(
+            f"too short to fit: {t_abs.size} displacement samples after the first command "
+            f"(need {MIN_SAMPLES})"
+        )
+    start = float(t_abs[0])
+    z = data.displacement[keep].reshape(-1, A)
+    z_finite = np.isfinite(z)
+    dropped["displacement NaN"] = int((~z_finite).sum())
+
+    cmd = data.command.reshape(-1, A)
+    cmd_finite = np.isfinite(cmd)
+    dropped["command NaN"] = int((~cmd_finite).sum())
+    if (~cmd_finite).any():
+        # hold the last finite value so the play operator's state survives a bad message
+        idx = np.where(cmd_finite, np.arange(cmd.shape[0])[:, None], 0)
+        np.maximum.accumulate(idx, axis=0, out=idx)
+        cmd = np.where(cmd_finite.any(axis=0), cmd[idx, np.arange(A)], 0.0)
+        cmd = np.where(np.isfinite(cmd), cmd, 0.0)
+
+    temp = data.temperature.reshape(-1, A)
+    temp_times = data.temperature_times - start
+    dropped["temperature NaN"] = int((~np.isfinite(temp)).sum())
+    temp = _fill_nan_columns(temp_times, temp)
+    # uniform resampling of the temperature for its derivative
+    t_period = float(np.median(np.diff(temp_times)))
+    if t_period <= 0:
+        raise CalibrationInputError("temperature: repeated time stamps only")
+    n_uniform = int(np.floor((temp_times[-1] - temp_times[0]) / t_period)) + 1
+    uniform = temp_times[0] + t_period * np.arange(max(n_uniform, 2))
+    pos = np.clip(np.searchsorted(temp_times, uniform, side="right") - 1, 0, len(temp_times) - 2)
+    w = np.clip((uniform - temp_times[pos]) / np.maximum(np.diff(temp_times)[pos], 1e-12), 0, 1)
+    temp_u = temp[pos] * (1.0 - w[:, None]) + temp[pos + 1] * w[:, None]
+    window = max(int(round(RATE_WINDOW_S / t_period)) | 1, 5)
+    if window <= temp_u.shape[0]:
+        rate = savgol_filter(temp_u, window, 2, deriv=1, delta=t_period, axis=0)
+    else:
+        rate = np.gradient(temp_u, t_period, axis=0)
+
+    t = t_abs - start
+    duration = float(t[-1])
+    if duration < MIN_DURATION_S:
+        raise CalibrationInputError(
+            f"too short to fit: {duration:.2f} s of data (need {MIN_DURATION_S} s)"
+        )
+    if n_blocks is None:
+        n_blocks = int(np.clip(duration / MIN_BLOCK_S, 4, MAX_BLOCKS)) // 2 * 2
+    edges = np.linspace(0.0, duration, n_blocks + 1)
+    block = np.clip(np.searchsorted(edges, t, side="right") - 1, 0, n_blocks - 1)
+    train = block % 2 == 0
+
+    valid = z_finite.copy()
+    aligned = AlignedData(
+        grid=rows_cols,
+        start_time=start,
+        t=t,
+        displacement=z,
+        valid=valid,
+        command_times=data.command_times - start,
+        command=np.asarray(cmd, np.float64),
+        command_finite=cmd_finite,
+        temperature_times=uniform,
+        temperature=temp_u,
+        temperature_rate=np.asarray(rate, np.float64),
+        train=train,
+        block_edges=edges,
+        temperature_source=data.temperature_source,
+        dropped=dropped,
+    )
+    all_rows = np.arange(t.size)
+    ci = aligned.command_index(all_rows)
+    valid &= aligned.command_finite[np.maximum(ci, 0)] & (ci >= 0)[:, None]
+    dropped["samples with a NaN command in effect"] = int((z_finite & ~valid).sum())
+    if valid.sum(axis=0).min() < MIN_SAMPLES:
+        worst = int(np.argmin(valid.sum(axis=0)))
+        raise CalibrationInputError(
+            f"too short to fit: actuator {worst} has {int(valid[:, worst].sum())} usable "
+            f"samples (need {MIN_SAMPLES})"
+        )
+    return aligned
+
+
+def select_rows(mask: BoolArray, max_rows: int) -> IndexArray:
+    """Return the indices where ``mask`` holds, thinned by a uniform stride to <= max_rows."""
+    rows = np.flatnonzero(mask)
+    stride = max(1, int(np.ceil(rows.size / max_rows)))
+    return rows[::stride]

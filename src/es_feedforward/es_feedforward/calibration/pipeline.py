@@ -1,0 +1,234 @@
+"""The whole calibration: align, fit, analyse the residual, add effects, refit on the grid.
+
+``calibrate(measured)`` returns a :class:`Calibration` holding every step's outcome; the
+report, ``calibration.json`` and the parameters YAML are written from it (report.py,
+schema.py).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field, replace
+from typing import Final
+
+import numpy as np
+
+from es_feedforward.calibration.align import AlignedData, MeasuredData, align
+from es_feedforward.calibration.model import CANDIDATES, FloatArray
+from es_feedforward.calibration.residual import ResidualStructure, analyse
+from es_feedforward.calibration.search import (
+    ModelState,
+    RoundRecord,
+    Workspace,
+    base_state,
+    choose_stamp_convention,
+    effect_parameters,
+    heldout_residual,
+    refit_full,
+    screen_block,
+    search_effects,
+)
+
+#: Actuators whose full-rate held-out residual is analysed (spectra, correlations).
+ANALYSIS_ACTUATORS: Final = 16
+#: Held-out rows analysed at full rate, at most.
+ANALYSIS_ROWS: Final = 100_000
+#: Ratio of held-out RMS to noise floor above which the residual counts as unexplained.
+NOISE_RATIO_LIMIT: Final = 1.2
+
+
+@dataclass
+class AcceptedEffect:
+    """An effect the search added, with its full-grid held-out RMS before and after."""
+
+    name: str
+    parameters: dict[str, float]
+    uncertainties: dict[str, float]
+    rms_before_m: float
+    rms_after_m: float
+
+
+@dataclass
+class Calibration:
+    """Everything the calibration found (see schema.py for the JSON form)."""
+
+    aligned: AlignedData
+    base: ModelState
+    final: ModelState
+    effects: list[AcceptedEffect]
+    rounds: list[RoundRecord]
+    before: ResidualStructure
+    after: ResidualStructure
+    analysis_before: tuple[FloatArray, FloatArray]  # (t, residual (A, n)) for the figures
+    analysis_after: tuple[FloatArray, FloatArray]
+    analysis_inputs: dict[str, FloatArray]
+    unexplained: list[str]
+    timings_s: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def noise_floor_m(self) -> float:
+        """Return the measurement noise estimate from the final residual [m]."""
+        return self.after.noise_floor
+
+
+class _Analysis:
+    """Full-rate held-out rows of a few actuators, for residual structure."""
+
+    def __init__(self, aligned: AlignedData) -> None:
+        idx, grid = screen_block(aligned.grid)
+        n = min(ANALYSIS_ACTUATORS, idx.size)
+        self.ws = Workspace(aligned, idx, grid)  # coupling needs the whole screening block
+        self.keep = np.arange(n)
+        rows = np.flatnonzero(~aligned.train)[:ANALYSIS_ROWS]
+        self.ws.score_rows = rows
+        self.rows = rows
+        self.contiguous = np.diff(rows) == 1
+
+    def residual(self, state: ModelState) -> FloatArray:
+        threshold = state.threshold_v if state.model.has("hysteresis") else None
+        _, held = self.ws.input_pair(state.delay_s, threshold)
+        return heldout_residual(state, held)[self.keep]
+
+    def regressors(self) -> dict[str, tuple[str, FloatArray]]:
+        a = self.ws.aligned
+        act = self.ws.actuators[self.keep]
+        rows = self.rows
+        V = a.command[a.command_index(rows)][:, act].T
+        dV = np.gradient(V, a.t[rows], axis=1)
+        return {
+            "V": ("V", V),
+            "dV/dt": ("V/s", dV),
+            "T": ("degC", a.temperature_at(rows, act)),
+            "dT/dt": ("degC/s", a.temperature_rate_at(rows, act)),
+            "time": ("s", np.broadcast_to(a.t[rows], V.shape)),
+        }
+
+    def analyse(self, state: ModelState) -> tuple[ResidualStructure, FloatArray]:
+        resid = self.residual(state)
+        rate = self.ws.aligned.sample_rate
+        return analyse(resid, self.contiguous, rate, self.regressors()), resid
+
+
+def _uncertainties(state: ModelState, name: str, command_period: float) -> dict[str, float]:
+    """Return 1-sigma uncertainties of an effect's parameters (delay: half a command period)."""
+    names = state.model.global_names
+    sig = np.sqrt(np.maximum(np.diag(state.fit.cov_global), 0.0))
+    g = dict(zip(names, state.fit.glob, strict=True))
+    s = dict(zip(names, sig, strict=True))
+    if name == "sensor_lag":
+        return {"tau_s": s["sensor_lag.tau_s"]}
+    if name == "delay":
+        return {"delay_s": 0.5 * command_period}
+    if name == "hysteresis":
+        return {"weight": s["hysteresis.weight"]}
+    if name == "coupling":
+        return {"coefficient": s["coupling.coefficient"]}
+    if name == "thermal_expansion":
+        return {"alpha_m_per_degc": s["thermal_expansion.alpha_m_per_degc"]}
+    if name == "drift":
+        return {"fraction": s["drift.fraction"],
+                "tau_s": float(np.exp(g["drift.log_tau_s"])) * s["drift.log_tau_s"],
+                "nu": float(np.exp(g["drift.log_nu"])) * s["drift.log_nu"]}
+    if name == "temperature_curvature":
+        cov = state.fit.cov_local
+        return {"m3": float(np.median(np.sqrt(np.maximum(cov[:, 4, 4], 0)))),
+                "k3": float(np.median(np.sqrt(np.maximum(cov[:, 5, 5], 0))))}
+    return {}
+
+
+def _unexplained(after: ResidualStructure, final_rms: float) -> list[str]:
+    """Describe the structure the final model leaves, in words."""
+    notes = []
+    floor = after.noise_floor
+    if np.isfinite(floor) and floor > 0 and final_rms > NOISE_RATIO_LIMIT * floor:
+        notes.append(
+            f"held-out RMS {final_rms:.3g} m is {final_rms / floor:.2f} x the noise floor "
+            f"{floor:.3g} m: part of the residual is not explained by any candidate"
+        )
+    for freq, amp in after.lines:
+        notes.append(f"spectral line at {freq:.3g} Hz, {amp:.3g} m rms, explained by no candidate")
+    for dep in after.dependences:
+        if abs(dep.correlation) > 3 * dep.correlation_bound and dep.explained_fraction > 0.02:
+            notes.append(
+                f"residual correlates with {dep.name} (r = {dep.correlation:+.3f}, 95 % bound "
+                f"{dep.correlation_bound:.3f}; {100 * dep.explained_fraction:.1f} % of the "
+                "variance follows it)"
+            )
+    significant = np.abs(after.autocorrelation[1:]) > after.autocorrelation_bound
+    if after.tau_int > 2.0 and significant.mean() > 0.2:
+        notes.append(
+            f"residual is autocorrelated (integrated time {after.tau_int:.1f} samples): "
+            "slow structure remains"
+        )
+    return notes
+
+
+def calibrate(measured: MeasuredData, candidates: tuple[str, ...] = CANDIDATES) -> Calibration:
+    """Run the whole calibration on ``measured``; raise CalibrationInputError on bad data."""
+    timings: dict[str, float] = {}
+    clock = time.perf_counter()
+    aligned = choose_stamp_convention(align(measured))
+    timings["align"] = time.perf_counter() - clock
+
+    clock = time.perf_counter()
+    idx, grid = screen_block(aligned.grid)
+    screen = Workspace(aligned, idx, grid)
+    base_screen = base_state(screen)
+    full_grid = idx.size == aligned.n_actuators
+    if full_grid:
+        base_full = base_screen
+    else:
+        base_full, _ = refit_full(aligned, base_screen)
+    timings["base fit"] = time.perf_counter() - clock
+
+    clock = time.perf_counter()
+    analysis = _Analysis(aligned)
+    before, resid_before = analysis.analyse(base_screen)
+    timings["residual analysis"] = time.perf_counter() - clock
+
+    clock = time.perf_counter()
+    final_screen, added, rounds = search_effects(screen, base_screen, candidates)
+    timings["effect search"] = time.perf_counter() - clock
+
+    clock = time.perf_counter()
+    prefix_states = [base_full]
+    for _, _, after_state in added:
+        if full_grid:
+            prefix_states.append(after_state)
+        else:
+            state, _ = refit_full(aligned, after_state, prefix_states[-1])
+            prefix_states.append(state)
+    after, resid_after = analysis.analyse(final_screen)
+    final = prefix_states[-1]
+    # re-express the uncertainties with the residual's autocorrelation
+    if after.tau_int > 1.0:
+        final.fit = replace(final.fit, cov_local=final.fit.cov_local * after.tau_int,
+                            cov_global=final.fit.cov_global * after.tau_int)
+    timings["refit and analysis"] = time.perf_counter() - clock
+
+    period = aligned.command_period
+    effects = []
+    for (name, _, _), prev, state in zip(added, prefix_states[:-1], prefix_states[1:],
+                                          strict=True):
+        effects.append(
+            AcceptedEffect(name, effect_parameters(state, name, aligned),
+                           _uncertainties(state, name, period), prev.heldout_rms, state.heldout_rms)
+        )
+    inputs = {k: v for k, (_, v) in analysis.regressors().items()}
+    return Calibration(
+        aligned=aligned,
+        base=base_full,
+        final=final,
+        effects=effects,
+        rounds=rounds,
+        before=before,
+        after=after,
+        analysis_before=(aligned.t[analysis.rows], resid_before),
+        analysis_after=(aligned.t[analysis.rows], resid_after),
+        analysis_inputs=inputs,
+        unexplained=_unexplained(after, final.heldout_rms),
+        timings_s=timings,
+    )
+
+
+__all__ = ["AcceptedEffect", "Calibration", "calibrate"]

@@ -1,0 +1,178 @@
+"""``calibration.json`` and the feedforward parameters YAML written from a :class:`Calibration`.
+
+calibration.json (schema version 1; SI units, degC; "1-sigma" uncertainties inflated for the
+residual's autocorrelation)::
+
+    {
+      "schema_version": 1,
+      "grid": {"rows": R, "cols": C},
+      "data": {"start_time_s", "duration_s", "sample_rate_hz", "command_period_s",
+               "temperature_topic", "samples", "training_samples", "heldout_samples",
+               "blocks", "command_in_effect_at_same_stamp", "dropped": {reason: count}},
+      "law": {"L", "Tm" (fixed), "m1", "m2", "m3", "k1", "k2", "k3": row-major lists of R*C,
+              "uncertainty": {same names: lists of R*C 1-sigma values}},
+      "effects": [{"name": canonical name, "parameters": {...}, "uncertainties": {...},
+                   "rms_before_m", "rms_after_m"}],          # accepted, in the order added
+      "candidates": [[{"name", "rms_before_m", "rms_after_m", "delta_bic", "accepted",
+                       "reason", "parameters"}], ...],       # every round of the search
+      "heldout_rms_before_m", "heldout_rms_after_m",         # whole grid, held-out rows
+      "heldout_max_before_m", "heldout_max_after_m",         # analysed actuators, full rate
+      "noise_floor_m": white measurement noise estimated from the final residual,
+      "unexplained": ["remaining structure, in words", ...],
+      "timings_s": {step: seconds}
+    }
+
+Effect parameters use the names of docs/architecture.md ("Effects beyond the basic model");
+the YAML carries them as ``compensation.*`` (and law.m3/k3 for temperature_curvature).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+from pathlib import Path
+from typing import Any, Final
+
+import numpy as np
+
+from es_feedforward.calibration.pipeline import Calibration
+from es_feedforward.compensation import RANGES, CompensationParams
+from es_feedforward.feedforward import FeedforwardConfig
+from es_feedforward.param_file import write_params_file
+from es_feedforward.params import ActuatorParams
+
+SCHEMA_VERSION: Final = 1
+
+
+def fitted_params(cal: Calibration) -> ActuatorParams:
+    """Return the fitted law as per-actuator maps (R, C)."""
+    local = cal.final.fit.local
+    shape = cal.aligned.grid
+    base = ActuatorParams()
+    names = cal.final.model.local_names
+    values = {n: local[:, i].reshape(shape) for i, n in enumerate(names)}
+    return replace(base.as_arrays(shape), **values)
+
+
+def law_uncertainty(cal: Calibration) -> dict[str, list[float]]:
+    """Return 1-sigma uncertainties of the fitted law coefficients (row-major lists)."""
+    cov = cal.final.fit.cov_local
+    sig = np.sqrt(np.maximum(np.einsum("app->ap", cov), 0.0))
+    return {n: sig[:, i].tolist() for i, n in enumerate(cal.final.model.local_names)}
+
+
+def compensation(cal: Calibration) -> tuple[CompensationParams, list[str]]:
+    """Return the compensation of the accepted effects and notes on values clipped to range."""
+    values: dict[str, float] = {}
+    for effect in cal.effects:
+        p = effect.parameters
+        if effect.name == "sensor_lag":
+            values["temperature_lead_s"] = p["tau_s"]
+        elif effect.name == "delay":
+            values["delay_s"] = p["delay_s"]
+        elif effect.name == "hysteresis":
+            values["hysteresis_weight"] = p["weight"]
+            values["hysteresis_threshold_v"] = p["threshold_v"]
+        elif effect.name == "coupling":
+            values["coupling"] = p["coefficient"]
+        elif effect.name == "thermal_expansion":
+            values["thermal_expansion"] = p["alpha_m_per_degc"]
+            values["expansion_reference_temperature"] = p["reference_temperature"]
+        elif effect.name == "drift":
+            values["drift_fraction"] = p["fraction"]
+            values["drift_tau_s"] = p["tau_s"]
+            values["drift_nu"] = p["nu"]
+            values["drift_epoch_s"] = cal.aligned.start_time
+    notes = []
+    for name, value in list(values.items()):
+        low, high = RANGES[name]
+        if not low <= value <= high:
+            values[name] = float(np.clip(value, low, high))
+            notes.append(f"compensation.{name} = {value:.4g} clipped to [{low}, {high}]")
+    return CompensationParams(**{k: float(v) for k, v in values.items()}), notes
+
+
+def write_parameters_yaml(cal: Calibration, path: Path) -> list[str]:
+    """Write the feedforward parameters YAML; return notes on clipped values."""
+    comp, notes = compensation(cal)
+    config = FeedforwardConfig(shape=cal.aligned.grid, params=fitted_params(cal), compensation=comp)
+    write_params_file(path, config)
+    return notes
+
+
+def _float(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {k: _float(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_float(v) for v in value]
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def calibration_document(cal: Calibration) -> dict[str, Any]:
+    """Return the calibration.json document (see the module docstring)."""
+    a = cal.aligned
+    params = fitted_params(cal)
+    law: dict[str, Any] = {
+        name: np.broadcast_to(np.asarray(getattr(params, name)), a.grid).ravel().tolist()
+        for name in ("L", "Tm", "m1", "m2", "m3", "k1", "k2", "k3")
+    }
+    law["uncertainty"] = law_uncertainty(cal)
+    doc = {
+        "schema_version": SCHEMA_VERSION,
+        "grid": {"rows": a.grid[0], "cols": a.grid[1]},
+        "data": {
+            "start_time_s": a.start_time,
+            "duration_s": float(a.t[-1]),
+            "sample_rate_hz": a.sample_rate,
+            "command_period_s": a.command_period,
+            "temperature_topic": a.temperature_source,
+            "samples": int(a.t.size),
+            "training_samples": int(a.train.sum()),
+            "heldout_samples": int((~a.train).sum()),
+            "blocks": int(a.block_edges.size - 1),
+            "command_in_effect_at_same_stamp": a.include_same_stamp,
+            "dropped": a.dropped,
+        },
+        "law": law,
+        "effects": [
+            {
+                "name": e.name,
+                "parameters": e.parameters,
+                "uncertainties": e.uncertainties,
+                "rms_before_m": e.rms_before_m,
+                "rms_after_m": e.rms_after_m,
+            }
+            for e in cal.effects
+        ],
+        "candidates": [
+            [
+                {
+                    "name": s.name,
+                    "rms_before_m": s.rms_before_m,
+                    "rms_after_m": s.rms_after_m,
+                    "delta_bic": s.delta_ic,
+                    "accepted": s.accepted,
+                    "reason": s.reason,
+                    "parameters": s.parameters,
+                }
+                for s in r.scores
+            ]
+            for r in cal.rounds
+        ],
+        "heldout_rms_before_m": cal.base.heldout_rms,
+        "heldout_rms_after_m": cal.final.heldout_rms,
+        "heldout_max_before_m": cal.before.max_abs,
+        "heldout_max_after_m": cal.after.max_abs,
+        "noise_floor_m": cal.noise_floor_m,
+        "unexplained": cal.unexplained,
+        "timings_s": cal.timings_s,
+    }
+    return dict(_float(doc))
+
+
+def write_calibration_json(cal: Calibration, path: Path) -> None:
+    """Write calibration.json."""
+    text = json.dumps(calibration_document(cal), indent=1, allow_nan=True)
+    path.write_text(text + "\n", encoding="utf-8")

@@ -1,0 +1,477 @@
+"""Fit the law, then add candidate effects greedily while the held-out data say they help.
+
+Every candidate is refitted jointly with the per-actuator law on training rows and scored on
+held-out rows with a Bayesian information criterion whose sample count is the *effective*
+number of independent held-out residuals (n / integrated autocorrelation time), so that a
+correlated residual cannot buy a spurious effect. A candidate is accepted only when it lowers
+that criterion, cuts the held-out RMS by at least ``MIN_RELATIVE_GAIN`` and has physical
+parameter values (e.g. a positive lag). The best passing candidate is added and the search
+repeats until none passes.
+
+Candidates are screened on a contiguous block of at most ``SCREEN_SIZE`` x ``SCREEN_SIZE``
+actuators at the grid's corner (edges and interior; the coupling needs neighbours); the
+accepted model is then refitted on the whole grid. Parameters with no closed-form Jacobian
+are searched on grids: the delay on whole command periods (a zero-order-hold command makes
+finer delays unobservable) and the hysteresis threshold on a logarithmic grid of the command
+range, refined by golden section.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+from typing import Final
+
+import numpy as np
+
+from es_feedforward.calibration.align import AlignedData, IndexArray, select_rows
+from es_feedforward.calibration.fit import FitResult, levenberg_marquardt
+from es_feedforward.calibration.model import (
+    CANDIDATES,
+    CompositeModel,
+    FitInputs,
+    FloatArray,
+    play_operator,
+)
+from es_feedforward.calibration.residual import integrated_autocorrelation_time
+from es_feedforward.params import ActuatorParams
+
+SCREEN_SIZE: Final = 8
+#: Smallest relative cut of the held-out RMS that counts as an improvement.
+MIN_RELATIVE_GAIN: Final = 0.01
+#: Held-out RMS below which nothing is worth explaining [m] (far below interferometer noise).
+RESOLUTION_FLOOR_M: Final = 1e-12
+#: Longest delay searched [s] and in command periods.
+MAX_DELAY_S: Final = 0.1
+MAX_DELAY_PERIODS: Final = 40
+#: Hysteresis thresholds tried, as fractions of the command's range.
+THRESHOLD_FRACTIONS: Final = (0.005, 0.01, 0.02, 0.04, 0.08, 0.16, 0.3)
+#: Thresholds tried between the best coarse threshold's neighbours.
+FINE_THRESHOLDS: Final = 8
+#: Drift time constants tried, as fractions of the record's duration.
+DRIFT_TAU_FRACTIONS: Final = (0.05, 0.25, 1.0)
+#: Samples per actuator used for fits and held-out scores (capped by sample-actuator totals).
+FIT_SAMPLES: Final = 8000
+FIT_BUDGET: Final = 6_000_000
+SCORE_SAMPLES: Final = 30000
+SCORE_BUDGET: Final = 8_000_000
+
+
+@dataclass
+class ModelState:
+    """A fitted composite model on a set of actuators."""
+
+    model: CompositeModel
+    delay_s: float
+    threshold_v: float
+    fit: FitResult
+    heldout_sse: float = 0.0
+    heldout_count: int = 0
+
+    @property
+    def heldout_rms(self) -> float:
+        """Return the held-out RMS error [m]."""
+        return float(np.sqrt(self.heldout_sse / max(self.heldout_count, 1)))
+
+
+@dataclass
+class CandidateScore:
+    """One candidate's outcome in one round of the search."""
+
+    name: str
+    rms_before_m: float
+    rms_after_m: float
+    delta_ic: float
+    accepted: bool
+    reason: str
+    parameters: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass
+class RoundRecord:
+    """All candidates tried in one round and the one added (if any)."""
+
+    scores: list[CandidateScore]
+    added: str | None
+
+
+class Workspace:
+    """Rows, actuators and cached inputs of one calibration run."""
+
+    def __init__(self, aligned: AlignedData, actuators: IndexArray, grid: tuple[int, int]):
+        """Select fit and score rows for ``actuators`` (a row-major block of shape ``grid``)."""
+        self.aligned = aligned
+        self.actuators = actuators
+        self.grid = grid
+        A = len(actuators)
+        n_fit = int(min(FIT_SAMPLES, max(1000, FIT_BUDGET // A)))
+        n_score = int(min(SCORE_SAMPLES, max(1000, SCORE_BUDGET // A)))
+        self.fit_rows = select_rows(aligned.train, n_fit)
+        self.score_rows = select_rows(~aligned.train, n_score)
+        self._play: dict[tuple[float, float], FloatArray] = {}
+
+    def _command_rows(self, delay_s: float) -> tuple[IndexArray, IndexArray]:
+        a = self.aligned
+        return a.command_index(self.fit_rows, delay_s), a.command_index(self.score_rows, delay_s)
+
+    def play(self, thresholds: Sequence[float], command_rows: IndexArray) -> FloatArray:
+        """Return the play of the command (len(rows), len(thresholds), A) at ``command_rows``."""
+        keep = np.unique(np.maximum(command_rows, 0))
+        r = np.asarray(thresholds, np.float64)[:, None]
+        values = play_operator(self.aligned.command[:, self.actuators], r, keep)
+        return values[np.searchsorted(keep, np.maximum(command_rows, 0))]
+
+    def play_pair(
+        self, thresholds: Sequence[float], delay_s: float
+    ) -> tuple[FloatArray, FloatArray]:
+        """Return the play (rows, thresholds, A) at the fit and score rows.
+
+        One pass over the command for all thresholds not computed before (cached by threshold
+        and delay: the play loop over time is the slowest step of the search).
+        """
+        fit_ci, score_ci = self._command_rows(delay_s)
+        todo = [r for r in thresholds if (r, delay_s) not in self._play]
+        if todo:
+            both = self.play(todo, np.concatenate([fit_ci, score_ci]))
+            for i, r in enumerate(todo):
+                self._play[(r, delay_s)] = both[:, i, :]
+        stacked = np.stack([self._play[(r, delay_s)] for r in thresholds], axis=1)
+        return stacked[: fit_ci.size], stacked[fit_ci.size :]
+
+    def inputs(
+        self, rows: IndexArray, delay_s: float, play: FloatArray | None
+    ) -> FitInputs:
+        """Return model inputs at ``rows`` with the command ``delay_s`` earlier."""
+        a = self.aligned
+        act = self.actuators
+        ci = a.command_index(rows, delay_s)
+        ok = ci >= 0
+        ci0 = np.maximum(ci, 0)
+        valid = (a.valid[rows][:, act] & a.command_finite[ci0][:, act] & ok[:, None]).T
+        return FitInputs(
+            t=a.t[rows],
+            voltage=a.command[ci0][:, act].T.copy(),
+            play=None if play is None else play.T.copy(),
+            temperature=a.temperature_at(rows, act),
+            temperature_rate=a.temperature_rate_at(rows, act),
+            displacement=np.where(valid, a.displacement[rows][:, act].T, 0.0),
+            valid=valid,
+            grid=self.grid,
+            mean_temperature=a.mean_temperature,
+        )
+
+    def input_pair(self, delay_s: float, threshold_v: float | None) -> tuple[FitInputs, FitInputs]:
+        """Return (training, held-out) inputs for a delay and optional play threshold."""
+        fit_ci, score_ci = self._command_rows(delay_s)
+        fit_play = score_play = None
+        if threshold_v is not None:
+            fit_play, score_play = (p[:, 0, :] for p in self.play_pair([threshold_v], delay_s))
+        return (
+            self.inputs(self.fit_rows, delay_s, fit_play),
+            self.inputs(self.score_rows, delay_s, score_play),
+        )
+
+
+def initial_law(inputs: FitInputs, base: ActuatorParams | None = None) -> FloatArray:
+    """Return starting law coefficients (A, 4): the thesis law scaled to each actuator's gain."""
+    base = base or ActuatorParams()
+    model = CompositeModel(())
+    A = inputs.voltage.shape[0]
+    local = np.tile([base.m2, base.m1, base.k2, base.k1], (A, 1)).astype(np.float64)
+    H = model.evaluate(local, np.zeros(0), inputs).prediction
+    w = inputs.valid
+    num = np.sum(np.where(w, H * inputs.displacement, 0.0), axis=1)
+    den = np.sum(np.where(w, H * H, 0.0), axis=1)
+    gain = np.where(den > 0, num / np.maximum(den, 1e-300), 1.0)
+    gain = np.where(gain > 0.05, gain, 1.0)
+    local[:, :2] *= gain[:, None]
+    return local
+
+
+def fit_state(
+    model: CompositeModel,
+    train: FitInputs,
+    heldout: FitInputs,
+    local0: FloatArray,
+    glob0: FloatArray,
+    delay_s: float,
+    threshold_v: float,
+    inflation: float = 1.0,
+    max_iter: int = 40,
+) -> ModelState:
+    """Fit ``model`` on ``train`` from the given start and score it on ``heldout``."""
+    result = levenberg_marquardt(
+        lambda loc, glo: model.evaluate(loc, glo, train),
+        train.displacement,
+        train.valid,
+        local0,
+        glob0,
+        variance_inflation=inflation,
+        max_iter=max_iter,
+    )
+    pred = model.evaluate(result.local, result.glob, heldout).prediction
+    resid = np.where(heldout.valid, heldout.displacement - pred, 0.0)
+    return ModelState(
+        model, delay_s, threshold_v, result, float(np.sum(resid * resid)),
+        int(heldout.valid.sum()),
+    )
+
+
+def heldout_residual(state: ModelState, heldout: FitInputs) -> FloatArray:
+    """Return the held-out residual (A, n), NaN where invalid."""
+    pred = state.model.evaluate(state.fit.local, state.fit.glob, heldout).prediction
+    return np.where(heldout.valid, heldout.displacement - pred, np.nan)
+
+
+def _extend_local(state: ModelState, model: CompositeModel) -> FloatArray:
+    local = state.fit.local
+    if len(model.local_names) > local.shape[1]:
+        local = np.concatenate([local, np.zeros((local.shape[0], 2))], axis=1)
+    return local
+
+
+def _extend_global(state: ModelState, model: CompositeModel, new: dict[str, float]) -> FloatArray:
+    old = dict(zip(state.model.global_names, state.fit.glob, strict=True))
+    return np.array([old.get(n, new.get(n, 0.0)) for n in model.global_names], np.float64)
+
+
+def _candidate_states(
+    ws: Workspace, state: ModelState, name: str, duration: float
+) -> list[ModelState]:
+    """Return fitted states of ``state`` plus effect ``name`` (several starts or grid points)."""
+    model = CompositeModel((*state.model.effects, name))
+    local0 = _extend_local(state, model)
+    a = ws.aligned
+    out: list[ModelState] = []
+    threshold = state.threshold_v if state.model.has("hysteresis") else None
+    if name == "delay":
+        period = a.command_period
+        n_max = int(min(MAX_DELAY_PERIODS, max(1, MAX_DELAY_S / period)))
+        best: ModelState | None = None
+        for j in range(1, n_max + 1):
+            train, held = ws.input_pair(j * period, threshold)
+            s = fit_state(model, train, held, local0, _extend_global(state, model, {}), j * period,
+                          state.threshold_v, max_iter=8)
+            if best is None or s.fit.total_cost < best.fit.total_cost:
+                best = s
+            elif j > 3 and s.fit.total_cost > 1.5 * best.fit.total_cost:
+                break  # past the minimum: larger delays only get worse
+        assert best is not None
+        train, held = ws.input_pair(best.delay_s, threshold)
+        out.append(fit_state(model, train, held, best.fit.local, best.fit.glob, best.delay_s,
+                             state.threshold_v))
+        return out
+    if name == "hysteresis":
+        span = float(np.ptp(a.command[:, ws.actuators]))
+        glob0 = _extend_global(state, model, {"hysteresis.weight": 0.0})
+        coarse = [max(f * span, 1e-6) for f in THRESHOLD_FRACTIONS]
+        best = _best_threshold(ws, state, model, local0, glob0, coarse)
+        i = coarse.index(best.threshold_v)
+        lo, hi = coarse[max(i - 1, 0)], coarse[min(i + 1, len(coarse) - 1)]
+        fine = [float(r) for r in np.geomspace(lo, hi, FINE_THRESHOLDS + 2)[1:-1]]
+        refined = _best_threshold(ws, state, model, best.fit.local, best.fit.glob, fine)
+        best = refined if refined.fit.total_cost < best.fit.total_cost else best
+        train, held = ws.input_pair(state.delay_s, best.threshold_v)
+        out.append(fit_state(model, train, held, best.fit.local, best.fit.glob, state.delay_s,
+                             best.threshold_v))
+        return out
+    train, held = ws.input_pair(state.delay_s, threshold)
+    starts: list[dict[str, float]] = [{}]
+    if name == "drift":
+        starts = [
+            {"drift.fraction": 0.0, "drift.log_tau_s": float(np.log(f * duration)),
+             "drift.log_nu": 0.0}
+            for f in DRIFT_TAU_FRACTIONS
+        ]
+    for start in starts:
+        glob0 = _extend_global(state, model, start)
+        if name == "drift":
+            # start the nonlinear drift terms from a small fraction so their gradients exist
+            glob0[model.global_names.index("drift.fraction")] = 0.01
+        out.append(fit_state(model, train, held, local0, glob0, state.delay_s,
+                             state.threshold_v))
+    return out
+
+
+def _best_threshold(
+    ws: Workspace,
+    state: ModelState,
+    model: CompositeModel,
+    local0: FloatArray,
+    glob0: FloatArray,
+    thresholds: list[float],
+) -> ModelState:
+    """Fit the hysteresis model at each play threshold (one pass of the play for all)."""
+    fit_play, score_play = ws.play_pair(thresholds, state.delay_s)
+    trials = []
+    for i, r in enumerate(thresholds):
+        train = ws.inputs(ws.fit_rows, state.delay_s, fit_play[:, i, :])
+        held = ws.inputs(ws.score_rows, state.delay_s, score_play[:, i, :])
+        trials.append(fit_state(model, train, held, local0, glob0, state.delay_s, r,
+                                max_iter=10))
+    return min(trials, key=lambda s: s.fit.total_cost)
+
+
+def effect_parameters(state: ModelState, name: str, aligned: AlignedData) -> dict[str, float]:
+    """Return the physical parameters of effect ``name`` in ``state`` (architecture table)."""
+    g = dict(zip(state.model.global_names, state.fit.glob, strict=True))
+    if name == "sensor_lag":
+        return {"tau_s": g["sensor_lag.tau_s"]}
+    if name == "delay":
+        # a shift of j command periods covers delays in (j, j + 1] periods: report the middle
+        return {"delay_s": state.delay_s + 0.5 * aligned.command_period}
+    if name == "hysteresis":
+        return {"weight": g["hysteresis.weight"], "threshold_v": state.threshold_v}
+    if name == "coupling":
+        return {"coefficient": g["coupling.coefficient"]}
+    if name == "thermal_expansion":
+        alpha = g["thermal_expansion.alpha_m_per_degc"]
+        ref = aligned.mean_temperature - g["thermal_expansion.offset_m"] / alpha if alpha else 0.0
+        return {"alpha_m_per_degc": alpha, "reference_temperature": ref}
+    if name == "drift":
+        return {"fraction": g["drift.fraction"], "tau_s": float(np.exp(g["drift.log_tau_s"])),
+                "nu": float(np.exp(g["drift.log_nu"]))}
+    if name == "temperature_curvature":
+        local = state.fit.local
+        return {"m3": float(np.median(local[:, 4])), "k3": float(np.median(local[:, 5]))}
+    raise ValueError(f"unknown effect {name}")
+
+
+def physical_problem(name: str, params: dict[str, float]) -> str | None:
+    """Return why fitted parameters are unphysical for effect ``name``, or None."""
+    if name == "sensor_lag" and params["tau_s"] <= 0:
+        return f"lag {params['tau_s']:.3g} s is not positive"
+    if name == "hysteresis" and not 0.0 < params["weight"] < 1.0:
+        return f"weight {params['weight']:.3g} outside (0, 1)"
+    if name == "coupling" and params["coefficient"] <= 0:
+        return f"coefficient {params['coefficient']:.3g} is not positive"
+    if name == "drift" and not abs(params["fraction"]) < 1.0:
+        return f"fraction {params['fraction']:.3g} outside (-1, 1)"
+    return None
+
+
+def _added_parameters(name: str, n_actuators: int) -> int:
+    return {"sensor_lag": 1, "delay": 1, "hysteresis": 2, "coupling": 1,
+            "thermal_expansion": 2, "drift": 3, "temperature_curvature": 2 * n_actuators}[name]
+
+
+def information_delta(
+    sse_before: float, sse_after: float, n_effective: float, n_added: int
+) -> float:
+    """Return the BIC change of adding ``n_added`` parameters (negative favours the addition)."""
+    n = max(n_effective, 2.0)
+    return float(n * np.log(max(sse_after, 1e-300) / max(sse_before, 1e-300)) + n_added * np.log(n))
+
+
+def effective_count(ws: Workspace, state: ModelState, heldout: FitInputs) -> float:
+    """Return the number of independent held-out residuals of ``state`` on the score rows."""
+    resid = heldout_residual(state, heldout)
+    stride = max(1, int(np.median(np.diff(ws.score_rows))))
+    tau = integrated_autocorrelation_time(resid, contiguous=np.diff(ws.score_rows) == stride)
+    return float(state.heldout_count / max(tau, 1.0))
+
+
+def search_effects(
+    ws: Workspace, base: ModelState, candidates: Sequence[str] = CANDIDATES
+) -> tuple[ModelState, list[tuple[str, ModelState, ModelState]], list[RoundRecord]]:
+    """Greedy forward selection; return (final state, [(effect, before, after)], rounds)."""
+    state = base
+    added: list[tuple[str, ModelState, ModelState]] = []
+    rounds: list[RoundRecord] = []
+    duration = float(ws.aligned.t[-1])
+    A = len(ws.actuators)
+    while True:
+        remaining = [c for c in candidates if not state.model.has(c)]
+        if not remaining:
+            break
+        _, held = ws.input_pair(state.delay_s, state.threshold_v if state.model.has(
+            "hysteresis") else None)
+        n_eff = effective_count(ws, state, held)
+        scores: list[CandidateScore] = []
+        best: tuple[float, str, ModelState] | None = None
+        for name in remaining:
+            if name == "coupling" and A < 2:
+                continue
+            tried = _candidate_states(ws, state, name, duration)
+            new = min(tried, key=lambda s: s.fit.total_cost)
+            params = effect_parameters(new, name, ws.aligned)
+            delta = information_delta(state.heldout_sse, new.heldout_sse, n_eff,
+                                      _added_parameters(name, A))
+            gain = 1.0 - new.heldout_rms / max(state.heldout_rms, 1e-300)
+            problem = physical_problem(name, params)
+            reason = "passes"
+            if problem:
+                reason = f"unphysical: {problem}"
+            elif state.heldout_rms < RESOLUTION_FLOOR_M:
+                reason = "residual already below resolution"
+            elif delta >= 0:
+                reason = f"information criterion does not improve (dBIC = {delta:+.1f})"
+            elif gain < MIN_RELATIVE_GAIN:
+                reason = f"held-out RMS cut {100 * gain:.2f} % < {100 * MIN_RELATIVE_GAIN:.0f} %"
+            ok = reason == "passes"
+            scores.append(CandidateScore(name, state.heldout_rms, new.heldout_rms, delta, ok,
+                                         reason, params))
+            if ok and (best is None or delta < best[0]):
+                best = (delta, name, new)
+        if best is None:
+            rounds.append(RoundRecord(scores, None))
+            break
+        _, name, new = best
+        for s in scores:
+            s.accepted = s.name == name
+        rounds.append(RoundRecord(scores, name))
+        added.append((name, state, new))
+        state = new
+    return state, added, rounds
+
+
+def screen_block(grid: tuple[int, int]) -> tuple[IndexArray, tuple[int, int]]:
+    """Return the actuator indices and shape of the screening block at the grid's corner."""
+    rows = min(grid[0], SCREEN_SIZE)
+    cols = min(grid[1], SCREEN_SIZE)
+    idx = (np.arange(rows)[:, None] * grid[1] + np.arange(cols)[None, :]).ravel()
+    return idx.astype(np.intp), (rows, cols)
+
+
+def base_state(ws: Workspace) -> ModelState:
+    """Fit the plain hyperbolic law (linear in T*) on the workspace's actuators."""
+    train, held = ws.input_pair(0.0, None)
+    model = CompositeModel(())
+    return fit_state(model, train, held, initial_law(train), np.zeros(0), 0.0, 0.0)
+
+
+def choose_stamp_convention(aligned: AlignedData) -> AlignedData:
+    """Decide from the data whether a command stamped at a sample's own stamp is in effect.
+
+    Only matters when command and displacement stamps coincide (lock-step recording): the
+    convention with the smaller training cost of the plain law on the screening block wins.
+    """
+    if not aligned.has_same_stamps:
+        return aligned
+    idx, grid = screen_block(aligned.grid)
+    costs = {}
+    for include in (True, False):
+        trial = replace(aligned, include_same_stamp=include)
+        costs[include] = base_state(Workspace(trial, idx, grid)).fit.total_cost
+    return replace(aligned, include_same_stamp=min(costs, key=lambda k: costs[k]))
+
+
+def refit_full(
+    aligned: AlignedData, screened: ModelState, start: ModelState | None = None
+) -> tuple[ModelState, Workspace]:
+    """Refit a screened model on the whole grid, starting from its global parameters."""
+    idx = np.arange(aligned.n_actuators, dtype=np.intp)
+    ws = Workspace(aligned, idx, aligned.grid)
+    threshold = screened.threshold_v if screened.model.has("hysteresis") else None
+    train, held = ws.input_pair(screened.delay_s, threshold)
+    if start is None:
+        local0 = initial_law(train)
+    else:
+        local0 = start.fit.local
+    if len(screened.model.local_names) > local0.shape[1]:
+        local0 = np.concatenate([local0, np.zeros((local0.shape[0], 2))], axis=1)
+    return (
+        fit_state(screened.model, train, held, local0, screened.fit.glob, screened.delay_s,
+                  screened.threshold_v),
+        ws,
+    )

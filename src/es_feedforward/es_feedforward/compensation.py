@@ -1,0 +1,244 @@
+"""Compensation of the effects beyond the basic model (pure numpy/scipy, no rclpy).
+
+One definition per effect, shared with the simulator and the calibration tool
+(``docs/architecture.md``, "Effects beyond the basic model"). The feedforward applies them
+around the model inverse:
+
+1. temperature lead (``sensor_lag``): T_used = T + tau dT/dt, derivative low-pass filtered;
+2. delay: set point predicted ``delay_s`` ahead from the slope of the last two set points;
+3. thermal expansion: alpha (T_used - T_ref) subtracted from the set point;
+4. drift: set point divided by 1 - a (1 - exp(-(t / tau)^nu)) (z is proportional to M);
+5. coupling: (I + c lap) z_free = z_ref solved with a sparse LU factorised once per grid;
+6. hysteresis: analytic inverse of V_eff = (1 - a) V + a play_r(V), per-actuator play state.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+from typing import Final
+
+import numpy as np
+from scipy.sparse import csc_matrix, diags, identity
+from scipy.sparse.linalg import splu
+
+from es_feedforward.params import FloatArray
+
+#: Name prefix of the compensation parameters (ROS parameters and parameter files).
+PREFIX: Final = "compensation."
+
+
+@dataclass(frozen=True)
+class CompensationParams:
+    """The ``compensation.*`` parameters; every effect is off at its default.
+
+    Attributes:
+        temperature_lead_s: sensor lag tau to undo [s] (0 = off).
+        temperature_lead_filter_s: time constant of the derivative's low-pass [s].
+        delay_s: transport delay to predict over [s] (0 = off).
+        hysteresis_weight: weight a of the play operator, in [0, 0.9] (0 = off).
+        hysteresis_threshold_v: half-width r of the play operator [V].
+        coupling: coefficient c of the 4-neighbour Laplacian coupling (0 = off).
+        thermal_expansion: expansion coefficient alpha [m/degC] (0 = off).
+        expansion_reference_temperature: temperature of zero expansion [degC].
+        drift_fraction: final relative loss a of M (0 = off).
+        drift_tau_s: drift time constant tau [s].
+        drift_nu: stretching exponent nu of the drift.
+        drift_epoch_s: ROS time [s] at which the drift started (t = now - epoch).
+
+    """
+
+    temperature_lead_s: float = 0.0
+    temperature_lead_filter_s: float = 0.5
+    delay_s: float = 0.0
+    hysteresis_weight: float = 0.0
+    hysteresis_threshold_v: float = 0.0
+    coupling: float = 0.0
+    thermal_expansion: float = 0.0
+    expansion_reference_temperature: float = 46.0
+    drift_fraction: float = 0.0
+    drift_tau_s: float = 3600.0
+    drift_nu: float = 1.0
+    drift_epoch_s: float = 0.0
+
+    @classmethod
+    def from_mapping(cls, values: dict[str, float]) -> CompensationParams:
+        """Build from ``{name: value}`` with or without the ``compensation.`` prefix.
+
+        Raises:
+            ValueError: an unknown name or a value outside its range (see :data:`RANGES`).
+
+        """
+        known = {f.name for f in fields(cls)}
+        kwargs: dict[str, float] = {}
+        for key, value in values.items():
+            name = key.removeprefix(PREFIX)
+            if name not in known:
+                raise ValueError(f"unknown compensation parameter {key!r}")
+            kwargs[name] = float(value)
+        params = cls(**kwargs)
+        reason = params.reason_to_reject()
+        if reason is not None:
+            raise ValueError(reason)
+        return params
+
+    def reason_to_reject(self) -> str | None:
+        """Return why this set is not usable, or ``None``."""
+        for name, (low, high) in RANGES.items():
+            value = getattr(self, name)
+            if not low <= value <= high:  # NaN fails too
+                return f"{PREFIX}{name}={value!r} is outside [{low}, {high}]"
+        if self.drift_fraction > 0.0 and self.drift_tau_s <= 0.0:
+            return f"{PREFIX}drift_tau_s must be > 0 when drift_fraction > 0"
+        return None
+
+
+#: Accepted range of every compensation parameter (inclusive).
+RANGES: Final[dict[str, tuple[float, float]]] = {
+    "temperature_lead_s": (0.0, 3600.0),
+    "temperature_lead_filter_s": (0.0, 3600.0),
+    "delay_s": (0.0, 1.0),
+    "hysteresis_weight": (0.0, 0.9),
+    "hysteresis_threshold_v": (0.0, 1000.0),
+    # I + c lap stays positive definite for c < 1/8 (lap's eigenvalues lie in [-8, 0])
+    "coupling": (-0.12, 0.12),
+    "thermal_expansion": (-1e-8, 1e-8),
+    "expansion_reference_temperature": (-50.0, 150.0),
+    "drift_fraction": (0.0, 0.5),
+    "drift_tau_s": (1e-3, 1e9),
+    "drift_nu": (0.05, 5.0),
+    "drift_epoch_s": (0.0, 1e12),
+}
+
+
+class TemperatureLead:
+    """T_used = T + tau dT/dt with a first-order low-pass on the finite-difference derivative."""
+
+    def __init__(self, tau_s: float, filter_s: float) -> None:
+        self.tau_s = tau_s
+        self.filter_s = filter_s
+        self._last: tuple[FloatArray, float] | None = None
+        self._rate: FloatArray | None = None
+
+    def __call__(self, T: FloatArray, t: float) -> FloatArray:
+        """Return the lead-corrected temperatures for a sample ``T`` taken at ``t`` [s]."""
+        if self.tau_s == 0.0:
+            return T
+        if self._last is None or self._rate is None or self._last[0].shape != T.shape:
+            self._rate = np.zeros_like(T)
+        else:
+            T_prev, t_prev = self._last
+            dt = t - t_prev
+            if dt > 0.0:
+                raw = (T - T_prev) / dt
+                gain = dt / (dt + self.filter_s)
+                rate = self._rate + gain * (raw - self._rate)
+                self._rate = np.where(np.isfinite(rate), rate, 0.0)
+        self._last = (T, t)
+        return np.asarray(T + self.tau_s * self._rate, np.float64)
+
+
+class DelayPredictor:
+    """Predict the set point ``delay_s`` ahead from the slope of the last two set points."""
+
+    def __init__(self, delay_s: float) -> None:
+        self.delay_s = delay_s
+        self._last: tuple[FloatArray, float] | None = None
+        self._slope: FloatArray | None = None
+
+    def __call__(self, z: FloatArray, t: float) -> FloatArray:
+        """Return the predicted set points (never below 0 where ``z`` is not)."""
+        if self.delay_s == 0.0:
+            return z
+        if self._last is not None and self._last[0].shape == z.shape:
+            z_prev, t_prev = self._last
+            if t > t_prev:
+                self._slope = (z - z_prev) / (t - t_prev)
+        else:
+            self._slope = None
+        self._last = (z, t)
+        if self._slope is None:
+            return z
+        predicted = z + self.delay_s * self._slope
+        # a straight-line prediction must not push a reachable set point below 0
+        return np.asarray(np.where(z >= 0.0, np.maximum(predicted, 0.0), predicted), np.float64)
+
+
+def drift_factor(params: CompensationParams, t: float) -> float:
+    """Return M_eff / M = 1 - a (1 - exp(-(t_rel / tau)^nu)) at ROS time ``t`` [s]."""
+    if params.drift_fraction == 0.0:
+        return 1.0
+    t_rel = max(t - params.drift_epoch_s, 0.0)
+    decay = float(np.exp(-((t_rel / params.drift_tau_s) ** params.drift_nu)))
+    return 1.0 - params.drift_fraction * (1.0 - decay)
+
+
+def laplacian(shape: tuple[int, int]) -> csc_matrix:
+    """Return the 4-neighbour Laplacian of a row-major grid (edges: existing neighbours only)."""
+    rows, cols = shape
+    size = rows * cols
+    index = np.arange(size).reshape(shape)
+    pairs = [
+        (index[:, :-1].ravel(), index[:, 1:].ravel()),
+        (index[:-1, :].ravel(), index[1:, :].ravel()),
+    ]
+    i = np.concatenate([p[0] for p in pairs] + [p[1] for p in pairs])
+    j = np.concatenate([p[1] for p in pairs] + [p[0] for p in pairs])
+    adjacency = csc_matrix((np.ones(i.size), (i, j)), shape=(size, size))
+    degree = np.asarray(adjacency.sum(axis=1)).ravel()
+    return csc_matrix(adjacency - diags(degree))
+
+
+class CouplingInverse:
+    """Solve (I + c lap) z_free = z_ref for a grid; the LU factorisation is done once."""
+
+    def __init__(self, coefficient: float, shape: tuple[int, int]) -> None:
+        self.coefficient = coefficient
+        self.shape = shape
+        self._lu = (
+            splu(csc_matrix(identity(shape[0] * shape[1]) + coefficient * laplacian(shape)))
+            if coefficient != 0.0
+            else None
+        )
+
+    def __call__(self, z_ref: FloatArray) -> FloatArray:
+        """Return z_free for the set points ``z_ref`` (grid of ``shape``)."""
+        if self._lu is None:
+            return z_ref
+        return np.asarray(self._lu.solve(z_ref.ravel()).reshape(self.shape), np.float64)
+
+
+class HysteresisInverse:
+    """Inverse of V_eff = (1 - a) V + a play_r(V), one play operator per actuator.
+
+    The play output p follows V within +-r. Given the wanted V_eff: if p stays, V =
+    (V_eff - a p) / (1 - a); if the play is pushed up, V = V_eff + a r; pushed down,
+    V = V_eff - a r. The state is updated with the voltage actually applied.
+    """
+
+    def __init__(self, weight: float, threshold_v: float, shape: tuple[int, ...]) -> None:
+        self.weight = weight
+        self.threshold_v = threshold_v
+        self.play = np.zeros(shape)
+
+    @property
+    def active(self) -> bool:
+        """Whether the operator does anything."""
+        return self.weight > 0.0
+
+    def invert(self, v_eff: FloatArray) -> FloatArray:
+        """Return the voltage that makes the operator output ``v_eff``."""
+        if not self.active:
+            return v_eff
+        a, r, p = self.weight, self.threshold_v, self.play
+        still = (v_eff - a * p) / (1.0 - a)
+        up = still - p > r
+        down = still - p < -r
+        return np.asarray(
+            np.where(up, v_eff + a * r, np.where(down, v_eff - a * r, still)), np.float64
+        )
+
+    def apply(self, voltage: FloatArray) -> None:
+        """Advance the play state with the voltage that was actually sent."""
+        if self.active:
+            r = self.threshold_v
+            self.play = np.clip(self.play, voltage - r, voltage + r)

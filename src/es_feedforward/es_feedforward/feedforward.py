@@ -1,0 +1,419 @@
+"""Temperature-compensated feedforward: set points and temperatures in, voltages out.
+
+Pure numpy core of the feedforward node (no rclpy). Modes (``Mode``), all per actuator:
+
+- ``inverse_hyperbolic`` (default): V = P^-1(z, T) of the hyperbolic model;
+- ``inverse_quadratic``: V = sqrt(z L / M(T)) (the thesis's hardware scheme);
+- ``linearized_dmax``: V = V_max(T) + (z - z_sat(T)/3) / d_max(T), with the model's own error
+  of that linearisation reported per actuator (:func:`linearization_error_bound` for a span);
+- ``observer``: the hyperbolic forward model as observer and a PI loop driving its output to
+  the set point; the loop runs ``iterations`` times per set point (the observer has no
+  dynamics, so it is a fast inner loop), its integrator warm-starts from the last set point
+  and its gain is scheduled on the observer's local gain;
+- ``uncompensated``: the hyperbolic inverse at the fixed ``reference_temperature``, no
+  temperature input needed: the baseline reports compare against.
+
+The effects of :mod:`es_feedforward.compensation` are applied around the model in every mode
+(temperature-based ones use the reference temperature in ``uncompensated``).
+
+Safety: the output is always finite and within [0, v_limit]. A missing, stale (older than
+``temperature_timeout``) or invalid (non-finite or outside ``PLAUSIBLE_TEMPERATURE``)
+temperature estimate holds the whole last good command; a non-finite set point element holds
+that actuator's last voltage (``Status.INVALID``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields
+from enum import StrEnum
+from typing import Final
+
+import numpy as np
+import numpy.typing as npt
+
+from es_feedforward.compensation import (
+    CompensationParams,
+    CouplingInverse,
+    DelayPredictor,
+    HysteresisInverse,
+    TemperatureLead,
+    drift_factor,
+)
+from es_feedforward.models import (
+    CODE_CLIPPED_HIGH,
+    CODE_CLIPPED_LOW,
+    CODE_INVALID,
+    CODE_OK,
+    DEFAULT_V_LIMIT,
+    CompiledLaws,
+    InverseResult,
+    LawsAtTemperature,
+    StatusArray,
+    limit_voltages,
+)
+from es_feedforward.params import ActuatorParams, FloatArray
+
+#: Middle of the thesis's 40-52 degC range: where "uncompensated" evaluates the model.
+DEFAULT_REFERENCE_TEMPERATURE: Final = 46.0
+#: T* = T - Tm band [degC] over which a configuration's laws must be positive (40-52 degC
+#: for Tm = 38 degC); beyond it an element whose law is not positive is reported INVALID.
+OPERATING_T_STAR: Final = (2.0, 14.0)
+#: Set points above this [m] are far beyond any reach: cut here to keep the arithmetic finite.
+SETPOINT_CEILING: Final = 1.0
+#: Temperatures [degC] outside this band are sensor or estimator faults, not actuator states.
+PLAUSIBLE_TEMPERATURE: Final = (-50.0, 200.0)
+#: Age [s] beyond which a temperature estimate is stale.
+DEFAULT_TEMPERATURE_TIMEOUT: Final = 2.0
+
+
+class Mode(StrEnum):
+    """Feedforward scheme (value of the ``mode`` parameter)."""
+
+    INVERSE_HYPERBOLIC = "inverse_hyperbolic"
+    INVERSE_QUADRATIC = "inverse_quadratic"
+    LINEARIZED_DMAX = "linearized_dmax"
+    OBSERVER = "observer"
+    UNCOMPENSATED = "uncompensated"
+
+
+@dataclass(frozen=True)
+class ObserverGains:
+    """PI gains of the observer loop (dimensionless: normalised by the observer's local gain).
+
+    ``iterations`` loop updates run per set point (the observer has no dynamics, so the loop
+    can run faster than the set points). With kp + ki <= 1 no update overshoots.
+    """
+
+    kp: float = 0.0
+    ki: float = 1.0
+    iterations: int = 6
+
+    def reason_to_reject(self) -> str | None:
+        """Return why these gains are not usable, or ``None``."""
+        if not (self.kp >= 0.0 and self.ki > 0.0 and self.kp + self.ki <= 1.0):
+            return f"observer gains need kp >= 0, ki > 0, kp + ki <= 1 (got {self.kp}, {self.ki})"
+        if not 1 <= self.iterations <= 1000:
+            return f"observer.iterations={self.iterations} is outside [1, 1000]"
+        return None
+
+
+@dataclass(frozen=True)
+class FeedforwardConfig:
+    """Everything the feedforward core is configured with (one consistent set).
+
+    ``params`` fields are scalars or arrays broadcasting to ``shape`` (per-actuator maps).
+    """
+
+    shape: tuple[int, int]
+    params: ActuatorParams = field(default_factory=ActuatorParams)
+    mode: Mode = Mode.INVERSE_HYPERBOLIC
+    v_limit: float = DEFAULT_V_LIMIT
+    reference_temperature: float = DEFAULT_REFERENCE_TEMPERATURE
+    temperature_timeout: float = DEFAULT_TEMPERATURE_TIMEOUT
+    compensation: CompensationParams = field(default_factory=CompensationParams)
+    observer: ObserverGains = field(default_factory=ObserverGains)
+
+    def reason_to_reject(self) -> str | None:
+        """Return why this configuration is not usable, or ``None`` when it is."""
+        rows, cols = self.shape
+        if rows < 1 or cols < 1:
+            return f"grid must be at least 1 x 1, got {rows} x {cols}"
+        if not 0.0 < self.v_limit <= 1000.0:
+            return f"v_limit={self.v_limit} is outside (0, 1000] V"
+        if not np.isfinite(self.reference_temperature):
+            return "reference_temperature must be finite"
+        for f in fields(self.params):
+            value = np.asarray(getattr(self.params, f.name))
+            try:
+                np.broadcast_to(value, self.shape)
+            except ValueError:
+                return f"law.{f.name} of shape {value.shape} does not fit the {rows} x {cols} grid"
+            if not np.all(np.isfinite(value)):
+                return f"law.{f.name} has non-finite values"
+        if np.any(np.asarray(self.params.L) <= 0.0):
+            return "law.L must be > 0"
+        usable = CompiledLaws(self.params, self.shape).positive_between(*OPERATING_T_STAR)
+        if not np.all(usable):
+            worst = np.flatnonzero(~usable.ravel())[:5].tolist()
+            return (
+                f"M(T) or k(T) is not positive over Tm + {OPERATING_T_STAR} degC at "
+                f"{int((~usable).sum())} actuator(s), e.g. index {worst}"
+            )
+        return self.compensation.reason_to_reject() or self.observer.reason_to_reject()
+
+
+@dataclass(frozen=True)
+class CommandResult:
+    """One command of the feedforward.
+
+    Attributes:
+        voltage: voltages [V], grid, finite, in [0, v_limit] (read-only array).
+        status: per-actuator :class:`Status` codes (int8 grid, read-only array).
+        held: the whole command is the last good one (``problem`` says why).
+        problem: why no new command could be computed, or ``None``.
+        model_error: linearized_dmax and observer: z_model(V) - z_wanted [m] per actuator.
+
+    """
+
+    voltage: FloatArray
+    status: StatusArray
+    held: bool = False
+    problem: str | None = None
+    model_error: FloatArray | None = None
+
+
+def linearization_error_bound(laws: LawsAtTemperature, amplitude: npt.ArrayLike) -> FloatArray:
+    """Return the largest |z(V) - z_wanted| of ``linearized_dmax`` for |z - z_sat/3| <= amplitude.
+
+    The error e(dV) = z(V_max + dV) - z_sat/3 - d_max dV never rises (d_max is the largest
+    slope), so its extremes over [-a, a] (a = amplitude / d_max) are at the two ends.
+    """
+    dmax = laws.d_max()
+    v_max = laws.v_max()
+    dv = np.asarray(amplitude, np.float64) / dmax
+    z_mid = laws.z_sat() / 3.0
+    ends = [
+        np.abs(laws.hyperbolic_forward(np.maximum(v_max + s * dv, 0.0)) - z_mid - s * dmax * dv)
+        for s in (-1.0, 1.0)
+    ]
+    return np.asarray(np.maximum(*ends), np.float64)
+
+
+class Feedforward:
+    """Stateful feedforward for one grid: feed temperatures and set points, get commands.
+
+    States (temperature filter, delay slope, hysteresis play, observer integrator, last good
+    command) carry over to a new configuration of the same grid via ``previous``.
+    """
+
+    _lead: TemperatureLead
+    _delay: DelayPredictor
+    _hysteresis: HysteresisInverse
+    _integral: FloatArray
+    _last_voltage: FloatArray
+    _last_status: StatusArray
+    _temperature: FloatArray | None
+    _temperature_time: float | None
+    _temperature_problem: str | None
+
+    def __init__(self, config: FeedforwardConfig, previous: Feedforward | None = None) -> None:
+        reason = config.reason_to_reject()
+        if reason is not None:
+            raise ValueError(reason)
+        self.config = config
+        shape = config.shape
+        comp = config.compensation
+        self._laws_compiled = CompiledLaws(config.params, shape)
+        self._reference_T = np.full(shape, config.reference_temperature)
+        self._reference_laws = self._laws_compiled.at(self._reference_T)
+        self._coupling = CouplingInverse(comp.coupling, shape)
+        keep = previous is not None and previous.config.shape == shape
+        if previous is not None and keep:
+            self._lead = previous._lead
+            self._delay = previous._delay
+            self._hysteresis = previous._hysteresis
+            self._integral = previous._integral
+            self._last_voltage = previous._last_voltage
+            self._last_status = previous._last_status
+            self._temperature = previous._temperature
+            self._temperature_time = previous._temperature_time
+            self._temperature_problem = previous._temperature_problem
+        else:
+            self._lead = TemperatureLead(comp.temperature_lead_s, comp.temperature_lead_filter_s)
+            self._delay = DelayPredictor(comp.delay_s)
+            self._hysteresis = HysteresisInverse(
+                comp.hysteresis_weight, comp.hysteresis_threshold_v, shape
+            )
+            self._integral = np.zeros(shape)
+            self._last_voltage = np.zeros(shape)
+            self._last_status = np.zeros(shape, np.int8)
+            self._last_voltage.flags.writeable = False
+            self._last_status.flags.writeable = False
+            self._temperature = None
+            self._temperature_time = None
+            self._temperature_problem = "no temperature received yet"
+        # new effect parameters apply from now on; their states carry over
+        self._lead.tau_s = comp.temperature_lead_s
+        self._lead.filter_s = comp.temperature_lead_filter_s
+        self._delay.delay_s = comp.delay_s
+        self._hysteresis.weight = comp.hysteresis_weight
+        self._hysteresis.threshold_v = comp.hysteresis_threshold_v
+        self._laws: LawsAtTemperature | None = None
+        if self._temperature is not None:
+            self._laws = self._laws_compiled.at(self._temperature)
+
+    @property
+    def needs_temperature(self) -> bool:
+        """Whether the mode uses measured temperatures (all but ``uncompensated``)."""
+        return self.config.mode is not Mode.UNCOMPENSATED
+
+    @property
+    def last_voltage(self) -> FloatArray:
+        """The last good command [V] (zeros before the first)."""
+        return self._last_voltage
+
+    def update_temperature(self, T: npt.ArrayLike, t: float) -> str | None:
+        """Take a temperature estimate [degC] (grid) received at time ``t`` [s].
+
+        Returns:
+            ``None`` when accepted, else why it is invalid (the feedforward then holds).
+
+        Raises:
+            ValueError: ``T`` does not have the grid's shape.
+
+        """
+        T = np.asarray(T, np.float64)
+        if T.shape != self.config.shape:
+            raise ValueError(f"temperature grid is {T.shape}, expected {self.config.shape}")
+        self._temperature_time = t
+        low, high = PLAUSIBLE_TEMPERATURE
+        if T.size and not (T.min() >= low and T.max() <= high):  # NaN fails too
+            bad = int(np.count_nonzero(~np.isfinite(T)))
+            implausible = int(np.count_nonzero((T < low) | (T > high)))
+            self._temperature_problem = (
+                f"temperature estimate has {bad} non-finite value(s)"
+                if bad
+                else f"temperature estimate has {implausible} value(s) outside {low}..{high} degC"
+            )
+            self._laws = None
+            return self._temperature_problem
+        self._temperature = self._lead(T, t)
+        self._temperature_problem = None
+        self._laws = self._laws_compiled.at(self._temperature)
+        return None
+
+    def temperature_problem(self, t: float) -> str | None:
+        """Return why the temperature cannot be used at time ``t`` [s], or ``None``."""
+        if not self.needs_temperature:
+            return None
+        if self._temperature_problem is not None or self._temperature_time is None:
+            return self._temperature_problem or "no temperature received yet"
+        age = t - self._temperature_time
+        timeout = self.config.temperature_timeout
+        if timeout > 0.0 and age > timeout:
+            return f"temperature estimate is stale ({age:.3g} s old, limit {timeout:.3g} s)"
+        return None
+
+    def command(self, z_ref: npt.ArrayLike, t: float) -> CommandResult:
+        """Return the command for set points ``z_ref`` [m] (grid) at time ``t`` [s].
+
+        Raises:
+            ValueError: ``z_ref`` does not have the grid's shape.
+
+        """
+        z = np.asarray(z_ref, np.float64)
+        if z.shape != self.config.shape:
+            raise ValueError(f"set point grid is {z.shape}, expected {self.config.shape}")
+        problem = self.temperature_problem(t)
+        if problem is not None:
+            return CommandResult(self._last_voltage, self._last_status, True, problem)
+        if self.needs_temperature:
+            assert self._laws is not None and self._temperature is not None
+            laws, T = self._laws, self._temperature
+        else:
+            laws, T = self._reference_laws, self._reference_T
+
+        lo, hi = (z.min(), z.max()) if z.size else (0.0, 0.0)
+        raw_status: StatusArray | None = None
+        if not (lo >= 0.0 and hi <= SETPOINT_CEILING):  # NaN fails too
+            raw_invalid = ~np.isfinite(z)
+            raw_status = np.where(z < 0.0, CODE_CLIPPED_LOW, CODE_OK).astype(np.int8)
+            raw_status[raw_invalid] = CODE_INVALID
+            z = np.clip(np.where(raw_invalid, 0.0, z), 0.0, SETPOINT_CEILING)
+        z = self._compensate_setpoint(z, T, t)
+
+        model_error: FloatArray | None = None
+        mode = self.config.mode
+        v_limit = self.config.v_limit
+        if mode is Mode.INVERSE_QUADRATIC:
+            result = laws.quadratic_inverse(z, v_limit)
+        elif mode is Mode.LINEARIZED_DMAX:
+            result, model_error = self._linearized(laws, z)
+        elif mode is Mode.OBSERVER:
+            result, model_error = self._observer(laws, z)
+        else:
+            result = laws.hyperbolic_inverse(z, v_limit)
+
+        # the model inverses already return finite voltages in [0, v_limit]; only the
+        # hysteresis inverse can leave that range
+        voltage, status = result.voltage, result.status
+        if self._hysteresis.active:
+            voltage, status = self._hysteresis_and_limits(result)
+        if raw_status is not None:
+            np.maximum(status, raw_status, out=status)
+        maybe_invalid = raw_status is not None or laws.flagged or self._hysteresis.active
+        if maybe_invalid and status.size and status.max() >= CODE_INVALID:
+            invalid = status == CODE_INVALID
+            voltage[invalid] = self._last_voltage[invalid]
+            if model_error is not None:
+                model_error[invalid] = 0.0
+        self._hysteresis.apply(voltage)
+        # shared with the caller without a copy: frozen so that nobody changes the state
+        voltage.flags.writeable = False
+        status.flags.writeable = False
+        self._last_voltage = voltage
+        self._last_status = status
+        return CommandResult(voltage, status, model_error=model_error)
+
+    def _compensate_setpoint(self, z: FloatArray, T: FloatArray, t: float) -> FloatArray:
+        """Turn the wanted displacement into the wanted free (basic-model) displacement."""
+        comp = self.config.compensation
+        z = self._delay(z, t)
+        if comp.thermal_expansion != 0.0:
+            z = z - comp.thermal_expansion * (T - comp.expansion_reference_temperature)
+        factor = drift_factor(comp, t)
+        if factor != 1.0:
+            z = z / factor
+        return self._coupling(z)
+
+    def _linearized(
+        self, laws: LawsAtTemperature, z: FloatArray
+    ) -> tuple[InverseResult, FloatArray]:
+        """Bias at V_max(T), drive z - z_sat/3 through 1 / d_max(T)."""
+        reach = laws.hyperbolic_inverse(z, self.config.v_limit)  # statuses of the set point
+        voltage = laws.v_max() + (np.maximum(z, 0.0) - laws.z_sat() / 3.0) / laws.d_max()
+        voltage = np.clip(voltage, 0.0, self.config.v_limit)
+        high = reach.status == CODE_CLIPPED_HIGH
+        voltage[high] = self.config.v_limit
+        error = np.asarray(laws.hyperbolic_forward(voltage) - z, np.float64)
+        return limit_voltages(voltage, reach.status, self.config.v_limit), error
+
+    def _observer(self, laws: LawsAtTemperature, z: FloatArray) -> tuple[InverseResult, FloatArray]:
+        """Run the observer's PI loop towards z; the integrator state persists.
+
+        The loop works on y = sqrt(z) (linear in V at low field: y = sqrt(M/L) V) and its
+        gain is scheduled on the observer's local gain dy/dV = sqrt(M/L) sech^2(k V / L),
+        so with kp + ki <= 1 it approaches the set point from below without overshoot.
+        """
+        gains = self.config.observer
+        v_limit = self.config.v_limit
+        reach = laws.hyperbolic_inverse(z, v_limit)
+        target = np.sqrt(np.clip(z, 0.0, None))
+        sqrt_n = np.sqrt(laws.n)
+        sqrt_z_sat = np.sqrt(laws.z_sat())
+        floor = 1e-6 * sqrt_n
+        integral = np.clip(self._integral, 0.0, v_limit)
+        voltage = integral
+        for _ in range(gains.iterations):
+            t = np.tanh(laws.q * voltage)
+            gain = np.maximum(sqrt_n * (1.0 - t * t), floor)
+            error = (target - sqrt_z_sat * t) / gain
+            integral = np.clip(integral + gains.ki * error, 0.0, v_limit)  # anti-windup
+            voltage = np.clip(integral + gains.kp * error, 0.0, v_limit)
+        self._integral = integral
+        model_error = laws.hyperbolic_forward(voltage) - target * target
+        return limit_voltages(voltage, reach.status, v_limit), np.asarray(model_error, np.float64)
+
+    def _hysteresis_and_limits(self, result: InverseResult) -> tuple[FloatArray, StatusArray]:
+        """Undo the hysteresis, then keep every voltage finite and within [0, v_limit]."""
+        status = result.status
+        voltage = self._hysteresis.invert(result.voltage)
+        v_limit = self.config.v_limit
+        if voltage.size and not (voltage.min() >= 0.0 and voltage.max() <= v_limit):
+            bad = ~np.isfinite(voltage)
+            status[bad] = CODE_INVALID
+            voltage = np.where(bad, self._last_voltage, voltage)
+            status[(voltage > v_limit) & (status < CODE_CLIPPED_HIGH)] = CODE_CLIPPED_HIGH
+            status[(voltage < 0.0) & (status < CODE_CLIPPED_LOW)] = CODE_CLIPPED_LOW
+            voltage = np.clip(voltage, 0.0, v_limit)
+        return voltage, status

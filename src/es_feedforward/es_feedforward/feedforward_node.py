@@ -1,0 +1,386 @@
+"""ROS 2 node: temperature-compensated feedforward (``ros2 run es_feedforward feedforward_node``).
+
+Subscribes ``/dm/setpoint`` (m) and ``/dm/temperature`` (degC), publishes one ``/dm/command``
+(V) per set point received, computed for the whole grid with the newest temperature
+(:mod:`es_feedforward.feedforward`). When no new command can be computed (missing, stale or
+invalid temperature; malformed set point) it re-publishes the last good one, so a lockstep
+plant never waits. Parameters: :mod:`es_feedforward.param_file` names, declared with ranges;
+a run-time change is validated as a whole set and swapped in between two set points.
+"""
+
+from __future__ import annotations
+
+from typing import Final
+
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.clock import Clock, ClockType
+from rclpy.exceptions import ParameterException
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from std_msgs.msg import Float64MultiArray
+
+from es_feedforward.compensation import PREFIX as COMPENSATION_PREFIX
+from es_feedforward.compensation import RANGES as COMPENSATION_RANGES
+from es_feedforward.compensation import CompensationParams
+from es_feedforward.feedforward import (
+    DEFAULT_REFERENCE_TEMPERATURE,
+    DEFAULT_TEMPERATURE_TIMEOUT,
+    CommandResult,
+    Feedforward,
+    FeedforwardConfig,
+    Mode,
+    ObserverGains,
+)
+from es_feedforward.models import DEFAULT_V_LIMIT, Status
+from es_feedforward.param_file import (
+    LAW_FIELDS,
+    LAW_PREFIX,
+    OBSERVER_PREFIX,
+    config_from_parameters,
+)
+from es_feedforward.params import ActuatorParams
+from es_msgs_py.arrays import LayoutError, grid_to_msg, msg_to_grid
+from es_msgs_py.diagnostics import Level, make_array, make_status
+from es_msgs_py.node_main import run_node
+from es_msgs_py.params import Check, ParameterSpec, declare_parameters
+from es_msgs_py.topics import COMMAND, DIAGNOSTICS, SETPOINT, TEMPERATURE, qos_for
+
+NODE_NAME: Final = "feedforward"
+#: How many of the worst actuators the diagnostics name.
+WORST_COUNT: Final = 5
+_LEVEL_OF_STATUS: Final = {
+    Status.OK: Level.OK,
+    Status.OUT_OF_VALIDITY: Level.WARN,
+    Status.CLIPPED_LOW: Level.WARN,
+    Status.CLIPPED_HIGH: Level.WARN,
+    Status.INVALID: Level.ERROR,
+}
+_STATUS_LEVELS: Final = np.array([_LEVEL_OF_STATUS[s] for s in Status], np.int8)
+
+
+def _double_array_check(name: str) -> Check:
+    """Return a check rejecting empty or non-finite double arrays (rclpy gives array.array)."""
+
+    def check(value: object) -> str | None:
+        if isinstance(value, str | bytes) or not hasattr(value, "__len__"):
+            return f"{name} must be a double array"
+        values = np.asarray(value, dtype=np.float64)
+        if values.size == 0:
+            return f"{name} must be a non-empty double array"
+        if not np.all(np.isfinite(values)):
+            return f"{name} must hold finite values"
+        return None
+
+    return check
+
+
+def parameter_specs() -> list[ParameterSpec]:
+    """Return every declared parameter of the node (defaults: thesis laws, effects off)."""
+    law_defaults = ActuatorParams()
+    compensation_defaults = CompensationParams()
+    observer_defaults = ObserverGains()
+    specs = [
+        ParameterSpec("rows", 12, "Grid rows R.", 1, 1024, read_only=True),
+        ParameterSpec("cols", 12, "Grid columns C.", 1, 1024, read_only=True),
+        ParameterSpec(
+            "mode",
+            Mode.INVERSE_HYPERBOLIC.value,
+            "Feedforward scheme.",
+            choices=[m.value for m in Mode],
+        ),
+        ParameterSpec("v_limit", DEFAULT_V_LIMIT, "Amplifier limit [V].", 1.0, 1000.0),
+        ParameterSpec(
+            "reference_temperature",
+            DEFAULT_REFERENCE_TEMPERATURE,
+            "Temperature [degC] at which 'uncompensated' evaluates the model.",
+            -50.0,
+            150.0,
+        ),
+        ParameterSpec(
+            "temperature_timeout",
+            DEFAULT_TEMPERATURE_TIMEOUT,
+            "Age [s, ROS time] beyond which the temperature estimate is stale (0: never).",
+            0.0,
+            3600.0,
+        ),
+        ParameterSpec(
+            "diagnostics_period",
+            1.0,
+            "Period [s, wall time] of /diagnostics.",
+            0.05,
+            60.0,
+            read_only=True,
+        ),
+        ParameterSpec(
+            OBSERVER_PREFIX + "kp",
+            observer_defaults.kp,
+            "Observer PI proportional gain (normalised by the observer gain).",
+            0.0,
+            1.0,
+        ),
+        ParameterSpec(
+            OBSERVER_PREFIX + "ki",
+            observer_defaults.ki,
+            "Observer PI integral gain per iteration (normalised by the observer gain).",
+            0.001,
+            1.0,
+        ),
+        ParameterSpec(
+            OBSERVER_PREFIX + "iterations",
+            observer_defaults.iterations,
+            "Observer PI iterations per set point.",
+            1,
+            1000,
+        ),
+    ]
+    specs += [
+        ParameterSpec(
+            LAW_PREFIX + name,
+            [float(getattr(law_defaults, name))],
+            f"Temperature law field {name} (SI units, see README); length 1 or rows*cols.",
+            check=_double_array_check(LAW_PREFIX + name),
+        )
+        for name in LAW_FIELDS
+    ]
+    specs += [
+        ParameterSpec(
+            COMPENSATION_PREFIX + name,
+            float(getattr(compensation_defaults, name)),
+            f"Effect compensation {name} (see README).",
+            low,
+            high,
+        )
+        for name, (low, high) in COMPENSATION_RANGES.items()
+    ]
+    return specs
+
+
+class FeedforwardNode(Node):
+    """The feedforward node; all computation lives in :class:`Feedforward`."""
+
+    def __init__(self) -> None:
+        super().__init__(NODE_NAME)
+        specs = parameter_specs()
+        self._names = [spec.name for spec in specs]
+        try:
+            self._values = declare_parameters(self, specs)
+        except ParameterException as err:  # e.g. an integer array given for a double array
+            raise ValueError(f"invalid parameter: {err}") from None
+        config = config_from_parameters(self._values)
+        self._core = Feedforward(config)
+        self._pending: Feedforward | None = None
+        self._reloads = 0
+        self._rejected_reload: str | None = None
+        self.add_on_set_parameters_callback(self._check_parameter_set)
+        self.add_post_set_parameters_callback(self._swap_configuration)
+
+        self._command_pub = self.create_publisher(Float64MultiArray, COMMAND, qos_for(COMMAND))
+        self._diag_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS, qos_for(DIAGNOSTICS))
+        # Temperature first: the executor serves ready subscriptions in creation order, and in
+        # lockstep a step's estimate is sent before its set point, which must use it.
+        self.create_subscription(
+            Float64MultiArray, TEMPERATURE, self._on_temperature, qos_for(TEMPERATURE)
+        )
+        self.create_subscription(Float64MultiArray, SETPOINT, self._on_setpoint, qos_for(SETPOINT))
+        self._counts = {"setpoints": 0, "commands": 0, "held": 0, "temperatures": 0}
+        self._rejected = {SETPOINT: 0, TEMPERATURE: 0}
+        self._last_rejection: dict[str, str | None] = {SETPOINT: None, TEMPERATURE: None}
+        self._last_result: CommandResult | None = None
+        self._published_levels: tuple[Level, ...] = ()
+        self.create_timer(
+            float(self._values["diagnostics_period"]),  # type: ignore[arg-type]
+            self._publish_diagnostics,
+            clock=Clock(clock_type=ClockType.STEADY_TIME),
+        )
+        rows, cols = config.shape
+        self.get_logger().info(f"feedforward {rows} x {cols}, mode {config.mode.value}")
+
+    # --- data path -------------------------------------------------------------------------
+
+    def _now(self) -> float:
+        return float(self.get_clock().now().nanoseconds) * 1e-9
+
+    def _on_setpoint(self, msg: Float64MultiArray) -> None:
+        self._counts["setpoints"] += 1
+        try:
+            setpoint = msg_to_grid(msg, self._core.config.shape)
+        except LayoutError as err:
+            self._reject(SETPOINT, str(err))
+            self._publish_command(self._core.last_voltage)
+            return
+        self._last_rejection[SETPOINT] = None
+        result = self._core.command(setpoint, self._now())
+        self._publish_command(result.voltage)
+        self._last_result = result
+        if result.held:
+            self._counts["held"] += 1
+        self._publish_diagnostics_on_change()
+
+    def _on_temperature(self, msg: Float64MultiArray) -> None:
+        self._counts["temperatures"] += 1
+        try:
+            temperature = msg_to_grid(msg, self._core.config.shape)
+        except LayoutError as err:
+            self._reject(TEMPERATURE, str(err))
+            return
+        self._last_rejection[TEMPERATURE] = None
+        problem = self._core.update_temperature(temperature, self._now())
+        if problem is not None:
+            self.get_logger().error(problem, throttle_duration_sec=1.0)
+        self._publish_diagnostics_on_change()
+
+    def _publish_command(self, voltage: np.ndarray) -> None:
+        self._command_pub.publish(grid_to_msg(voltage))
+        self._counts["commands"] += 1
+
+    def _reject(self, topic: str, reason: str) -> None:
+        self._rejected[topic] += 1
+        self._last_rejection[topic] = reason
+        self.get_logger().error(f"rejected {topic}: {reason}", throttle_duration_sec=1.0)
+        self._publish_diagnostics_on_change()
+
+    # --- parameters ------------------------------------------------------------------------
+
+    def _check_parameter_set(self, params: list[Parameter]) -> SetParametersResult:
+        """Validate the whole resulting parameter set and build the new core (not yet used)."""
+        candidate = dict(self._values)
+        candidate.update({p.name: p.value for p in params if p.name in self._names})
+        try:
+            config = config_from_parameters(candidate)
+            self._pending = Feedforward(config, previous=self._core)
+        except ValueError as err:
+            self._rejected_reload = str(err)
+            self._pending = None
+            return SetParametersResult(successful=False, reason=str(err))
+        return SetParametersResult(successful=True)
+
+    def _swap_configuration(self, params: list[Parameter]) -> None:
+        """Swap the validated core in (same executor thread: never inside a set point)."""
+        self._values.update({p.name: p.value for p in params if p.name in self._names})
+        if self._pending is not None:
+            self._core = self._pending
+            self._pending = None
+            self._reloads += 1
+            self._rejected_reload = None
+            self.get_logger().info(f"configuration reloaded (mode {self._core.config.mode.value})")
+        self._publish_diagnostics_on_change()
+
+    # --- diagnostics -----------------------------------------------------------------------
+
+    def _statuses(self) -> list[DiagnosticStatus]:
+        core = self._core
+        config: FeedforwardConfig = core.config
+        now = self._now()
+        out = []
+        problem = core.temperature_problem(now)
+        level = self._temperature_level(problem)
+        if not core.needs_temperature:
+            out.append(make_status(f"{NODE_NAME}: temperature", level, "not used (uncompensated)"))
+        else:
+            last_bad = self._last_rejection[TEMPERATURE]
+            message = problem or (f"last message rejected: {last_bad}" if last_bad else "fresh")
+            out.append(
+                make_status(
+                    f"{NODE_NAME}: temperature",
+                    level,
+                    message + (" (holding the last good command)" if problem else ""),
+                    {
+                        "received": self._counts["temperatures"],
+                        "rejected": self._rejected[TEMPERATURE],
+                        "timeout_s": config.temperature_timeout,
+                    },
+                )
+            )
+        out.append(self._actuator_status())
+        last_bad = self._last_rejection[SETPOINT]
+        out.append(
+            make_status(
+                f"{NODE_NAME}: setpoint",
+                Level.ERROR if last_bad else Level.OK,
+                f"last message rejected: {last_bad}" if last_bad else "ok",
+                {
+                    "received": self._counts["setpoints"],
+                    "rejected": self._rejected[SETPOINT],
+                    "commands": self._counts["commands"],
+                    "held": self._counts["held"],
+                },
+            )
+        )
+        out.append(
+            make_status(
+                f"{NODE_NAME}: configuration",
+                Level.OK,
+                f"mode {config.mode.value}, {config.shape[0]} x {config.shape[1]}",
+                {
+                    "mode": config.mode.value,
+                    "v_limit": config.v_limit,
+                    "reloads": self._reloads,
+                    "last_rejected_change": self._rejected_reload or "-",
+                },
+            )
+        )
+        return out
+
+    def _actuator_status(self) -> DiagnosticStatus:
+        name = f"{NODE_NAME}: actuators"
+        result = self._last_result
+        if result is None:
+            return make_status(name, Level.OK, "no set point yet")
+        status = result.status.ravel()
+        counts = np.bincount(status, minlength=len(Status))
+        values: dict[str, object] = {s.name.lower(): int(counts[s]) for s in Status}
+        level = Level(int(_STATUS_LEVELS[status.max()])) if status.size else Level.OK
+        if level is not Level.OK:
+            worst = np.argsort(-status, kind="stable")[:WORST_COUNT]
+            cols = self._core.config.shape[1]
+            for rank, index in enumerate(worst[status[worst] > 0], 1):
+                values[f"worst_{rank}"] = (
+                    f"{int(index)} (row {int(index) // cols}, col {int(index) % cols}): "
+                    f"{Status(int(status[index])).name}"
+                )
+        if result.model_error is not None:
+            values["max_model_error_m"] = float(np.max(np.abs(result.model_error)))
+        bad = int(np.count_nonzero(status))
+        message = "all ok" if not bad else f"{bad} actuator(s) not ok"
+        if result.held:
+            message = f"holding the last good command: {result.problem}"
+        return make_status(name, level, message, values)
+
+    def _publish_diagnostics(self) -> None:
+        statuses = self._statuses()
+        self._published_levels = tuple(Level(s.level[0]) for s in statuses)
+        self._diag_pub.publish(make_array(self.get_clock().now().to_msg(), statuses))
+
+    def _temperature_level(self, problem: str | None) -> Level:
+        if not self._core.needs_temperature:
+            return Level.OK
+        if problem:
+            return Level.ERROR
+        return Level.WARN if self._last_rejection[TEMPERATURE] else Level.OK
+
+    def _current_levels(self) -> tuple[Level, ...]:
+        """Cheap level summary to detect changes (same order as :meth:`_statuses`)."""
+        temperature = self._temperature_level(self._core.temperature_problem(self._now()))
+        result = self._last_result
+        actuators = (
+            Level(int(_STATUS_LEVELS[result.status.max()]))
+            if result is not None and result.status.size
+            else Level.OK
+        )
+        setpoint = Level.ERROR if self._last_rejection[SETPOINT] else Level.OK
+        return (temperature, actuators, setpoint, Level.OK)
+
+    def _publish_diagnostics_on_change(self) -> None:
+        if self._current_levels() != self._published_levels:
+            self._publish_diagnostics()
+
+
+def main() -> int:
+    """Run the node until SIGINT/SIGTERM."""
+    return run_node(FeedforwardNode)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,188 @@
+"""Feedforward configuration <-> ROS parameters and ROS 2 parameters YAML files.
+
+One flat set of parameter names (``docs/architecture.md``, README of es_feedforward):
+``rows``, ``cols``, ``mode``, ``v_limit``, ``reference_temperature``, ``temperature_timeout``,
+``law.<field>`` (double arrays, length 1 or rows*cols, row-major), ``compensation.<name>``
+and ``observer.<kp|ki|iterations>``. The calibration tool writes files with
+:func:`write_params_file`; the node is started with ``--ros-args --params-file FILE`` and
+checks every set with :func:`config_from_parameters`, the same code path as
+:func:`read_params_file`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import fields, replace
+from pathlib import Path
+from typing import Final
+
+import numpy as np
+import yaml
+
+from es_feedforward.compensation import PREFIX as COMPENSATION_PREFIX
+from es_feedforward.compensation import CompensationParams
+from es_feedforward.feedforward import FeedforwardConfig, Mode, ObserverGains
+from es_feedforward.params import ActuatorParams
+
+LAW_PREFIX: Final = "law."
+OBSERVER_PREFIX: Final = "observer."
+#: Node name the calibration tool writes files for.
+DEFAULT_NODE_NAME: Final = "feedforward"
+LAW_FIELDS: Final = tuple(f.name for f in fields(ActuatorParams))
+COMPENSATION_FIELDS: Final = tuple(f.name for f in fields(CompensationParams))
+OBSERVER_FIELDS: Final = tuple(f.name for f in fields(ObserverGains))
+
+
+def _law_array(name: str, value: object, shape: tuple[int, int]) -> float | np.ndarray:
+    """Return a law parameter as a scalar (length 1) or a (rows, cols) map (length rows*cols)."""
+    values = np.atleast_1d(np.asarray(value, dtype=np.float64)).ravel()
+    if values.size == 1:
+        return float(values[0])
+    if values.size != shape[0] * shape[1]:
+        raise ValueError(
+            f"{LAW_PREFIX}{name} has {values.size} values, expected 1 or rows*cols = "
+            f"{shape[0] * shape[1]}"
+        )
+    return values.reshape(shape)
+
+
+def config_from_parameters(
+    values: Mapping[str, object], base: FeedforwardConfig | None = None
+) -> FeedforwardConfig:
+    """Return the configuration described by flat parameter ``values`` on top of ``base``.
+
+    Names not given keep the value of ``base`` (defaults when ``base`` is ``None``; then
+    ``rows`` and ``cols`` are required). Unknown names are ignored (other node parameters).
+
+    Raises:
+        ValueError: a value has the wrong type, size or range; the message gives the reason.
+
+    """
+    try:
+        return _config_from_parameters(values, base)
+    except (TypeError, ValueError) as err:
+        raise ValueError(str(err)) from None
+
+
+def _config_from_parameters(
+    values: Mapping[str, object], base: FeedforwardConfig | None
+) -> FeedforwardConfig:
+    if base is None:
+        if "rows" not in values or "cols" not in values:
+            raise ValueError("rows and cols are required")
+        base = FeedforwardConfig(shape=(1, 1))
+    rows = int(values.get("rows", base.shape[0]))  # type: ignore[call-overload]
+    cols = int(values.get("cols", base.shape[1]))  # type: ignore[call-overload]
+    shape = (rows, cols)
+    if rows < 1 or cols < 1:
+        raise ValueError(f"rows and cols must be >= 1, got {rows} x {cols}")
+    mode_name = str(values.get("mode", base.mode.value))
+    if mode_name not in Mode.__members__.values():
+        raise ValueError(f"mode={mode_name!r} is not one of {[m.value for m in Mode]}")
+    law = {
+        name: _law_array(name, values[LAW_PREFIX + name], shape)
+        for name in LAW_FIELDS
+        if LAW_PREFIX + name in values
+    }
+    compensation = {
+        name: float(values[COMPENSATION_PREFIX + name])  # type: ignore[arg-type]
+        for name in COMPENSATION_FIELDS
+        if COMPENSATION_PREFIX + name in values
+    }
+    observer = {
+        name: values[OBSERVER_PREFIX + name]
+        for name in OBSERVER_FIELDS
+        if OBSERVER_PREFIX + name in values
+    }
+    config = FeedforwardConfig(
+        shape=shape,
+        params=replace(base.params, **law),
+        mode=Mode(mode_name),
+        v_limit=float(values.get("v_limit", base.v_limit)),  # type: ignore[arg-type]
+        reference_temperature=float(
+            values.get("reference_temperature", base.reference_temperature)  # type: ignore[arg-type]
+        ),
+        temperature_timeout=float(
+            values.get("temperature_timeout", base.temperature_timeout)  # type: ignore[arg-type]
+        ),
+        compensation=replace(base.compensation, **compensation),
+        observer=replace(base.observer, **observer),  # type: ignore[arg-type]
+    )
+    reason = config.reason_to_reject()
+    if reason is not None:
+        raise ValueError(reason)
+    return config
+
+
+def config_to_parameters(config: FeedforwardConfig) -> dict[str, object]:
+    """Return the flat parameter values of ``config`` (law maps as row-major lists)."""
+    out: dict[str, object] = {
+        "rows": config.shape[0],
+        "cols": config.shape[1],
+        "mode": config.mode.value,
+        "v_limit": float(config.v_limit),
+        "reference_temperature": float(config.reference_temperature),
+        "temperature_timeout": float(config.temperature_timeout),
+    }
+    for name in LAW_FIELDS:
+        value = np.asarray(getattr(config.params, name), np.float64)
+        if value.ndim:
+            value = np.broadcast_to(value, config.shape)
+        out[LAW_PREFIX + name] = [float(v) for v in value.ravel()]
+    for name in COMPENSATION_FIELDS:
+        out[COMPENSATION_PREFIX + name] = float(getattr(config.compensation, name))
+    for name in OBSERVER_FIELDS:
+        out[OBSERVER_PREFIX + name] = getattr(config.observer, name)
+    return out
+
+
+def write_params_file(
+    path: str | Path, config: FeedforwardConfig, node_name: str = DEFAULT_NODE_NAME
+) -> None:
+    """Write ``config`` as a ROS 2 parameters YAML for the node ``node_name``."""
+    document = {node_name: {"ros__parameters": config_to_parameters(config)}}
+    Path(path).write_text(yaml.safe_dump(document, sort_keys=False), encoding="utf-8")
+
+
+def _flatten(tree: Mapping[str, object], prefix: str = "") -> dict[str, object]:
+    """Flatten nested parameter dicts (``law: {L: ...}``) into dotted names (``law.L``)."""
+    flat: dict[str, object] = {}
+    for key, value in tree.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, Mapping):
+            flat.update(_flatten(value, f"{name}."))
+        else:
+            flat[name] = value
+    return flat
+
+
+def read_params_file(path: str | Path, node_name: str = DEFAULT_NODE_NAME) -> FeedforwardConfig:
+    """Read the feedforward configuration from a ROS 2 parameters YAML.
+
+    Takes the parameters of ``node_name`` (with or without a leading ``/``) and of ``/**``
+    (wildcard), the node's own entries winning, as ROS does.
+
+    Raises:
+        ValueError: unreadable file, no parameters for the node, or an invalid value (one
+            readable line).
+
+    """
+    try:
+        document = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as err:
+        raise ValueError(f"cannot read parameters file {path}: {err}".splitlines()[0]) from None
+    if not isinstance(document, Mapping):
+        raise ValueError(f"{path}: not a ROS 2 parameters file (no node mapping)")
+    values: dict[str, object] = {}
+    found = False
+    for key in ("/**", node_name.lstrip("/"), "/" + node_name.lstrip("/")):
+        section = document.get(key)
+        if isinstance(section, Mapping) and isinstance(section.get("ros__parameters"), Mapping):
+            values.update(_flatten(section["ros__parameters"]))
+            found = True
+    if not found:
+        raise ValueError(f"{path}: no ros__parameters for node {node_name!r} or '/**'")
+    try:
+        return config_from_parameters(values)
+    except ValueError as err:
+        raise ValueError(f"{path}: {err}") from None

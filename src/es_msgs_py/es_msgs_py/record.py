@@ -1,0 +1,240 @@
+"""``ros2 run es_msgs_py record -o BAG [--storage mcap|sqlite3] [--all-dm] TOPIC...``.
+
+Records topics into a rosbag2 bag (see :mod:`es_msgs_py.bag`). Messages are taken as
+serialized bytes (no deserialization) and stamped with the node's clock at reception, so the
+bag runs on sim time when ``use_sim_time`` is set (``--ros-args -p use_sim_time:=true``).
+Subscriptions use the contract QoS of each topic with a deeper queue, so that a short stall
+(a chunk write, a garbage collection) loses nothing at kHz rates. The bag is flushed every
+``--flush-interval`` seconds, so even a killed recorder leaves a bag readable up to its last
+flush; SIGINT/SIGTERM close it cleanly (messages still in flight when the signal arrives
+are not recorded). Counts of received and written messages per topic are published on
+/diagnostics every second and logged at exit.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import NoReturn
+
+from rclpy.clock import Clock, ClockType
+from rclpy.event_handler import QoSMessageLostInfo, SubscriptionEventCallbacks
+from rclpy.logging import get_logger
+from rclpy.node import Node
+from rclpy.qos import QoSProfile
+from rclpy.subscription import Subscription
+from rclpy.validate_full_topic_name import validate_full_topic_name
+
+from es_msgs_py import topics
+from es_msgs_py.bag import STORAGES, BagError, BagWriter
+from es_msgs_py.diagnostics import Level, make_array, make_status
+from es_msgs_py.node_main import run_node
+
+NODE_NAME = "record"
+#: Topics taken by ``--all-dm``.
+ALL_DM_TOPICS = (*topics.DM_TOPICS, topics.DIAGNOSTICS)
+
+
+@dataclass(frozen=True)
+class Options:
+    """What to record and where."""
+
+    output: str
+    storage: str
+    topics: tuple[str, ...]
+    flush_interval: float
+    queue_depth: int
+
+
+@dataclass
+class TopicCount:
+    """Messages of one topic received from DDS, written to the bag, and reported lost.
+
+    ``lost`` is what the middleware reports as lost before reception (its message-lost
+    event); it stays 0 where the middleware does not report losses.
+    """
+
+    type_name: str
+    received: int = 0
+    written: int = 0
+    lost: int = 0
+
+
+class _OneLineParser(argparse.ArgumentParser):
+    """Argument errors are one line on stderr and exit code 2."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+def parse_args(argv: Sequence[str]) -> Options:
+    """Parse the command line (without ROS arguments); exit 2 with one line when invalid."""
+    parser = _OneLineParser(
+        prog=NODE_NAME,
+        description="Record topics of the es_dm contract into a rosbag2 bag.",
+    )
+    parser.add_argument("topics", nargs="*", metavar="TOPIC", help="topics to record")
+    parser.add_argument("-o", "--output", required=True, help="bag directory to create")
+    parser.add_argument("--storage", choices=STORAGES, default="mcap", help="storage format")
+    parser.add_argument("--all-dm", action="store_true", help=f"record {', '.join(ALL_DM_TOPICS)}")
+    parser.add_argument(
+        "--flush-interval", type=float, default=0.5, help="seconds between flushes to disk"
+    )
+    parser.add_argument(
+        "--queue-depth", type=int, default=1000, help="subscription queue depth per topic"
+    )
+    ns = parser.parse_args(list(argv))
+    names = [*ALL_DM_TOPICS] if ns.all_dm else []
+    for name in ns.topics:
+        full = name if name.startswith("/") else f"/{name}"
+        try:
+            validate_full_topic_name(full)
+        except Exception as err:  # rclpy raises its own InvalidTopicNameException
+            parser.error(f"invalid topic name {name!r}: {str(err).splitlines()[0]}")
+        names.append(full)
+    if not names:
+        parser.error("give at least one TOPIC or --all-dm")
+    if not 0.0 < ns.flush_interval <= 3600.0:
+        parser.error(f"--flush-interval must be in (0, 3600] s, got {ns.flush_interval}")
+    if ns.queue_depth < 1:
+        parser.error(f"--queue-depth must be >= 1, got {ns.queue_depth}")
+    return Options(
+        ns.output, ns.storage, tuple(dict.fromkeys(names)), ns.flush_interval, ns.queue_depth
+    )
+
+
+class Recorder(Node):
+    """Subscribe to topics as raw bytes and write each message to a bag."""
+
+    def __init__(self, options: Options) -> None:
+        """Create the bag (``ValueError``/``BagError`` if it exists) and start subscribing."""
+        super().__init__(NODE_NAME)
+        self._options = options
+        self._bag = BagWriter(options.output, options.storage)
+        self._counts: dict[str, TopicCount] = {}
+        self._recorded: list[Subscription] = []  # Node owns `_subscriptions`
+        self._pending = [t for t in options.topics if t not in topics.TOPIC_TYPES]
+        self._write_failed = False
+        for topic in options.topics:
+            if topic in topics.TOPIC_TYPES:
+                self._subscribe(topic, topics.TOPIC_TYPES[topic])
+        self._diagnostics = self.create_publisher(
+            topics.message_class(topics.DIAGNOSTIC_ARRAY),
+            topics.DIAGNOSTICS,
+            topics.qos_for(topics.DIAGNOSTICS),
+        )
+        # Steady-clock timers: flushing must go on when sim time stands still.
+        steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self.create_timer(options.flush_interval, self._flush, clock=steady)
+        self.create_timer(1.0, self._publish_diagnostics, clock=steady)
+        if self._pending:
+            self.create_timer(0.2, self._discover, clock=steady)
+        self.get_logger().info(
+            f"recording {', '.join(options.topics)} to {options.output} ({options.storage})"
+        )
+
+    def _subscribe(self, topic: str, type_name: str) -> None:
+        contract = topics.qos_for(topic)
+        qos = QoSProfile(
+            history=contract.history,
+            depth=max(contract.depth, self._options.queue_depth),
+            reliability=contract.reliability,
+            durability=contract.durability,
+        )
+        self._bag.add_topic(topic, type_name)
+        count = self._counts[topic] = TopicCount(type_name)
+
+        def on_message(data: bytes) -> None:
+            count.received += 1
+            try:
+                self._bag.write(topic, self.get_clock().now().nanoseconds, data, type_name)
+            except (BagError, OSError) as err:
+                if not self._write_failed:
+                    self._write_failed = True
+                    self.get_logger().error(f"cannot write to {self._options.output}: {err}")
+                    self._publish_diagnostics()  # the level just changed: say so now
+                return
+            count.written += 1
+
+        def on_lost(status: QoSMessageLostInfo) -> None:
+            count.lost = int(status.total_count)
+
+        self._recorded.append(
+            self.create_subscription(
+                topics.message_class(type_name),
+                topic,
+                on_message,
+                qos,
+                raw=True,
+                event_callbacks=SubscriptionEventCallbacks(message_lost=on_lost),
+            )
+        )
+
+    def _flush(self) -> None:
+        try:
+            self._bag.flush()
+        except OSError as err:  # a full disk must not end the recording of what still fits
+            self.get_logger().error(f"cannot flush {self._options.output}: {err}", once=True)
+
+    def _discover(self) -> None:
+        """Subscribe to non-contract topics once their type shows up on the graph."""
+        known = dict(self.get_topic_names_and_types())
+        for topic in list(self._pending):
+            types = known.get(topic)
+            if not types:
+                continue
+            self._pending.remove(topic)
+            try:
+                self._subscribe(topic, types[0])
+            except (BagError, ValueError) as err:
+                self.get_logger().error(f"cannot record {topic}: {err}")
+
+    def _publish_diagnostics(self) -> None:
+        values: dict[str, object] = {"bag": self._options.output}
+        for topic, count in self._counts.items():
+            values[f"{topic} received"] = count.received
+            values[f"{topic} written"] = count.written
+            values[f"{topic} lost"] = count.lost
+        for topic in self._pending:
+            values[f"{topic} received"] = "waiting for publisher"
+        unwritten = sum(c.received - c.written for c in self._counts.values())
+        lost = sum(c.lost for c in self._counts.values())
+        if unwritten:
+            level, text = Level.ERROR, f"{unwritten} received messages not written"
+        elif lost:
+            level, text = Level.WARN, f"middleware lost {lost} messages before reception"
+        else:
+            level, text = Level.OK, "recording"
+        self._diagnostics.publish(
+            make_array(
+                self.get_clock().now().to_msg(),
+                [make_status(f"{NODE_NAME}: bag", level, text, values)],
+            )
+        )
+
+    def close(self) -> None:
+        """Finish the bag and log the counts per topic."""
+        self._bag.close()
+        # Not the node's logger: /rosout is already gone when a signal stopped the node.
+        logger = get_logger(f"{NODE_NAME}.summary")
+        for topic, count in self._counts.items():
+            logger.info(
+                f"{topic}: received {count.received}, written {count.written}, "
+                f"lost before reception {count.lost}"
+            )
+        logger.info(f"bag closed: {self._options.output}")
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the recorder until SIGINT/SIGTERM; return the process exit code."""
+    from rclpy.utilities import remove_ros_args
+
+    args = list(sys.argv if argv is None else argv)
+    options = parse_args(remove_ros_args(args)[1:])
+    return run_node(lambda: Recorder(options), args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

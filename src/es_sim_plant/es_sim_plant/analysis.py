@@ -1,0 +1,129 @@
+"""Read one closed-loop run back (bag + node logs): aligned data, metrics and invariants.
+
+Pure (rosbags + numpy through ``es_msgs_py.bag``; no rclpy). Used by the demo for every run
+and by the system tests.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+from es_msgs_py import topics
+from es_msgs_py.bag import TopicSeries, read_bag
+from es_sim_plant.invariants import (
+    InvariantReport,
+    check_commands,
+    check_counts,
+    published_counts_from_log,
+)
+from es_sim_plant.metrics import (
+    AlignedRun,
+    PeriodSlots,
+    RunMetrics,
+    align_run,
+    run_metrics,
+    setpoint_period,
+)
+
+#: Block length used instead of a period when the set point has no AC component, s.
+STATIC_BLOCK_S = 1.0
+#: Recorder node name: its own last /diagnostics report races its shutdown, so its
+#: diagnostics are not part of the published == recorded check (see :func:`check_run`).
+RECORDER_NODE = "record"
+
+
+@dataclass
+class RunAnalysis:
+    """One run read back: aligned data, figures and what the invariants found."""
+
+    run: AlignedRun
+    metrics: RunMetrics
+    slots: PeriodSlots
+    period_s: float
+    invariants: InvariantReport
+    sim_s: float
+
+
+def node_logs(log_dir: Path) -> dict[str, list[str]]:
+    """Return the lines of every ``<node>.log`` in ``log_dir`` by node name."""
+    return {
+        path.stem: path.read_text(encoding="utf-8", errors="replace").splitlines()
+        for path in sorted(log_dir.glob("*.log"))
+    }
+
+
+def diagnostics_by_node(series: TopicSeries) -> Counter[str]:
+    """Count /diagnostics arrays per reporting node (status names are ``<node>: <aspect>``)."""
+    counts: Counter[str] = Counter()
+    for message in series.messages:
+        names = {status.name.split(":", 1)[0] for status in message.status}
+        for name in names:
+            counts[name] += 1
+    return counts
+
+
+def check_run(
+    bag: Mapping[str, TopicSeries],
+    logs: Mapping[str, Iterable[str]],
+    v_limit: float,
+    data_topics: Iterable[str] = topics.DM_TOPICS,
+) -> InvariantReport:
+    """Check a run's invariants: commands finite and within ``v_limit``; nothing lost.
+
+    Published counts are summed over the nodes' exit logs per /dm topic. /diagnostics is
+    checked per publishing node (the bag's arrays are attributed by their status names),
+    except the recorder's own reports: its last one may be sent while it shuts down.
+    """
+    report = InvariantReport()
+    if topics.COMMAND in bag and bag[topics.COMMAND].values is not None:
+        values = bag[topics.COMMAND].values
+        assert values is not None
+        check_commands(values, v_limit, report)
+    published: Counter[str] = Counter()
+    per_node = {node: published_counts_from_log(lines) for node, lines in logs.items()}
+    for counts in per_node.values():
+        published.update(counts)
+    in_bag = {topic: len(series) for topic, series in bag.items()}
+    wanted = [t for t in data_topics if t in in_bag or published.get(t)]
+    check_counts(published, in_bag, report, wanted)
+    if topics.DIAGNOSTICS in bag:
+        recorded = diagnostics_by_node(bag[topics.DIAGNOSTICS])
+        for node, counts in per_node.items():
+            if node == RECORDER_NODE or topics.DIAGNOSTICS not in counts:
+                continue
+            key = f"{topics.DIAGNOSTICS} ({node})"
+            check_counts(
+                {key: counts[topics.DIAGNOSTICS]}, {key: recorded.get(node, 0)}, report, [key]
+            )
+    return report
+
+
+def analyse_run(
+    bag_path: Path, log_dir: Path, v_limit: float, period_s: float | None = None
+) -> RunAnalysis:
+    """Read a closed-loop run's bag and logs; return its metrics and invariants.
+
+    ``period_s`` is the set point's period when known (the scenario's); by default it is
+    found from the recorded set point (:func:`setpoint_period`).
+
+    Raises:
+        es_msgs_py.bag.BagError: the bag is unreadable or lacks a needed topic.
+        ValueError: the run is too short or its topics do not fit the lockstep protocol.
+
+    """
+    bag = read_bag(bag_path)
+    needed = (topics.DISPLACEMENT, topics.SETPOINT, topics.TEMPERATURE)
+    missing = [t for t in needed if t not in bag or bag[t].values is None]
+    if missing:
+        raise ValueError(f"{bag_path}: no {', '.join(missing)} recorded")
+    disp, sp, temp = (bag[t] for t in needed)
+    assert disp.values is not None and sp.values is not None and temp.values is not None
+    run = align_run(disp.times, disp.values, sp.values, temp.times, temp.values)
+    period = period_s or setpoint_period(run.times, run.setpoint) or STATIC_BLOCK_S
+    metrics, slots = run_metrics(run, period, skip_s=period)
+    invariants = check_run(bag, node_logs(log_dir), v_limit)
+    sim_s = float(disp.times[-1] - disp.times[0]) if len(disp) else 0.0
+    return RunAnalysis(run, metrics, slots, period, invariants, sim_s)

@@ -1,0 +1,459 @@
+r"""``ros2 run es_sim_plant bringup``: run the closed-loop node graph as separate processes.
+
+Our own small replacement for ``ros2 launch`` (none on PyPI; ``launch/closed_loop.launch.py``
+describes the same graph for a full ROS 2 install). It starts, from their installed
+``lib/<pkg>/<exe>`` launchers:
+
+the recorder (``es_msgs_py record``) on every /dm topic and /diagnostics if a bag is asked for,
+the thermal node and the feedforward node; once the graph shows their subscriptions, the
+plant (lockstep, ``exit_when_done``), which itself waits until every topic it publishes has
+a matched subscription from its peers and the recorder (``start_subscribers``).
+
+It supervises them (:mod:`es_sim_plant.supervisor`): output goes to ``<log_dir>/<name>.log``
+(and to the terminal with a ``[name]`` prefix unless ``--quiet``), a node that dies stops the
+rest with a non-zero exit and a clear message, and when the plant finishes its scenario the
+others are stopped (SIGINT, then SIGTERM, then SIGKILL, by PID), the recorder last, so that
+its bag is closed with everything in it. Every node inherits ROS_DOMAIN_ID and the rest of
+the environment.
+
+Example::
+
+    ros2 run es_sim_plant bringup --scenario thesis_ac --mode inverse_hyperbolic \
+        --feedforward-params calibrated.yaml --bag out/thesis_ac
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import sys
+import threading
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import NoReturn
+
+from es_msgs_py import topics
+from es_sim_plant.supervisor import Outcome, ProcessSpec, StopTimeouts, Supervisor
+
+ParamValue = bool | int | float | str | list[float] | list[int] | list[str]
+
+#: Topics the bring-up records: every /dm topic and /diagnostics.
+RECORDED_TOPICS: tuple[str, ...] = (*topics.DM_TOPICS, topics.DIAGNOSTICS)
+
+#: Node names (the defaults of the node executables; parameter files use them).
+PLANT, THERMAL, FEEDFORWARD, RECORDER = "plant", "thermal", "feedforward", "record"
+
+#: What the nodes started before the plant subscribe to: the bring-up waits until the graph
+#: shows these, so that they have found each other before the plant's first step.
+SUBSCRIPTIONS: dict[str, tuple[str, ...]] = {
+    RECORDER: RECORDED_TOPICS,
+    THERMAL: (topics.TEMPERATURE_RAW, topics.HEAT_LOAD),
+    FEEDFORWARD: (topics.SETPOINT, topics.TEMPERATURE),
+}
+
+def executable(package: str, name: str) -> Path:
+    """Return the installed launcher ``<prefix>/lib/<package>/<name>`` (what ``ros2 run`` runs).
+
+    The package's prefix comes from the ament index when it is set up (colcon install), else
+    it is this interpreter's prefix (the virtual environment of a pip install).
+
+    Raises:
+        FileNotFoundError: the launcher is not installed.
+
+    """
+    candidates = []
+    try:
+        from ament_index_python.packages import get_package_prefix
+
+        candidates.append(Path(get_package_prefix(package)))
+    except (ImportError, LookupError, ValueError, OSError):
+        pass
+    candidates.append(Path(sys.prefix))
+    for prefix in candidates:
+        path = prefix / "lib" / package / name
+        if path.is_file():
+            return path
+    raise FileNotFoundError(f"{package} {name} is not installed (looked in lib/{package}/)")
+
+
+def ros_arguments(
+    node_name: str, parameters: Mapping[str, ParamValue], params_files: Sequence[Path] = ()
+) -> list[str]:
+    """Return ``--ros-args`` for a node: its name, parameter files, then single parameters.
+
+    Values are written as JSON, which the ROS argument parser reads as YAML: strings stay
+    strings (quoted), lists become arrays, booleans ``true``/``false``.
+    """
+    args = ["--ros-args", "-r", f"__node:={node_name}"]
+    for path in params_files:
+        args += ["--params-file", str(path)]
+    for name, value in parameters.items():
+        args += ["-p", f"{name}:={json.dumps(value)}"]
+    return args
+
+
+@dataclass
+class GraphConfig:
+    """What the bring-up runs.
+
+    Attributes:
+        scenario: scenario name (shipped with es_sim_plant) or path to a scenario YAML.
+        mode: feedforward mode.
+        bag: bag directory to record into (must not exist), or ``None`` for no recorder.
+        log_dir: directory for the node logs.
+        feedforward_params: ROS parameters YAML for the feedforward node (e.g. calibrated).
+        plant / thermal / feedforward: extra parameters per node (override the defaults).
+        storage: bag storage, ``mcap`` or ``sqlite3``.
+        with_controllers: start the thermal and feedforward nodes; ``False`` runs the plant
+            alone with the recorder (a test-stand characterisation drives its own voltages).
+        domain_id: ROS_DOMAIN_ID of this run (``None``: inherit the environment's), so that
+            runs can go in parallel without seeing each other.
+        ready_timeout: wall seconds to wait for the nodes' subscriptions before the plant.
+        wall_timeout: wall seconds after which the run is stopped as failed (``None``: none).
+
+    """
+
+    scenario: str
+    mode: str = "inverse_hyperbolic"
+    bag: Path | None = None
+    log_dir: Path = Path("log/bringup")
+    feedforward_params: Path | None = None
+    plant: dict[str, ParamValue] = field(default_factory=dict)
+    thermal: dict[str, ParamValue] = field(default_factory=dict)
+    feedforward: dict[str, ParamValue] = field(default_factory=dict)
+    storage: str = "mcap"
+    with_controllers: bool = True
+    domain_id: int | None = None
+    ready_timeout: float = 30.0
+    wall_timeout: float | None = None
+
+
+def node_specs(config: GraphConfig) -> tuple[list[ProcessSpec], ProcessSpec]:
+    """Return the processes started before the plant (recorder first) and the plant."""
+    sim_time: dict[str, ParamValue] = {"use_sim_time": True}
+    before: list[ProcessSpec] = []
+    if config.bag is not None:
+        before.append(
+            ProcessSpec(
+                RECORDER,
+                [
+                    str(executable("es_msgs_py", "record")),
+                    "-o",
+                    str(config.bag),
+                    "--storage",
+                    config.storage,
+                    *RECORDED_TOPICS,
+                    *ros_arguments(RECORDER, sim_time),
+                ],
+                stop_stage=1,  # after every node it records
+            )
+        )
+    if config.with_controllers:
+        before += _controller_specs(config)
+    plant_params: dict[str, ParamValue] = {
+        "scenario": config.scenario,
+        "lockstep": True,
+        "exit_when_done": True,
+        # without a thermal node there is no /dm/temperature to wait for
+        **({} if config.with_controllers else {"sync_temperature": False}),
+        # the recorder's subscriptions must match before the first message goes out
+        **({"start_subscribers": 1} if config.bag is not None else {}),
+        **config.plant,
+    }
+    plant = ProcessSpec(
+        PLANT,
+        [str(executable("es_sim_plant", "plant_node")), *ros_arguments(PLANT, plant_params)],
+        primary=True,
+    )
+    return before, plant
+
+
+def scenario_parameters(
+    scenario: str, plant: Mapping[str, ParamValue]
+) -> tuple[dict[str, ParamValue], dict[str, ParamValue]]:
+    """Return the thermal and feedforward parameters that describe the plant's mirror.
+
+    Read from the scenario with the plant's own overrides (``rows``, ``cols``,
+    ``time_scale``, ``sensor_rate``), so that the three nodes agree on the grid, the sensors
+    and the time scale. The thermal node gets what the mirror's design tells: the thermal
+    network (physical values; it applies ``time_scale`` itself as the plant does), the
+    sensor positions, rate and noise level. Nothing the calibration is meant to find (the
+    actuator laws, effects) is passed.
+
+    Raises:
+        ValueError: the scenario cannot be loaded.
+
+    """
+    from dataclasses import asdict
+
+    from es_sim_plant.scenario import load_scenario
+
+    def number(name: str) -> float:
+        value = plant.get(name, 0)
+        return float(value) if isinstance(value, int | float) else 0.0
+
+    scaled = load_scenario(scenario, number("time_scale") or None)
+    physical = load_scenario(scenario, 1.0)
+    rows = int(number("rows")) or scaled.rows
+    cols = int(number("cols")) or scaled.cols
+    sensor_rate = number("sensor_rate") or scaled.sensor_rate
+    grid: dict[str, ParamValue] = {"rows": rows, "cols": cols}
+    thermal: dict[str, ParamValue] = {
+        **grid,
+        "sample_rate": sensor_rate,
+        "time_scale": scaled.time_scale,
+        "model.sensor_noise": max(scaled.sensors.noise_sd, 1e-6),
+        **{f"thermal.{k}": float(v) for k, v in asdict(physical.thermal).items()},
+    }
+    if scaled.sensors.positions is not None:
+        thermal["sensor_positions"] = [float(v) for p in scaled.sensors.positions for v in p]
+    return thermal, dict(grid)
+
+
+def _controller_specs(config: GraphConfig) -> list[ProcessSpec]:
+    sim_time: dict[str, ParamValue] = {"use_sim_time": True}
+    files = [config.feedforward_params] if config.feedforward_params is not None else []
+    thermal, feedforward = scenario_parameters(config.scenario, config.plant)
+    return [
+        ProcessSpec(
+            THERMAL,
+            [
+                str(executable("es_thermal", "thermal_node")),
+                *ros_arguments(THERMAL, {**sim_time, **thermal, **config.thermal}),
+            ],
+        ),
+        ProcessSpec(
+            FEEDFORWARD,
+            [
+                str(executable("es_feedforward", "feedforward_node")),
+                *ros_arguments(
+                    FEEDFORWARD,
+                    {**sim_time, **feedforward, "mode": config.mode, **config.feedforward},
+                    files,
+                ),
+            ],
+        ),
+    ]
+
+
+class Bringup:
+    """One run of the graph; :meth:`interrupt` may be called from any thread.
+
+    Args:
+        config: what to run.
+        echo: echo node output to stdout with a ``[name]`` prefix.
+        timeouts: stop escalation timeouts.
+        announce: receives the supervisor's one-line messages (default: stderr).
+
+    """
+
+    def __init__(
+        self,
+        config: GraphConfig,
+        echo: bool = False,
+        timeouts: StopTimeouts | None = None,
+        announce: Callable[[str], None] | None = None,
+    ) -> None:
+        self.config = config
+        env = dict(os.environ)
+        if config.domain_id is not None:
+            env["ROS_DOMAIN_ID"] = str(config.domain_id)
+        self.supervisor = Supervisor(
+            config.log_dir,
+            echo=sys.stdout if echo else None,
+            timeouts=timeouts,
+            env=env,
+            announce=announce,
+        )
+        self._interrupted = threading.Event()
+
+    def interrupt(self) -> None:
+        """Stop the run as soon as possible (clean stop, exit code 130)."""
+        self._interrupted.set()
+        self.supervisor.interrupt()
+
+    def run(self) -> Outcome:
+        """Start the nodes, wait until the graph shows them, start the plant, supervise."""
+        before, plant = node_specs(self.config)
+        for spec in before:
+            self.supervisor.start(spec)
+        expected = {spec.name: SUBSCRIPTIONS[spec.name] for spec in before}
+        problem = wait_for_subscriptions(
+            expected, self.config.ready_timeout, self.supervisor, self._interrupted,
+            self.config.domain_id,
+        )  # fmt: skip
+        if problem is not None:
+            outcome = self.supervisor.stop()
+            outcome.reason = problem
+            return outcome
+        self.supervisor.start(plant)
+        return self.supervisor.run(wall_timeout=self.config.wall_timeout)
+
+
+def wait_for_subscriptions(
+    expected: Mapping[str, Sequence[str]],
+    timeout: float,
+    supervisor: Supervisor,
+    interrupted: threading.Event,
+    domain_id: int | None = None,
+) -> str | None:
+    """Wait until every node in ``expected`` shows its subscriptions on the ROS graph.
+
+    Returns ``None`` when ready, else a one-line reason (timeout, a node died, interrupted).
+    """
+    import rclpy
+    from rclpy.signals import SignalHandlerOptions
+
+    context = rclpy.Context()
+    rclpy.init(
+        args=[],  # not sys.argv: the bring-up's own arguments are no ROS arguments
+        context=context,
+        domain_id=domain_id,
+        # the bring-up's own SIGINT/SIGTERM handling stops the graph; rclpy must not
+        signal_handler_options=SignalHandlerOptions.NO,
+    )
+    node = rclpy.create_node("bringup_probe", context=context)
+    deadline = time.monotonic() + timeout
+    try:
+        missing: dict[str, set[str]] = {}
+        while time.monotonic() < deadline:
+            failed = supervisor.check_alive()
+            if failed is not None:
+                return failed.reason
+            if interrupted.is_set():
+                return "interrupted during start-up"
+            names = set(node.get_node_names())
+            missing = {}
+            for name, wanted in expected.items():
+                have: set[str] = set()
+                if name in names:
+                    have = {t for t, _ in node.get_subscriber_names_and_types_by_node(name, "/")}
+                if not set(wanted) <= have:
+                    missing[name] = set(wanted) - have
+            if not missing:
+                return None
+            time.sleep(0.05)
+        what = "; ".join(
+            f"{n} not subscribed to {', '.join(sorted(t))}" for n, t in missing.items()
+        )
+        return f"nodes not ready after {timeout:g} s: {what}"
+    finally:
+        node.destroy_node()
+        rclpy.shutdown(context=context)
+
+
+def run_graph(
+    config: GraphConfig,
+    echo: bool = False,
+    timeouts: StopTimeouts | None = None,
+    announce: Callable[[str], None] | None = None,
+) -> Outcome:
+    """Run the graph until the plant finishes its scenario; return how it ended.
+
+    Call from the main thread: SIGINT/SIGTERM received by this process stop the graph
+    cleanly (exit code 130). From other threads use :class:`Bringup` directly.
+    """
+    bringup = Bringup(config, echo, timeouts, announce)
+    previous = {
+        sig: signal.signal(sig, lambda _s, _f: bringup.interrupt())
+        for sig in (signal.SIGINT, signal.SIGTERM)
+    }
+    try:
+        return bringup.run()
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+class _OneLineParser(argparse.ArgumentParser):
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+def _parse_assignment(text: str) -> tuple[str, ParamValue]:
+    """Parse ``name:=value`` (value as YAML, like ``ros2 run ... -p``)."""
+    import yaml
+
+    name, sep, raw = text.partition(":=")
+    if not sep or not name:
+        raise argparse.ArgumentTypeError(f"expected NAME:=VALUE, got {text!r}")
+    try:
+        value = yaml.safe_load(raw)
+    except yaml.YAMLError:
+        raise argparse.ArgumentTypeError(f"cannot read the value of {text!r}") from None
+    if not isinstance(value, bool | int | float | str | list):
+        raise argparse.ArgumentTypeError(f"unsupported value in {text!r}")
+    return name, value
+
+
+def parse_args(argv: Sequence[str]) -> tuple[GraphConfig, bool]:
+    """Parse the command line into a graph configuration and the echo flag."""
+    parser = _OneLineParser(
+        prog="bringup",
+        description="Run plant, thermal, feedforward and recorder as supervised processes.",
+    )
+    parser.add_argument("--scenario", required=True, help="scenario name or YAML path")
+    parser.add_argument("--mode", default="inverse_hyperbolic", help="feedforward mode")
+    parser.add_argument("--feedforward-params", type=Path, help="parameters YAML for feedforward")
+    parser.add_argument("--bag", type=Path, help="record every /dm topic and /diagnostics here")
+    parser.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap")
+    parser.add_argument("--log-dir", type=Path, default=Path("log/bringup"))
+    parser.add_argument("--timeout", type=float, help="wall-clock limit of the run [s]")
+    parser.add_argument("--quiet", action="store_true", help="node output to log files only")
+    parser.add_argument(
+        "--test-stand",
+        action="store_true",
+        help="plant and recorder only (a characterisation scenario drives its own voltages)",
+    )
+    for node in (PLANT, THERMAL, FEEDFORWARD):
+        parser.add_argument(
+            f"--{node}-param",
+            dest=f"{node}_param",
+            action="append",
+            default=[],
+            type=_parse_assignment,
+            metavar="NAME:=VALUE",
+            help=f"extra parameter of the {node} node (repeatable)",
+        )
+    ns = parser.parse_args(list(argv))
+    if ns.feedforward_params is not None and not ns.feedforward_params.is_file():
+        parser.error(f"--feedforward-params: no such file {ns.feedforward_params}")
+    if ns.bag is not None and ns.bag.exists():
+        parser.error(f"--bag: {ns.bag} exists already; a bag is never overwritten")
+    config = GraphConfig(
+        scenario=ns.scenario,
+        mode=ns.mode,
+        bag=ns.bag,
+        log_dir=ns.log_dir,
+        feedforward_params=ns.feedforward_params,
+        plant=dict(ns.plant_param),
+        thermal=dict(ns.thermal_param),
+        feedforward=dict(ns.feedforward_param),
+        storage=ns.storage,
+        with_controllers=not ns.test_stand,
+        wall_timeout=ns.timeout,
+    )
+    return config, not ns.quiet
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the bring-up from the command line; return the exit code."""
+    config, echo = parse_args(sys.argv[1:] if argv is None else argv)
+    try:
+        outcome = run_graph(config, echo=echo)
+    except FileNotFoundError as err:
+        print(f"bringup: error: {err}", file=sys.stderr)
+        return 2
+    status = "ok" if outcome.exit_code == 0 else "FAILED"
+    print(f"[bringup] {status}: {outcome.reason}; logs in {config.log_dir}", file=sys.stderr)
+    if config.bag is not None and outcome.exit_code == 0:
+        print(f"[bringup] bag: {config.bag}", file=sys.stderr)
+    return outcome.exit_code
+
+
+if __name__ == "__main__":
+    sys.exit(main())

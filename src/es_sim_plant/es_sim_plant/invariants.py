@@ -1,0 +1,102 @@
+"""Invariants every closed-loop run must keep (checked on its bag and the nodes' own counts).
+
+1. Nothing non-finite and nothing beyond the amplifier limit was ever commanded: every value
+   recorded on /dm/command is finite and within +-``v_limit``.
+2. Nothing was lost on the way to the bag: for every recorded topic, the number of messages
+   its publishers say they published equals the number of messages in the bag.
+
+Pure (no rclpy); the counts of published messages come from the nodes' exit logs (see
+:func:`published_counts_from_log`).
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+import numpy.typing as npt
+
+#: Line a node logs at exit for each topic it published on (es_dm convention):
+#: ``published <topic>: <count>``; the recorder logs ``<topic>: received <n>, written <m>``.
+_PUBLISHED = re.compile(r"published (/[\w/]+):? (\d+)")
+_RECORDED = re.compile(r"(/[\w/]+): received (\d+), written (\d+)")
+
+
+@dataclass
+class InvariantReport:
+    """What was checked for one run and what failed (empty ``failures`` = all held)."""
+
+    command_count: int = 0
+    command_max_abs_v: float = 0.0
+    command_non_finite: int = 0
+    command_beyond_limit: int = 0
+    published: dict[str, int] = field(default_factory=dict)
+    recorded: dict[str, int] = field(default_factory=dict)
+    failures: list[str] = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        """True when every invariant held."""
+        return not self.failures
+
+
+def check_commands(
+    commands: npt.NDArray[np.float64], v_limit: float, report: InvariantReport
+) -> None:
+    """Check recorded /dm/command values (any shape, first axis = messages) into ``report``."""
+    values = np.asarray(commands, dtype=np.float64)
+    finite = np.isfinite(values)
+    report.command_count = int(values.shape[0]) if values.ndim else 0
+    report.command_non_finite = int(np.count_nonzero(~finite))
+    report.command_beyond_limit = int(np.count_nonzero(np.abs(values[finite]) > v_limit))
+    report.command_max_abs_v = float(np.max(np.abs(values[finite]), initial=0.0))
+    if report.command_non_finite:
+        report.failures.append(f"/dm/command: {report.command_non_finite} non-finite values")
+    if report.command_beyond_limit:
+        report.failures.append(
+            f"/dm/command: {report.command_beyond_limit} values beyond +-{v_limit:g} V "
+            f"(max |V| {report.command_max_abs_v:.6g})"
+        )
+
+
+def published_counts_from_log(lines: Iterable[str]) -> dict[str, int]:
+    """Return ``{topic: count}`` from ``published <topic>: <n>`` lines (the last per topic)."""
+    counts: dict[str, int] = {}
+    for line in lines:
+        for topic, count in _PUBLISHED.findall(line):
+            counts[topic] = int(count)
+    return counts
+
+
+def recorder_counts_from_log(lines: Iterable[str]) -> dict[str, tuple[int, int]]:
+    """Return ``{topic: (received, written)}`` from the recorder's exit log."""
+    counts: dict[str, tuple[int, int]] = {}
+    for line in lines:
+        for topic, received, written in _RECORDED.findall(line):
+            counts[topic] = (int(received), int(written))
+    return counts
+
+
+def check_counts(
+    published: Mapping[str, int],
+    in_bag: Mapping[str, int],
+    report: InvariantReport,
+    topics: Iterable[str],
+) -> None:
+    """Compare publishers' counts with the bag's for ``topics`` into ``report``.
+
+    A topic with no published count (no node reported one) is a failure: an invariant that
+    cannot be checked does not hold.
+    """
+    for topic in topics:
+        sent = published.get(topic)
+        got = in_bag.get(topic, 0)
+        report.recorded[topic] = got
+        if sent is None:
+            report.failures.append(f"{topic}: no publisher reported a count")
+            continue
+        report.published[topic] = sent
+        if sent != got:
+            report.failures.append(f"{topic}: {sent} published, {got} in the bag")

@@ -1,0 +1,403 @@
+"""Mirror heating: absorbed UV power per cell and the face sheet -> actuator -> base network.
+
+Network (per actuator cell, R x C grid, two nodes per cell)::
+
+    P (UV, W) -> [face sheet T_f, C_f] --G_fa-- [actuator T_a, C_a] --G_ab-- base plate T_b
+                     |  G_ff to the 4 neighbours     |  G_aa to the 4 neighbours
+                                                    + Q (self-heating, W)
+
+    C_f dT_f/dt = -G_fa (T_f - T_a) + G_ff lap(T_f) + P
+    C_a dT_a/dt =  G_fa (T_f - T_a) - G_ab (T_a - T_b) + G_aa lap(T_a) + Q
+
+lap is the 4-neighbour graph Laplacian with only existing neighbours at the border (an
+insulated rim), T_b the base-plate temperature held by the thermal control (uniform, may
+follow a profile). The face sheet radiates little to its vacuum surroundings; that path is
+left out.
+
+Exact integration: with thermal parameters uniform over the grid, the orthonormal 2-D DCT-II
+diagonalises lap (eigenvalues (2 - 2 cos(pi i / R)) + (2 - 2 cos(pi j / C))), so the network
+splits into R*C independent 2 x 2 systems. Their zero-order-hold discretisation over the step
+dt (matrix exponential of the 5 x 5 augmented matrix) is computed once; a step transforms
+the inputs (DCT as two small dense matrix products, D_R X D_C^T), multiplies each mode's 2 x 2
+matrix and transforms back: O(N (R + C)) and exact for inputs held over dt.
+
+Default values (a 5 mm pitch grid behind a 4 mm glass face sheet, PMN-PT actuator columns):
+- face sheet cell, ULE/fused silica (k = 1.3 W/m/K, rho c = 1.63 MJ/m^3/K), 5 x 5 x 4 mm:
+  C_f = 0.163 J/K; lateral conductance k t = 1.3 * 0.004 = 5.2 mW/K;
+- actuator column 3 x 3 x 8 mm (PMN-PT layers, glue, pedestal; k ~ 1.5 W/m/K,
+  rho c ~ 2.6 MJ/m^3/K): C_a = 0.187 J/K, column conductance k A / h = 1.7 mW/K, split into
+  face->actuator and actuator->base halves of twice that (3.4 mW/K each, in series);
+- lateral conduction in the actuator layer (filler, flexures): 0.2 mW/K.
+Resulting time constants (:meth:`ThermalNetwork.time_constants`, 12 x 12 grid): 131 s for the
+uniform mode (the whole face sheet through the columns) down to 3.7 s (actuator-local,
+high-order lateral modes): seconds to minutes, as in a real mirror. 10 mW held in every cell
+heats the actuators by 10e-3 / 3.4e-3 = 2.9 degC and the face sheet by 5.9 degC at steady
+state. Every value is a parameter; scenarios shorten time by scaling the capacitances
+(``ThermalParams.time_scaled``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields, replace
+from typing import Any, Final
+
+import numpy as np
+import numpy.typing as npt
+import scipy.linalg
+
+FloatArray = npt.NDArray[np.float64]
+
+PATTERNS: Final = ("uniform", "dipole", "quadrupole", "off_axis_spot", "annular")
+
+
+@dataclass(frozen=True)
+class ThermalParams:
+    """Uniform per-cell parameters of the thermal network (SI units, see the module docstring).
+
+    Attributes:
+        face_capacitance: C_f, heat capacity of one face-sheet cell [J/K].
+        actuator_capacitance: C_a, heat capacity of one actuator column [J/K].
+        face_to_actuator: G_fa, face-sheet cell to actuator conductance [W/K].
+        actuator_to_base: G_ab, actuator to base-plate conductance [W/K].
+        face_lateral: G_ff, face-sheet conductance between neighbouring cells [W/K].
+        actuator_lateral: G_aa, actuator-layer conductance between neighbours [W/K].
+
+    """
+
+    face_capacitance: float = 0.163
+    actuator_capacitance: float = 0.187
+    face_to_actuator: float = 3.4e-3
+    actuator_to_base: float = 3.4e-3
+    face_lateral: float = 5.2e-3
+    actuator_lateral: float = 0.2e-3
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any] | None) -> ThermalParams:
+        """Build from a scenario's ``thermal`` mapping; raise ``ValueError`` on bad entries."""
+        data = data or {}
+        known = {f.name for f in fields(cls)}
+        bad = set(data) - known
+        if bad:
+            raise ValueError(f"thermal: unknown key(s) {sorted(bad)}; known {sorted(known)}")
+        try:
+            params = cls(**{k: float(v) for k, v in data.items()})
+        except (TypeError, ValueError):
+            raise ValueError("thermal: every value must be a number") from None
+        params.validate()
+        return params
+
+    def validate(self) -> None:
+        """Raise ``ValueError`` unless capacitances and series conductances are > 0."""
+        for name in ("face_capacitance", "actuator_capacitance", "face_to_actuator"):
+            if not getattr(self, name) > 0.0:
+                raise ValueError(f"thermal.{name} must be > 0")
+        if not self.actuator_to_base > 0.0:
+            raise ValueError("thermal.actuator_to_base must be > 0 (the base plate sinks the heat)")
+        for name in ("face_lateral", "actuator_lateral"):
+            if not getattr(self, name) >= 0.0:
+                raise ValueError(f"thermal.{name} must be >= 0")
+
+    def time_scaled(self, time_scale: float) -> ThermalParams:
+        """Return a copy whose capacitances (hence every time constant) scale by ``time_scale``."""
+        return replace(
+            self,
+            face_capacitance=self.face_capacitance * time_scale,
+            actuator_capacitance=self.actuator_capacitance * time_scale,
+        )
+
+
+def laplacian_eigenvalues(shape: tuple[int, int]) -> FloatArray:
+    """Return the eigenvalues (>= 0) of minus the grid graph Laplacian, indexed by DCT mode."""
+    rows, cols = shape
+    lam_r = 2.0 - 2.0 * np.cos(np.pi * np.arange(rows) / rows)
+    lam_c = 2.0 - 2.0 * np.cos(np.pi * np.arange(cols) / cols)
+    return np.asarray(lam_r[:, None] + lam_c[None, :], np.float64)
+
+
+def dct_matrix(n: int) -> FloatArray:
+    """Return the orthonormal DCT-II matrix D (n x n): x_hat = D x, x = D.T x_hat.
+
+    Its rows are the eigenvectors of the path graph's Laplacian (insulated ends).
+    """
+    k = np.arange(n)[:, None]
+    m = np.arange(n)[None, :]
+    d = np.sqrt(2.0 / n) * np.cos(np.pi * k * (2 * m + 1) / (2 * n))
+    d[0] /= np.sqrt(2.0)
+    return np.asarray(d, np.float64)
+
+
+class ThermalNetwork:
+    """The discretised network of one grid, stepped exactly with inputs held over ``dt``.
+
+    State: face-sheet and actuator temperatures [degC], each (R, C). Inputs per step: absorbed
+    UV power P (R, C) [W] into the face sheet, actuator heat Q (R, C) [W], base temperature
+    T_b [degC] (scalar).
+    """
+
+    def __init__(
+        self,
+        shape: tuple[int, int],
+        params: ThermalParams,
+        dt: float,
+        initial_temperature: float,
+    ) -> None:
+        if dt <= 0.0:
+            raise ValueError("thermal step dt must be > 0")
+        params.validate()
+        self.shape = shape
+        self.params = params
+        self.dt = dt
+        lam = laplacian_eigenvalues(shape)
+        p = params
+        # Continuous 2 x 2 modal dynamics and 2 x 3 input matrices (P, Q, T_b) per mode.
+        a_ff = -(p.face_to_actuator + p.face_lateral * lam) / p.face_capacitance
+        a_fa = np.full_like(lam, p.face_to_actuator / p.face_capacitance)
+        a_af = np.full_like(lam, p.face_to_actuator / p.actuator_capacitance)
+        a_aa = (
+            -(p.face_to_actuator + p.actuator_to_base + p.actuator_lateral * lam)
+            / p.actuator_capacitance
+        )
+        aug = np.zeros((*shape, 5, 5))
+        aug[..., 0, 0], aug[..., 0, 1], aug[..., 1, 0], aug[..., 1, 1] = a_ff, a_fa, a_af, a_aa
+        aug[..., 0, 2] = 1.0 / p.face_capacitance
+        aug[..., 1, 3] = 1.0 / p.actuator_capacitance
+        aug[..., 1, 4] = p.actuator_to_base / p.actuator_capacitance
+        self._continuous = aug[..., :2, :].copy()
+        disc = scipy.linalg.expm(aug * dt)
+        self._Ad = np.ascontiguousarray(disc[..., :2, :2])
+        self._Bd = np.ascontiguousarray(disc[..., :2, 2:])
+        self._sqrt_n = float(np.sqrt(shape[0] * shape[1]))
+        # Small dense DCT matrices beat an FFT call at these sizes (no per-call overhead).
+        self._d_rows = dct_matrix(shape[0])
+        self._d_cols_t = np.ascontiguousarray(dct_matrix(shape[1]).T)
+        # Modal state (2, R, C): face sheet and actuator.
+        self._modal = np.zeros((2, *shape))
+        self.set_uniform(initial_temperature)
+
+    def set_uniform(self, temperature: float) -> None:
+        """Put both layers at one uniform temperature (equilibrium with no heat input)."""
+        self._modal[:] = 0.0
+        self._modal[:, 0, 0] = temperature * self._sqrt_n
+        self._cache: tuple[FloatArray, FloatArray] | None = None
+
+    def _dct(self, x: FloatArray) -> FloatArray:
+        return np.asarray(self._d_rows @ x @ self._d_cols_t, np.float64)
+
+    def _idct(self, x: FloatArray) -> FloatArray:
+        return np.asarray(self._d_rows.T @ x @ self._d_cols_t.T, np.float64)
+
+    def step(self, power: FloatArray, actuator_heat: FloatArray | None, base: float) -> None:
+        """Advance one ``dt`` with P, Q and T_b held over the step."""
+        p_hat = self._dct(power)
+        Ad, Bd, x = self._Ad, self._Bd, self._modal
+        f = Ad[..., 0, 0] * x[0] + Ad[..., 0, 1] * x[1] + Bd[..., 0, 0] * p_hat
+        a = Ad[..., 1, 0] * x[0] + Ad[..., 1, 1] * x[1] + Bd[..., 1, 0] * p_hat
+        if actuator_heat is not None:
+            q_hat = self._dct(actuator_heat)
+            f += Bd[..., 0, 1] * q_hat
+            a += Bd[..., 1, 1] * q_hat
+        # T_b is uniform: only the (0, 0) mode sees it.
+        tb_hat = base * self._sqrt_n
+        f[0, 0] += Bd[0, 0, 0, 2] * tb_hat
+        a[0, 0] += Bd[0, 0, 1, 2] * tb_hat
+        x[0], x[1] = f, a
+        self._cache = None
+
+    def temperatures(self) -> tuple[FloatArray, FloatArray]:
+        """Return (face-sheet, actuator) temperatures [degC], each (R, C) (read-only views)."""
+        if self._cache is None:
+            both = self._idct(self._modal)
+            both.flags.writeable = False
+            self._cache = (both[0], both[1])
+        return self._cache
+
+    def steady_state(
+        self, power: FloatArray, actuator_heat: FloatArray | None, base: float
+    ) -> tuple[FloatArray, FloatArray]:
+        """Return the (face, actuator) equilibrium for constant inputs (solved per mode)."""
+        c = self._continuous
+        p_hat = self._dct(np.asarray(power, np.float64))
+        q_hat = self._dct(np.zeros(self.shape) if actuator_heat is None else actuator_heat)
+        tb_hat = np.zeros(self.shape)
+        tb_hat[0, 0] = base * self._sqrt_n
+        rhs = -(
+            c[..., :, 2] * p_hat[..., None]
+            + c[..., :, 3] * q_hat[..., None]
+            + c[..., :, 4] * tb_hat[..., None]
+        )
+        x = np.asarray(np.linalg.solve(c[..., :, :2], rhs[..., None])[..., 0], np.float64)
+        both = self._idct(np.moveaxis(x, -1, 0))
+        return both[0], both[1]
+
+    def time_constants(self) -> FloatArray:
+        """Return the network's time constants [s], sorted descending (2 R C values)."""
+        eig = np.linalg.eigvals(self._continuous[..., :, :2])
+        return np.sort(-1.0 / eig.real.ravel())[::-1]
+
+
+@dataclass(frozen=True)
+class Illumination:
+    """Spatial distribution of the absorbed UV power over the grid.
+
+    Coordinates are normalised: x across columns and y across rows, each in [-1, 1] over the
+    grid. Poles are Gaussian spots of width ``sigma`` at distance ``offset`` from the centre:
+    dipole on the axis rotated by ``angle_deg``, quadrupole on both diagonals (rotated),
+    annular a ring of radius ``offset``, off_axis_spot one pole at (``spot_x``, ``spot_y``).
+    ``background`` is the fraction spread uniformly (scattered light). The map is normalised
+    so that it sums to ``total_power_w`` [W absorbed by the whole mirror while exposing].
+    """
+
+    pattern: str = "uniform"
+    total_power_w: float = 1.0
+    offset: float = 0.6
+    sigma: float = 0.25
+    angle_deg: float = 0.0
+    spot_x: float = 0.5
+    spot_y: float = 0.3
+    background: float = 0.1
+
+    def validate(self) -> None:
+        """Raise ``ValueError`` on an unknown pattern or out-of-range parameter."""
+        if self.pattern not in PATTERNS:
+            raise ValueError(f"illumination.pattern {self.pattern!r} is not one of {PATTERNS}")
+        if self.total_power_w < 0.0:
+            raise ValueError("illumination.total_power_w must be >= 0")
+        if self.sigma <= 0.0:
+            raise ValueError("illumination.sigma must be > 0")
+        if not 0.0 <= self.background <= 1.0:
+            raise ValueError("illumination.background must be in [0, 1]")
+
+    def power_map(self, shape: tuple[int, int]) -> FloatArray:
+        """Return the absorbed power per cell [W] while exposing, shape ``shape``."""
+        y, x = normalised_coordinates(shape)
+        angle = np.deg2rad(self.angle_deg)
+        centres: list[tuple[float, float]]
+        if self.pattern == "dipole":
+            centres = [(self.offset, 0.0), (-self.offset, 0.0)]
+        elif self.pattern == "quadrupole":
+            d = self.offset / np.sqrt(2.0)
+            centres = [(d, d), (-d, d), (-d, -d), (d, -d)]
+        elif self.pattern == "off_axis_spot":
+            centres = [(self.spot_x, self.spot_y)]
+            angle = 0.0
+        else:
+            centres = []
+        shape_map = np.zeros(shape)
+        for cx, cy in centres:
+            rx = cx * np.cos(angle) - cy * np.sin(angle)
+            ry = cx * np.sin(angle) + cy * np.cos(angle)
+            shape_map += np.exp(-((x - rx) ** 2 + (y - ry) ** 2) / (2.0 * self.sigma**2))
+        if self.pattern == "annular":
+            r = np.hypot(x, y)
+            shape_map = np.exp(-((r - self.offset) ** 2) / (2.0 * self.sigma**2))
+        if self.pattern == "uniform" or shape_map.sum() <= 0.0:
+            shape_map = np.ones(shape)
+        shaped = shape_map / shape_map.sum()
+        uniform = np.full(shape, 1.0 / (shape[0] * shape[1]))
+        mix = self.background if self.pattern != "uniform" else 1.0
+        return np.asarray(self.total_power_w * ((1.0 - mix) * shaped + mix * uniform), np.float64)
+
+
+def normalised_coordinates(shape: tuple[int, int]) -> tuple[FloatArray, FloatArray]:
+    """Return (y, x) grids in [-1, 1] (0 for a single row or column), shape ``shape``."""
+    rows, cols = shape
+    y = np.linspace(-1.0, 1.0, rows) if rows > 1 else np.zeros(1)
+    x = np.linspace(-1.0, 1.0, cols) if cols > 1 else np.zeros(1)
+    yy, xx = np.meshgrid(y, x, indexing="ij")
+    return yy, xx
+
+
+@dataclass(frozen=True)
+class ExposureSchedule:
+    """Exposures of ``exposure_s`` separated by wafer swaps of ``swap_s`` (light off).
+
+    The first exposure starts at ``start_s``; ``count`` exposures (0: repeat to the end).
+    """
+
+    start_s: float = 0.0
+    exposure_s: float = 20.0
+    swap_s: float = 8.0
+    count: int = 0
+
+    def validate(self) -> None:
+        """Raise ``ValueError`` on negative times or a non-positive exposure."""
+        if self.exposure_s <= 0.0 or self.swap_s < 0.0 or self.start_s < 0.0 or self.count < 0:
+            raise ValueError(
+                "exposure schedule: exposure_s > 0, swap_s >= 0, start_s >= 0, count >= 0"
+            )
+
+    def time_scaled(self, time_scale: float) -> ExposureSchedule:
+        """Return a copy with every time multiplied by ``time_scale``."""
+        return replace(
+            self,
+            start_s=self.start_s * time_scale,
+            exposure_s=self.exposure_s * time_scale,
+            swap_s=self.swap_s * time_scale,
+        )
+
+    def _exposed_until(self, t: float) -> float:
+        """Total exposed time in [0, t]."""
+        if t <= self.start_s:
+            return 0.0
+        period = self.exposure_s + self.swap_s
+        elapsed = t - self.start_s
+        full = np.floor(elapsed / period)
+        if self.count and full >= self.count:
+            return self.count * self.exposure_s
+        return float(full * self.exposure_s + min(elapsed - full * period, self.exposure_s))
+
+    def on_fraction(self, t0: float, t1: float) -> float:
+        """Return the fraction of [t0, t1) with the light on (exact for a held step)."""
+        return (self._exposed_until(t1) - self._exposed_until(t0)) / (t1 - t0)
+
+
+@dataclass(frozen=True)
+class BaseProfile:
+    """Base-plate (thermal control) temperature vs time: points (t [s], T [degC]).
+
+    ``interpolation``: "linear" (ramps) or "step" (hold each value until the next point).
+    Before the first point and after the last the end values hold.
+    """
+
+    times: tuple[float, ...] = (0.0,)
+    temperatures: tuple[float, ...] = (42.0,)
+    interpolation: str = "linear"
+
+    def validate(self) -> None:
+        """Raise ``ValueError`` on unsorted or mismatched points or unknown interpolation."""
+        if len(self.times) != len(self.temperatures) or not self.times:
+            raise ValueError("base_temperature: times and temperatures need the same length >= 1")
+        if any(b < a for a, b in zip(self.times, self.times[1:], strict=False)):
+            raise ValueError("base_temperature: times must be non-decreasing")
+        if self.interpolation not in ("linear", "step"):
+            raise ValueError("base_temperature.interpolation must be 'linear' or 'step'")
+        if not all(np.isfinite(self.temperatures)):
+            raise ValueError("base_temperature: temperatures must be finite")
+
+    def time_scaled(self, time_scale: float) -> BaseProfile:
+        """Return a copy with every time multiplied by ``time_scale``."""
+        return replace(self, times=tuple(t * time_scale for t in self.times))
+
+    def at(self, t: float) -> float:
+        """Return T_b at time ``t``."""
+        if self.interpolation == "step":
+            index = int(np.searchsorted(self.times, t, side="right")) - 1
+            return float(self.temperatures[max(index, 0)])
+        return float(np.interp(t, self.times, self.temperatures))
+
+    def mean(self, t0: float, t1: float) -> float:
+        """Return the mean of T_b over [t0, t1] (exact for linear and step profiles)."""
+        if len(self.times) == 1:
+            return float(self.temperatures[0])
+        if self.interpolation == "step":
+            return self.at(t0) if self.at(t1) == self.at(t0) else self._integral(t0, t1) / (t1 - t0)
+        return self._integral(t0, t1) / (t1 - t0)
+
+    def _integral(self, t0: float, t1: float) -> float:
+        knots = [t for t in self.times if t0 < t < t1]
+        points = np.array([t0, *knots, t1])
+        if self.interpolation == "linear":
+            values = np.interp(points, self.times, self.temperatures)
+            return float(np.sum(0.5 * (values[1:] + values[:-1]) * np.diff(points)))
+        values = np.array([self.at(t) for t in points[:-1]])
+        return float(np.sum(values * np.diff(points)))

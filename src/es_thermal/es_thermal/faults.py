@@ -1,0 +1,138 @@
+"""Sensor fault detection: which readings the estimators may use.
+
+A sensor is excluded while its reading is not finite, outside the physical range, or stuck
+(it stayed inside a narrow band for too long: a live sensor always shows some noise). The
+stream as a whole is stale when no message came for too long (:class:`StaleWatch`); then no
+sensor is valid. Everything is vectorised over the sensors; time is passed in by the caller
+(seconds, any epoch), so the logic runs the same on ROS time, sim time, wall time or in a
+test.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+FloatArray = npt.NDArray[np.float64]
+BoolArray = npt.NDArray[np.bool_]
+IntArray = npt.NDArray[np.int64]
+
+
+@dataclass(frozen=True)
+class FaultConfig:
+    """Thresholds of the sensor checks.
+
+    Attributes:
+        valid_min, valid_max: physical range of a reading [degC].
+        stuck_time: a sensor whose reading stays inside ``stuck_band`` this long is stuck [s].
+        stuck_band: peak-to-peak change below which a reading counts as unchanged [degC].
+            Set it below the sensor noise (a live sensor leaves the band within a few
+            samples) and above its quantisation step only if the noise is below one step.
+        stale_timeout: no message for this long makes every sensor stale [s].
+
+    """
+
+    valid_min: float = -20.0
+    valid_max: float = 120.0
+    stuck_time: float = 10.0
+    stuck_band: float = 1e-9
+    stale_timeout: float = 2.0
+
+    def __post_init__(self) -> None:
+        if not self.valid_min < self.valid_max:
+            raise ValueError(f"valid_min {self.valid_min} must be below valid_max {self.valid_max}")
+        if self.stuck_time <= 0.0 or self.stuck_band < 0.0 or self.stale_timeout <= 0.0:
+            raise ValueError("stuck_time and stale_timeout must be > 0, stuck_band >= 0")
+
+
+@dataclass(frozen=True)
+class SensorHealth:
+    """The verdict on one message's readings (all masks shape (S,))."""
+
+    valid: BoolArray
+    non_finite: BoolArray
+    out_of_range: BoolArray
+    stuck: BoolArray
+
+    @property
+    def valid_count(self) -> int:
+        """Number of usable sensors."""
+        return int(np.count_nonzero(self.valid))
+
+    def counts(self) -> dict[str, int]:
+        """Return the number of sensors per verdict, for a diagnostic."""
+        return {
+            "valid": self.valid_count,
+            "non_finite": int(np.count_nonzero(self.non_finite)),
+            "out_of_range": int(np.count_nonzero(self.out_of_range)),
+            "stuck": int(np.count_nonzero(self.stuck)),
+        }
+
+    def excluded_indices(self, limit: int = 5) -> IntArray:
+        """Return the first ``limit`` excluded sensor indices."""
+        return np.flatnonzero(~self.valid)[:limit].astype(np.int64)
+
+
+class SensorFaultMonitor:
+    """Tracks ``count`` sensors across messages and classifies every new set of readings."""
+
+    def __init__(self, count: int, config: FaultConfig) -> None:
+        self.count = count
+        self.config = config
+        self._band_low: FloatArray = np.full(count, np.nan)
+        self._band_high: FloatArray = np.full(count, np.nan)
+        self._band_since: FloatArray = np.full(count, np.nan)
+
+    def check(self, readings: FloatArray, now: float) -> SensorHealth:
+        """Classify ``readings`` (S,) received at ``now`` [s] and update the stuck tracking.
+
+        Raises:
+            ValueError: ``readings`` does not hold exactly ``count`` values.
+
+        """
+        values = np.asarray(readings, dtype=float)
+        if values.shape != (self.count,):
+            raise ValueError(f"expected {self.count} sensor readings, got shape {values.shape}")
+        cfg = self.config
+        finite = np.isfinite(values)
+        with np.errstate(invalid="ignore"):  # NaN and inf readings compare and subtract
+            in_range = finite & (values >= cfg.valid_min) & (values <= cfg.valid_max)
+            # A reading leaving the band (or a sensor (re)appearing) restarts its band.
+            low = np.fmin(self._band_low, values)
+            high = np.fmax(self._band_high, values)
+            restart = in_range & (np.isnan(self._band_since) | (high - low > cfg.stuck_band))
+        self._band_low = np.where(restart, values, np.where(in_range, low, np.nan))
+        self._band_high = np.where(restart, values, np.where(in_range, high, np.nan))
+        self._band_since = np.where(restart, now, np.where(in_range, self._band_since, np.nan))
+        stuck = in_range & (now - self._band_since >= cfg.stuck_time)
+        return SensorHealth(
+            valid=in_range & ~stuck,
+            non_finite=~finite,
+            out_of_range=finite & ~in_range,
+            stuck=stuck,
+        )
+
+
+class StaleWatch:
+    """Tells whether a message stream went quiet for longer than ``timeout`` seconds."""
+
+    def __init__(self, timeout: float) -> None:
+        if timeout <= 0.0:
+            raise ValueError(f"stale timeout must be > 0, got {timeout}")
+        self.timeout = timeout
+        self._last: float | None = None
+
+    @property
+    def seen(self) -> bool:
+        """True once a message arrived."""
+        return self._last is not None
+
+    def feed(self, now: float) -> None:
+        """Note a message arriving at ``now``."""
+        self._last = now
+
+    def is_stale(self, now: float) -> bool:
+        """Return True when no message came yet or the last is older than ``timeout``."""
+        return self._last is None or now - self._last > self.timeout

@@ -1,0 +1,143 @@
+"""Sensor positions on the actuator grid and the linear maps between sensors and actuators.
+
+Actuator (r, c) sits at grid coordinates (row=r, col=c). A sensor sits at a fractional
+(row, col) position; when there are as many sensors as actuators and no positions are given,
+sensor i sits on actuator i (row-major), as the interface contract says.
+
+Two maps, both precomputed as dense matrices so that applying them is one matrix product:
+
+- :func:`sampling_matrix` (S x N): what a sensor at its position sees of the actuator
+  temperature field (bilinear interpolation between the four surrounding actuators). The
+  model-based estimator uses it as its measurement model.
+- :func:`interpolation_matrix` (N x S): actuator temperatures from sensor values (linear
+  interpolation on a Delaunay triangulation of the sensors, nearest sensor outside their
+  convex hull). The low-pass estimator uses it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import numpy.typing as npt
+from scipy.interpolate import LinearNDInterpolator
+from scipy.spatial import QhullError, cKDTree
+
+FloatArray = npt.NDArray[np.float64]
+BoolArray = npt.NDArray[np.bool_]
+
+
+def actuator_positions(rows: int, cols: int) -> FloatArray:
+    """Return the (row, col) coordinates of every actuator, row-major, shape (R*C, 2)."""
+    r, c = np.meshgrid(np.arange(rows, dtype=float), np.arange(cols, dtype=float), indexing="ij")
+    return np.column_stack([r.ravel(), c.ravel()])
+
+
+def block_centre_positions(rows: int, cols: int, pitch: int) -> FloatArray:
+    """Return one sensor position per ``pitch`` x ``pitch`` block of actuators, at its centre.
+
+    Blocks cut by the grid edge get their sensor at the centre of the actuators they hold.
+    ``pitch == 1`` puts one sensor on every actuator (the contract's S == R*C case).
+    """
+    if pitch < 1:
+        raise ValueError(f"sensor pitch must be >= 1, got {pitch}")
+
+    def centres(n: int) -> FloatArray:
+        starts = np.arange(0, n, pitch, dtype=float)
+        ends = np.minimum(starts + pitch, n) - 1.0
+        return np.asarray(0.5 * (starts + ends), dtype=float)
+
+    r, c = np.meshgrid(centres(rows), centres(cols), indexing="ij")
+    return np.column_stack([r.ravel(), c.ravel()])
+
+
+def sensor_positions(
+    rows: int, cols: int, sensor_rows: Sequence[float], sensor_cols: Sequence[float]
+) -> FloatArray:
+    """Return validated sensor positions, shape (S, 2).
+
+    Empty ``sensor_rows`` and ``sensor_cols`` mean one sensor on every actuator.
+
+    Raises:
+        ValueError: the two lists differ in length, hold a non-finite value or a position
+            outside the grid ([0, R-1] x [0, C-1]).
+
+    """
+    if len(sensor_rows) != len(sensor_cols):
+        raise ValueError(
+            f"sensor_rows has {len(sensor_rows)} entries, sensor_cols {len(sensor_cols)}"
+        )
+    if len(sensor_rows) == 0:
+        return actuator_positions(rows, cols)
+    pos = np.column_stack([np.asarray(sensor_rows, float), np.asarray(sensor_cols, float)])
+    if not np.all(np.isfinite(pos)):
+        raise ValueError("sensor positions must be finite")
+    outside = (pos[:, 0] < 0) | (pos[:, 0] > rows - 1) | (pos[:, 1] < 0) | (pos[:, 1] > cols - 1)
+    if np.any(outside):
+        first = int(np.flatnonzero(outside)[0])
+        raise ValueError(
+            f"sensor {first} at ({pos[first, 0]}, {pos[first, 1]}) lies outside the "
+            f"{rows} x {cols} grid [0, {rows - 1}] x [0, {cols - 1}]"
+        )
+    return pos
+
+
+def sampling_matrix(rows: int, cols: int, positions: FloatArray) -> FloatArray:
+    """Return the S x N bilinear map from the actuator temperature grid to the sensors."""
+    count = positions.shape[0]
+    out = np.zeros((count, rows * cols))
+    r0 = np.clip(np.floor(positions[:, 0]).astype(int), 0, max(rows - 2, 0))
+    c0 = np.clip(np.floor(positions[:, 1]).astype(int), 0, max(cols - 2, 0))
+    fr = positions[:, 0] - r0
+    fc = positions[:, 1] - c0
+    r1 = np.minimum(r0 + 1, rows - 1)
+    c1 = np.minimum(c0 + 1, cols - 1)
+    idx = np.arange(count)
+    # np.add.at accumulates: on a one-row or one-column grid r1 == r0 (or c1 == c0).
+    for rr, cc, w in (
+        (r0, c0, (1 - fr) * (1 - fc)),
+        (r0, c1, (1 - fr) * fc),
+        (r1, c0, fr * (1 - fc)),
+        (r1, c1, fr * fc),
+    ):
+        np.add.at(out, (idx, rr * cols + cc), w)
+    return out
+
+
+def interpolation_matrix(
+    rows: int, cols: int, positions: FloatArray, valid: BoolArray | None = None
+) -> FloatArray:
+    """Return the N x S map from sensor values to actuator temperatures.
+
+    Only sensors with ``valid`` true get weight (their columns are zero otherwise). Inside
+    the convex hull of the valid sensors the map interpolates linearly, outside it takes the
+    nearest valid sensor; with fewer than three valid sensors, or all of them on one line,
+    nearest-sensor everywhere.
+
+    Raises:
+        ValueError: no sensor is valid.
+
+    """
+    count = positions.shape[0]
+    use = np.ones(count, bool) if valid is None else np.asarray(valid, bool)
+    chosen = np.flatnonzero(use)
+    if chosen.size == 0:
+        raise ValueError("no valid sensor to interpolate from")
+    targets = actuator_positions(rows, cols)
+    pts = positions[chosen]
+    weights = np.full((targets.shape[0], chosen.size), np.nan)
+    if chosen.size >= 3:
+        try:
+            # Interpolating the identity gives every target's weights on the chosen sensors.
+            interp = LinearNDInterpolator(pts, np.eye(chosen.size))
+            weights = np.asarray(interp(targets), float)
+        except QhullError:  # collinear or coincident sensors: no triangulation
+            pass
+    outside = np.isnan(weights).any(axis=1)
+    if np.any(outside):
+        _, nearest = cKDTree(pts).query(targets[outside])
+        weights[outside] = 0.0
+        weights[np.flatnonzero(outside), nearest] = 1.0
+    out = np.zeros((targets.shape[0], count))
+    out[:, chosen] = weights
+    return out

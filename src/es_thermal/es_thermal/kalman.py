@@ -1,0 +1,290 @@
+"""Model-based temperature estimator: a steady-state Kalman filter on the thermal network.
+
+The network (:mod:`es_thermal.network`) is driven by the known heat load, so the estimate
+follows heating without the lag of a low-pass filter; the sensors correct what the model gets
+wrong (its parameters are never exactly the mirror's, and the base-plate temperature is not
+measured at all). Sensor lag is part of the model, so the estimate is of the actuator, not of
+the lagging sensor.
+
+Everything that does not depend on the data is computed once: the zero-order-hold
+discretisation (matrix exponential) and the steady-state gain (discrete algebraic Riccati
+equation solved by the structure-preserving doubling algorithm). An update is then one sparse
+prediction and one dense gain product.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import Final
+
+import numpy as np
+import numpy.typing as npt
+from scipy import linalg, sparse
+
+from es_thermal.network import NetworkParams, StateLayout, continuous_model
+
+FloatArray = npt.NDArray[np.float64]
+BoolArray = npt.NDArray[np.bool_]
+
+#: Entries of the discretised transition matrix below this fraction of its largest entry are
+#: dropped: heat spreads only a few cells per sample, so the matrix is nearly banded.
+SPARSITY_THRESHOLD = 1e-13
+
+
+@dataclass(frozen=True)
+class KalmanTuning:
+    """Noise levels the filter assumes.
+
+    Attributes:
+        sensor_noise: rms noise of one sensor reading [degC].
+        process_noise: model error of every cell temperature, as a random-walk intensity
+            [degC/sqrt(s)]; larger trusts the sensors more, smaller the model.
+        base_drift: random-walk intensity of the unmeasured base-plate temperature
+            [degC/sqrt(s)].
+        adaptation_time: memory of the model-error estimates [s] (older data fade out).
+        bias_prior: how far off the model is expected to be (relative, 1 sigma).
+        bias_limit: the model-error estimates are clipped to +- this (relative).
+
+    """
+
+    sensor_noise: float = 0.01
+    process_noise: float = 3e-3
+    base_drift: float = 2e-2
+    adaptation_time: float = 60.0
+    bias_prior: float = 0.3
+    bias_limit: float = 0.6
+
+    def __post_init__(self) -> None:
+        for name in (
+            "sensor_noise", "process_noise", "base_drift", "adaptation_time", "bias_prior",
+            "bias_limit",
+        ):
+            value = getattr(self, name)
+            if not np.isfinite(value) or value <= 0.0:
+                raise ValueError(f"{name}={value} must be finite and > 0")
+
+    def time_scaled(self, time_scale: float) -> KalmanTuning:
+        """Return the tuning for a run whose slow times are multiplied by ``time_scale``.
+
+        The same random-walk spread over a time ``time_scale`` times as long needs
+        intensities ``1/sqrt(time_scale)`` times as large.
+        """
+        rate = 1.0 / np.sqrt(time_scale)
+        return replace(
+            self,
+            process_noise=self.process_noise * rate,
+            base_drift=self.base_drift * rate,
+            adaptation_time=self.adaptation_time * time_scale,
+        )
+
+
+def discretise(
+    A: FloatArray, B: FloatArray, dt: float
+) -> tuple[FloatArray, FloatArray]:
+    """Return the zero-order-hold discretisation (A_d, B_d) of dx/dt = A x + B u over ``dt``."""
+    n, m = B.shape
+    augmented = np.zeros((n + m, n + m))
+    augmented[:n, :n] = A * dt
+    augmented[:n, n:] = B * dt
+    phi = linalg.expm(augmented)
+    return phi[:n, :n], phi[:n, n:]
+
+
+def steady_state_covariance(
+    A: FloatArray,
+    H: FloatArray,
+    Q: FloatArray,
+    R: FloatArray,
+    *,
+    tol: float = 1e-12,
+    max_iter: int = 80,
+) -> FloatArray:
+    """Return the steady-state prior covariance P of the Kalman filter for (A, H, Q, R).
+
+    P solves the filter DARE ``P = A P A' - A P H' (H P H' + R)^-1 H P A' + Q``; the
+    structure-preserving doubling algorithm gets there in a few dozen iterations
+    (quadratic convergence) even when the slowest mode barely decays per sample.
+
+    Raises:
+        ValueError: no convergence (the pair (A, H) is not detectable).
+
+    """
+    n = A.shape[0]
+    Ak = A.T.copy()
+    Gk = H.T @ np.linalg.solve(R, H)
+    Hk = Q.copy()
+    eye = np.eye(n)
+    for _ in range(max_iter):
+        W = eye + Gk @ Hk
+        Y = np.linalg.solve(W, np.hstack([Ak, Gk]))
+        Y_a, Y_g = Y[:, :n], Y[:, n:]
+        H_next = Hk + Ak.T @ Hk @ Y_a
+        Gk = Gk + Ak @ Y_g @ Ak.T
+        Ak = Ak @ Y_a
+        change = np.max(np.abs(H_next - Hk))
+        Hk = 0.5 * (H_next + H_next.T)
+        if change <= tol * max(1.0, float(np.max(np.abs(Hk)))):
+            return Hk
+    raise ValueError("Kalman gain: the Riccati iteration did not converge")
+
+
+class ModelEstimator:
+    """Steady-state Kalman filter on the thermal network, plus model-error estimation.
+
+    The thermal parameters are never exactly the mirror's. Two errors matter most and are
+    estimated on line as constant (slowly forgotten) relative biases, by Friedland's
+    two-stage ("separate bias") scheme: the steady-state filter runs as if the model were
+    right, and a small least-squares estimator fits the biases to its innovations through
+    the state's sensitivity to them:
+
+    - ``heat_gain``: the absorbed power heats the mirror (1 + b) times as much as the model
+      says (wrong conductances, absorption or capacitances all scale the steady heating);
+    - ``time_scale``: the network responds (1 + b) times as fast (wrong time constants).
+
+    Cost per update: a few sparse matrix-vector products (state and two sensitivities) and
+    one dense gain product.
+
+    Args:
+        rows, cols: actuator grid.
+        sampling: S x N map from actuator field to sensors (:mod:`es_thermal.interpolation`).
+        params: the network's parameters as the estimator believes them.
+        sensor_tau: first-order sensor lag [s] (0: none).
+        sample_period: the sensor sample period the filter is discretised for [s].
+        tuning: assumed noise levels and how the model error is tracked.
+
+    """
+
+    BIASES: Final = ("heat_gain", "time_scale")
+
+    def __init__(
+        self,
+        rows: int,
+        cols: int,
+        sampling: FloatArray,
+        *,
+        params: NetworkParams,
+        sensor_tau: float,
+        sample_period: float,
+        tuning: KalmanTuning,
+    ) -> None:
+        if sample_period <= 0.0 or sensor_tau < 0.0:
+            raise ValueError("sample_period must be > 0 and sensor_tau >= 0")
+        A, B, H, layout = continuous_model(params, rows, cols, sampling, sensor_tau)
+        A_d, B_d = discretise(A, B, sample_period)
+        q = np.zeros(layout.size)
+        q[layout.face] = tuning.process_noise**2
+        q[layout.actuator] = tuning.process_noise**2
+        q[layout.sensor] = (1e-3 * tuning.process_noise) ** 2  # lag model taken as known
+        q[layout.base] = tuning.base_drift**2
+        R = tuning.sensor_noise**2 * np.eye(H.shape[0])
+        P = steady_state_covariance(A_d, H, np.diag(q * sample_period), R)
+        innovation_cov = H @ P @ H.T + R
+        self.gain: FloatArray = np.asarray(np.linalg.solve(innovation_cov, H @ P).T, float)
+        # Innovation weights of the bias fit (diagonal: a sensor subset needs no inversion).
+        self._innovation_weight: FloatArray = 1.0 / np.diag(innovation_cov)
+        self.layout: StateLayout = layout
+        self.sampling = sampling
+        self.tuning = tuning
+        self.sample_period = sample_period
+        self._A = _sparsified(A_d)
+        self._B = _sparsified(B_d)
+        self._H = sparse.csr_matrix(H)
+        self._thermal = slice(0, 2 * layout.cells)
+        self._state: FloatArray | None = None
+        nb = len(self.BIASES)
+        self._prior_info = np.eye(nb) / tuning.bias_prior**2
+        self._sens = np.zeros((layout.size, nb))  # d(state)/d(bias), posterior
+        self._info = self._prior_info.copy()
+        self._info_vector = np.zeros(nb)
+        self._bias = np.zeros(nb)
+
+    @property
+    def initialised(self) -> bool:
+        """True once the state was set from a first set of readings."""
+        return self._state is not None
+
+    @property
+    def base_temperature(self) -> float:
+        """The current base-plate estimate [degC] (NaN before initialisation)."""
+        return float("nan") if self._state is None else float(self._estimate()[self.layout.base])
+
+    @property
+    def biases(self) -> dict[str, float]:
+        """The current model-error estimates by name (relative, 0 = the model is right)."""
+        return {name: float(b) for name, b in zip(self.BIASES, self._bias, strict=True)}
+
+    def actuator_temperatures(self) -> FloatArray:
+        """Return the current estimate of every actuator temperature, flat (N,)."""
+        return self._estimate()[self.layout.actuator].copy()
+
+    def initialise(self, field: FloatArray, readings: FloatArray, valid: BoolArray) -> None:
+        """Start from an equilibrium at ``field`` (N,), the actuator field the readings suggest.
+
+        Valid readings seed the lag states of their sensors; the base plate starts at the
+        mean valid reading. The model-error estimates restart from zero.
+        """
+        lay = self.layout
+        x = np.empty(lay.size)
+        x[lay.face] = field
+        x[lay.actuator] = field
+        if lay.sensors:
+            x[lay.sensor] = np.where(valid, readings, self.sampling @ field)
+        x[lay.base] = float(np.mean(readings[valid]))
+        self._state = x
+        self._sens[:] = 0.0
+        self._info = self._prior_info.copy()
+        self._info_vector[:] = 0.0
+        self._bias[:] = 0.0
+
+    def predict(self, heat_load: FloatArray, steps: int = 1) -> None:
+        """Advance the model ``steps`` sample periods with the heat load (N,) held."""
+        x = self._require_state()
+        drive = np.asarray(self._B @ heat_load)
+        sens = self._sens
+        for _ in range(steps):
+            x_next = np.asarray(self._A @ x) + drive
+            # Sensitivities: more heat -> more of the heat drive; faster -> more of the step.
+            sens = np.asarray(self._A @ sens)
+            sens[:, 0] += drive
+            # Only the thermal nodes speed up; the sensor lag and the base plate do not.
+            sens[self._thermal, 1] += (x_next - x)[self._thermal]
+            x = x_next
+        self._state = x
+        self._sens = sens
+
+    def correct(self, readings: FloatArray, valid: BoolArray) -> FloatArray:
+        """Correct the predicted state with the valid readings; return the innovations.
+
+        Invalid sensors get a zero innovation: their gain columns are left out.
+        """
+        x = self._require_state()
+        innovation = np.where(valid, readings - self._H @ x, 0.0)
+        regressor = np.asarray(self._H @ self._sens)
+        regressor[~valid] = 0.0
+        self._state = x + self.gain @ innovation
+        self._sens = self._sens - self.gain @ regressor
+        # Exponentially forgotten least squares, pulled towards the prior (zero bias).
+        forget = np.exp(-self.sample_period / self.tuning.adaptation_time)
+        weighted = regressor * self._innovation_weight[:, None]
+        self._info = forget * self._info + (1 - forget) * self._prior_info + regressor.T @ weighted
+        self._info_vector = forget * self._info_vector + weighted.T @ innovation
+        bias = np.linalg.solve(self._info, self._info_vector)
+        self._bias = np.clip(bias, -self.tuning.bias_limit, self.tuning.bias_limit)
+        return innovation
+
+    def _require_state(self) -> FloatArray:
+        if self._state is None:
+            raise ValueError("the model estimator has no state yet")
+        return self._state
+
+    def _estimate(self) -> FloatArray:
+        return self._require_state() + self._sens @ self._bias
+
+
+def _sparsified(matrix: FloatArray) -> sparse.csr_matrix | FloatArray:
+    """Drop negligible entries; keep the matrix dense if that does not make it sparse."""
+    scale = float(np.max(np.abs(matrix))) if matrix.size else 0.0
+    kept = np.where(np.abs(matrix) > SPARSITY_THRESHOLD * scale, matrix, 0.0)
+    if np.count_nonzero(kept) > 0.25 * kept.size:
+        return kept
+    return sparse.csr_matrix(kept)

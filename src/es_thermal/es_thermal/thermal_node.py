@@ -1,0 +1,454 @@
+"""``ros2 run es_thermal thermal_node``: per-actuator temperature estimate for the feedforward.
+
+Subscribes /dm/temperature/raw (sensor vector, degC) and, when published, /dm/heat_load
+(grid, W per cell); publishes /dm/temperature (grid, degC) and /diagnostics.
+
+By default one estimate is published per accepted raw message (event driven: the plant's
+lockstep protocol waits for it); ``publish_rate > 0`` publishes the newest estimate on a
+timer instead. The estimate comes from :class:`es_thermal.estimator.TemperatureEstimator`
+(``estimator``: ``model`` = Kalman filter on the thermal network driven by the heat load,
+``lowpass`` = the thesis's 0.1 Hz low-pass plus spatial interpolation).
+
+Bad input never reaches the feedforward: a raw or heat-load message of the wrong layout or
+size is rejected (log line, WARN diagnostic); NaN/inf, out-of-range and stuck sensors are
+excluded and the estimate continues from the others (WARN); with no valid sensor, or no raw
+message for ``fault.stale_timeout`` wall seconds, the node publishes no estimate (ERROR), so
+the feedforward holds, and it resumes by itself when valid readings return.
+
+Sensor positions: ``sensor_positions`` = flat [r0, c0, r1, c1, ...] (fractional row/col
+allowed); empty = ``sensor_pitch`` (1: one sensor on every actuator, sensor i on actuator i;
+p: one per p x p block at its centre). The thermal network's parameters (``thermal.*``) are
+the mirror's as far as known. Every time-like parameter is physical; ``time_scale`` shortens
+them all as the simulator's scenarios do (pass the scenario's value, e.g. 0.05 for
+``dm_exposure``): capacitances, ``sensor_lag_tau`` and ``model.adaptation_time`` are
+multiplied by it, ``lowpass.cutoff_hz`` divided, the model's noise intensities multiplied by
+1/sqrt(time_scale).
+"""
+
+from __future__ import annotations
+
+import array
+import time
+from collections.abc import Sequence
+from dataclasses import fields
+
+import numpy as np
+from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from rclpy.clock import Clock, ClockType
+from rclpy.node import Node
+from std_msgs.msg import Float64MultiArray
+
+from es_msgs_py import topics
+from es_msgs_py.arrays import LayoutError, grid_to_msg, msg_to_grid, msg_to_sensors
+from es_msgs_py.diagnostics import Level, make_array, make_status
+from es_msgs_py.node_main import run_node
+from es_msgs_py.params import ParameterSpec, declare_parameters
+from es_thermal.estimator import ESTIMATORS, EstimatorConfig, TemperatureEstimator
+from es_thermal.faults import FaultConfig, StaleWatch
+from es_thermal.interpolation import block_centre_positions, sensor_positions
+from es_thermal.kalman import KalmanTuning
+from es_thermal.lowpass import DEFAULT_CUTOFF_HZ, DEFAULT_ORDER
+from es_thermal.network import NetworkParams
+
+NODE_NAME = "thermal"
+#: Measured sample intervals this far off the configured ``sample_rate`` give a WARN.
+_RATE_TOLERANCE = 0.25
+
+
+def _check_positions(value: object) -> str | None:
+    if isinstance(value, bytes | bytearray) and not value:
+        return None  # the untyped empty default
+    ok = isinstance(value, list | tuple | array.array) and all(
+        isinstance(v, int | float) and not isinstance(v, bool) for v in value
+    )
+    if not ok:
+        return "sensor_positions must be a list of numbers [r0, c0, r1, c1, ...]"
+    if len(value) % 2:  # type: ignore[arg-type]
+        return "sensor_positions needs an even count [r0, c0, r1, c1, ...]"
+    return None
+
+
+_NETWORK = NetworkParams()
+_TUNING = KalmanTuning(sensor_noise=0.02)
+_FAULTS = FaultConfig()
+
+SPECS: tuple[ParameterSpec, ...] = (
+    ParameterSpec("estimator", "model", "Estimator.", choices=ESTIMATORS, read_only=True),
+    ParameterSpec("rows", 12, "Actuator grid rows.", 1, 256, read_only=True),
+    ParameterSpec("cols", 12, "Actuator grid columns.", 1, 256, read_only=True),
+    ParameterSpec(
+        "sensor_positions",
+        [],
+        "Sensor (row, col) positions, flat [r0, c0, r1, c1, ...], fractional allowed; "
+        "empty: see sensor_pitch.",
+        check=_check_positions,
+        read_only=True,
+        dynamic_typing=True,  # an empty default has no array type of its own
+    ),
+    ParameterSpec(
+        "sensor_pitch",
+        1,
+        "Without sensor_positions: one sensor per pitch x pitch actuators at the block "
+        "centre (1: sensor i on actuator i).",
+        1,
+        64,
+        read_only=True,
+    ),
+    ParameterSpec(
+        "sample_rate", 10.0, "Sensor sample rate the filters are built for, Hz.", 0.01, 10000.0,
+        read_only=True,
+    ),
+    ParameterSpec(
+        "publish_rate",
+        0.0,
+        "0: one estimate per accepted raw message (lockstep); > 0: newest estimate at this "
+        "rate, Hz.",
+        0.0,
+        10000.0,
+        read_only=True,
+    ),
+    ParameterSpec(
+        "diagnostics_period", 1.0, "Period of /diagnostics, wall s.", 0.01, 60.0,
+        read_only=True,
+    ),
+    ParameterSpec(
+        "time_scale",
+        1.0,
+        "Multiplier of every slow time (the simulator's shortened scenarios; 1 = physical): "
+        "thermal capacitances, sensor_lag_tau, model.adaptation_time; divides "
+        "lowpass.cutoff_hz; model noise intensities grow by 1/sqrt(time_scale).",
+        1e-4,
+        1e4,
+        read_only=True,
+    ),
+    ParameterSpec(
+        "sensor_lag_tau", 0.0, "First-order sensor lag compensated by the model, s.", 0.0, 1e4,
+        read_only=True,
+    ),
+    ParameterSpec(
+        "lowpass.cutoff_hz", DEFAULT_CUTOFF_HZ, "Low-pass cut-off, Hz.", 1e-5, 1e4,
+        read_only=True,
+    ),
+    ParameterSpec("lowpass.order", DEFAULT_ORDER, "Low-pass order.", 1, 8, read_only=True),
+    *(
+        ParameterSpec(
+            f"thermal.{f.name}",
+            float(getattr(_NETWORK, f.name)),
+            f"Thermal network: {f.name} (capacitances J/K, conductances W/K).",
+            0.0,
+            1e6,
+            read_only=True,
+        )
+        for f in fields(NetworkParams)
+    ),
+    ParameterSpec(
+        "model.sensor_noise", _TUNING.sensor_noise, "Sensor noise the filter assumes, degC rms.",
+        1e-6, 100.0, read_only=True,
+    ),
+    ParameterSpec(
+        "model.process_noise", _TUNING.process_noise,
+        "Model error per cell temperature, degC/sqrt(s).", 1e-9, 100.0, read_only=True,
+    ),
+    ParameterSpec(
+        "model.base_drift", _TUNING.base_drift,
+        "Random-walk intensity of the unmeasured base plate, degC/sqrt(s).", 1e-9, 100.0,
+        read_only=True,
+    ),
+    ParameterSpec(
+        "model.adaptation_time", _TUNING.adaptation_time,
+        "Memory of the heat-gain and time-scale error estimates, s (scaled by time_scale).",
+        1e-3, 1e7, read_only=True,
+    ),
+    ParameterSpec(
+        "fault.valid_min", _FAULTS.valid_min, "Lowest physical reading, degC.", -273.0, 1000.0,
+        read_only=True,
+    ),
+    ParameterSpec(
+        "fault.valid_max", _FAULTS.valid_max, "Highest physical reading, degC.", -273.0, 1000.0,
+        read_only=True,
+    ),
+    ParameterSpec(
+        "fault.stuck_time", _FAULTS.stuck_time,
+        "A reading unchanged (within stuck_band) this long is stuck, s of sample time.",
+        1e-3, 1e7, read_only=True,
+    ),
+    ParameterSpec(
+        "fault.stuck_band", _FAULTS.stuck_band,
+        "Peak-to-peak change that still counts as unchanged, degC.", 0.0, 10.0, read_only=True,
+    ),
+    ParameterSpec(
+        "fault.stale_timeout", _FAULTS.stale_timeout,
+        "No raw message for this long (wall s) stops the estimates (ERROR).", 1e-3, 1e4,
+        read_only=True,
+    ),
+)
+
+
+def _stamp(seconds: float) -> Time:
+    ns = round(seconds * 1e9)
+    return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+
+
+def config_from_parameters(values: dict[str, object]) -> EstimatorConfig:
+    """Build the estimator configuration from declared parameter values.
+
+    Raises:
+        ValueError: an inconsistent combination (positions outside the grid, cut-off above
+            Nyquist, ...); the message says which.
+
+    """
+
+    def num(name: str) -> float:
+        return float(values[name])  # type: ignore[arg-type]
+
+    rows, cols = int(num("rows")), int(num("cols"))
+    flat = [float(v) for v in values["sensor_positions"]]  # type: ignore[attr-defined]
+    if not flat:
+        positions = block_centre_positions(rows, cols, int(num("sensor_pitch")))
+    else:
+        positions = sensor_positions(rows, cols, flat[0::2], flat[1::2])
+    scale = num("time_scale")
+    network = NetworkParams(
+        **{f.name: num(f"thermal.{f.name}") for f in fields(NetworkParams)}
+    ).time_scaled(scale)
+    tuning = KalmanTuning(
+        sensor_noise=num("model.sensor_noise"),
+        process_noise=num("model.process_noise"),
+        base_drift=num("model.base_drift"),
+        adaptation_time=num("model.adaptation_time"),
+    ).time_scaled(scale)
+    faults = FaultConfig(
+        valid_min=num("fault.valid_min"),
+        valid_max=num("fault.valid_max"),
+        stuck_time=num("fault.stuck_time"),
+        stuck_band=num("fault.stuck_band"),
+        stale_timeout=num("fault.stale_timeout"),
+    )
+    return EstimatorConfig(
+        rows=rows,
+        cols=cols,
+        positions=positions,
+        kind=str(values["estimator"]),
+        sample_period=1.0 / num("sample_rate"),
+        lowpass_cutoff_hz=num("lowpass.cutoff_hz") / scale,
+        lowpass_order=int(num("lowpass.order")),
+        sensor_tau=num("sensor_lag_tau") * scale,
+        network=network,
+        tuning=tuning,
+        faults=faults,
+    )
+
+
+class ThermalNode(Node):
+    """Thin ROS wrapper around :class:`TemperatureEstimator` (see the module docstring)."""
+
+    def __init__(self) -> None:
+        super().__init__(NODE_NAME)
+        values = declare_parameters(self, SPECS)
+        self.config = config_from_parameters(values)
+        started = time.perf_counter()
+        self.core = TemperatureEstimator(self.config)
+        self.get_logger().info(
+            f"{self.config.kind} estimator for {self.config.rows} x {self.config.cols} actuators "
+            f"and {self.config.sensor_count} sensors ready in "
+            f"{time.perf_counter() - started:.2f} s"
+        )
+        self._wall = Clock(clock_type=ClockType.STEADY_TIME)
+        self._raw_watch = StaleWatch(self.config.faults.stale_timeout)
+        self._heat_watch = StaleWatch(self.config.faults.stale_timeout)
+        self._rejected = {"raw": 0, "heat_load": 0}  # since start
+        self._rejected_recently = False  # since the last diagnostics
+        self._last_rejection = ""
+        self._published = 0
+        self._update_seconds: list[float] = []
+        self._intervals: list[float] = []
+        self._last_sample_time: float | None = None
+        self._levels: dict[str, Level] = {}
+        self._pub = self.create_publisher(
+            Float64MultiArray, topics.TEMPERATURE, topics.qos_for(topics.TEMPERATURE)
+        )
+        self._pub_diag = self.create_publisher(
+            DiagnosticArray, topics.DIAGNOSTICS, topics.qos_for(topics.DIAGNOSTICS)
+        )
+        # Heat load first: the executor serves ready subscriptions in creation order, and the
+        # plant publishes a sample's heat load just before its readings, which must use it.
+        self.create_subscription(
+            Float64MultiArray, topics.HEAT_LOAD, self._on_heat_load,
+            topics.qos_for(topics.HEAT_LOAD),
+        )
+        self.create_subscription(
+            Float64MultiArray, topics.TEMPERATURE_RAW, self._on_raw,
+            topics.qos_for(topics.TEMPERATURE_RAW),
+        )
+        period = float(values["diagnostics_period"])  # type: ignore[arg-type]
+        self.create_timer(period, self._publish_diagnostics, clock=self._wall)
+        rate = float(values["publish_rate"])  # type: ignore[arg-type]
+        self._timer_mode = rate > 0.0
+        if self._timer_mode:
+            self.create_timer(1.0 / rate, self._publish_latest)
+
+    # --- input ------------------------------------------------------------------------------
+
+    def _now(self) -> float:
+        return float(self.get_clock().now().nanoseconds) * 1e-9
+
+    def _wall_now(self) -> float:
+        return float(self._wall.now().nanoseconds) * 1e-9
+
+    def _reject(self, what: str, reason: str) -> None:
+        self._rejected[what] += 1
+        self._rejected_recently = True
+        self._last_rejection = f"{what}: {reason}"
+        self.get_logger().warning(
+            f"rejected /dm/{what.replace('_', '/') if what == 'raw' else what} message: "
+            f"{reason}",
+            throttle_duration_sec=5.0,
+        )
+        self._publish_if_level_changed()
+
+    def _on_heat_load(self, msg: Float64MultiArray) -> None:
+        try:
+            self.core.set_heat_load(msg_to_grid(msg, self.core.shape))
+        except (LayoutError, ValueError) as err:
+            self._reject("heat_load", str(err))
+            return
+        self._heat_watch.feed(self._wall_now())
+
+    def _on_raw(self, msg: Float64MultiArray) -> None:
+        try:
+            readings = msg_to_sensors(msg, self.config.sensor_count)
+        except LayoutError as err:
+            self._reject("raw", str(err))
+            return
+        self._raw_watch.feed(self._wall_now())
+        now = self._now()
+        if self._last_sample_time is not None and now > self._last_sample_time:
+            self._intervals.append(now - self._last_sample_time)
+        self._last_sample_time = now
+        started = time.perf_counter()
+        estimate = self.core.update(now, readings)
+        self._update_seconds.append(time.perf_counter() - started)
+        if estimate.temperatures is not None and not self._timer_mode:
+            self._publish(estimate.temperatures)
+        self._publish_if_level_changed()
+
+    # --- output -----------------------------------------------------------------------------
+
+    def _publish(self, temperatures: np.ndarray) -> None:
+        self._pub.publish(grid_to_msg(temperatures))
+        self._published += 1
+
+    def _publish_latest(self) -> None:
+        latest = self.core.latest
+        if (
+            latest is None
+            or latest.temperatures is None
+            or self._raw_watch.is_stale(self._wall_now())
+        ):
+            return
+        self._publish(latest.temperatures)
+
+    # --- diagnostics ------------------------------------------------------------------------
+
+    def _sensor_status(self) -> tuple[Level, str, dict[str, object]]:
+        latest = self.core.latest
+        if not self._raw_watch.seen or latest is None:
+            return Level.WARN, "waiting for /dm/temperature/raw", {}
+        if self._raw_watch.is_stale(self._wall_now()):
+            return (
+                Level.ERROR,
+                f"no /dm/temperature/raw for more than {self._raw_watch.timeout:g} s: "
+                "no estimate published",
+                {},
+            )
+        health = latest.health
+        kv: dict[str, object] = {**health.counts(), "sensors": self.config.sensor_count}
+        excluded = health.excluded_indices()
+        if excluded.size:
+            kv["first_excluded"] = ", ".join(str(i) for i in excluded)
+        if health.valid_count == 0:
+            return Level.ERROR, "no valid sensor: no estimate published", kv
+        if excluded.size:
+            bad = self.config.sensor_count - health.valid_count
+            return Level.WARN, f"{bad} sensor(s) excluded, estimating from the others", kv
+        return Level.OK, "all sensors valid", kv
+
+    def _input_status(self) -> tuple[Level, str, dict[str, object]]:
+        kv: dict[str, object] = {
+            "rejected_raw": self._rejected["raw"],
+            "rejected_heat_load": self._rejected["heat_load"],
+        }
+        if self._last_rejection:
+            kv["last_rejection"] = self._last_rejection
+        if self._rejected_recently:
+            return Level.WARN, "message(s) of wrong layout, size or value rejected", kv
+        if self.config.kind == "model":
+            if not self._heat_watch.seen:
+                return Level.OK, "no /dm/heat_load received: zero heat load assumed", kv
+            if self._heat_watch.is_stale(self._wall_now()):
+                return Level.WARN, "/dm/heat_load stale: last heat load held", kv
+        return Level.OK, "inputs ok", kv
+
+    def _estimate_status(self) -> tuple[Level, str, dict[str, object]]:
+        kv: dict[str, object] = {"estimator": self.config.kind, "published": self._published}
+        if self._update_seconds:
+            kv["update_ms_mean"] = 1e3 * float(np.mean(self._update_seconds))
+            kv["update_ms_max"] = 1e3 * float(np.max(self._update_seconds))
+        model = self.core.model
+        if model is not None and model.initialised:
+            kv["base_plate_degc"] = model.base_temperature
+            kv.update({f"model_error_{k}": v for k, v in model.biases.items()})
+        latest = self.core.latest
+        if latest is not None and latest.temperatures is not None:
+            kv["min_degc"] = float(np.min(latest.temperatures))
+            kv["max_degc"] = float(np.max(latest.temperatures))
+        level, message = Level.OK, "estimating"
+        if self._intervals:
+            interval = float(np.median(self._intervals))
+            kv["sample_interval_s"] = interval
+            expected = self.config.sample_period
+            if abs(interval - expected) > _RATE_TOLERANCE * expected:
+                level = Level.WARN
+                message = (
+                    f"samples arrive every {interval:.4g} s, filters are built for "
+                    f"{expected:.4g} s (set sample_rate)"
+                )
+        return level, message, kv
+
+    def _statuses(self, reset: bool) -> list[DiagnosticStatus]:
+        out = []
+        for aspect, build in (
+            ("sensors", self._sensor_status),
+            ("input", self._input_status),
+            ("estimate", self._estimate_status),
+        ):
+            level, message, kv = build()
+            self._levels[aspect] = level
+            out.append(make_status(f"{self.get_name()}: {aspect}", level, message, kv))
+        if reset:
+            self._update_seconds.clear()
+            self._intervals = self._intervals[-100:]
+            self._rejected_recently = False
+        return out
+
+    def _publish_if_level_changed(self) -> None:
+        current = {"sensors": self._sensor_status()[0], "input": self._input_status()[0]}
+        if any(self._levels.get(k) != v for k, v in current.items()):
+            self._publish_diagnostics()
+
+    def _publish_diagnostics(self) -> None:
+        array = make_array(_stamp(self._now()), self._statuses(reset=True))
+        self._pub_diag.publish(array)
+
+    def close(self) -> None:
+        """Nothing to flush: the node keeps no files."""
+
+
+def main(args: Sequence[str] | None = None) -> int:
+    """Run the thermal node until shutdown."""
+    return run_node(ThermalNode, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,142 @@
+"""Effects compensation: each effect as the plant defines it, undone by the feedforward."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from es_feedforward.compensation import (
+    CompensationParams,
+    CouplingInverse,
+    HysteresisInverse,
+    TemperatureLead,
+    drift_factor,
+)
+from es_feedforward.feedforward import Feedforward, FeedforwardConfig
+from es_feedforward.models import hyperbolic_forward
+
+from .plantlike import drift_gain, grid_params, laplacian_of, play
+
+SHAPE = (4, 5)
+PARAMS = grid_params(SHAPE, seed=4)
+TEMPERATURE = np.linspace(41.0, 51.0, 20).reshape(SHAPE)
+NM = 1e-9
+
+
+def feedforward(**compensation: float) -> Feedforward:
+    ff = Feedforward(
+        FeedforwardConfig(
+            shape=SHAPE, params=PARAMS, compensation=CompensationParams(**compensation)
+        )
+    )
+    ff.update_temperature(TEMPERATURE, 0.0)
+    return ff
+
+
+def smooth_setpoint(phase: float = 0.0) -> np.ndarray:
+    rows, cols = np.mgrid[0 : SHAPE[0], 0 : SHAPE[1]]
+    return (60 + 20 * np.sin(0.7 * rows + 0.4 * cols + phase)) * NM
+
+
+def test_coupling_is_undone() -> None:
+    c = 0.05
+    ff = feedforward(coupling=c)
+    z_ref = smooth_setpoint()
+    voltage = ff.command(z_ref, 0.0).voltage
+    z_free = hyperbolic_forward(voltage, TEMPERATURE, PARAMS)
+    z_plant = z_free + c * laplacian_of(z_free)
+    assert np.max(np.abs(z_plant - z_ref)) < 1e-3 * NM
+    # without the compensation the coupling shows
+    plain = hyperbolic_forward(feedforward().command(z_ref, 0.0).voltage, TEMPERATURE, PARAMS)
+    assert np.max(np.abs(plain + c * laplacian_of(plain) - z_ref)) > 0.1 * NM
+
+
+def test_coupling_solver_matches_the_laplacian_on_a_large_grid() -> None:
+    shape = (64, 64)
+    z_ref = np.random.default_rng(0).uniform(0, 1, shape)
+    z_free = CouplingInverse(-0.08, shape)(z_ref)
+    np.testing.assert_allclose(z_free - 0.08 * laplacian_of(z_free), z_ref, atol=1e-12)
+
+
+def test_thermal_expansion_is_subtracted() -> None:
+    alpha, T_ref = 0.5 * NM, 44.0
+    ff = feedforward(thermal_expansion=alpha, expansion_reference_temperature=T_ref)
+    z_ref = smooth_setpoint()
+    voltage = ff.command(z_ref, 0.0).voltage
+    z_plant = hyperbolic_forward(voltage, TEMPERATURE, PARAMS) + alpha * (TEMPERATURE - T_ref)
+    assert np.max(np.abs(z_plant - z_ref)) < 1e-3 * NM
+
+
+def test_drift_is_undone_over_time() -> None:
+    a, tau, nu, epoch = 0.1, 50.0, 0.7, 10.0
+    ff = feedforward(drift_fraction=a, drift_tau_s=tau, drift_nu=nu, drift_epoch_s=epoch)
+    z_ref = smooth_setpoint()
+    for t in (10.0, 20.0, 100.0, 1000.0):
+        ff.update_temperature(TEMPERATURE, t)
+        voltage = ff.command(z_ref, t).voltage
+        z_plant = drift_gain(t - epoch, a, tau, nu) * hyperbolic_forward(
+            voltage, TEMPERATURE, PARAMS
+        )
+        assert np.max(np.abs(z_plant - z_ref)) < 1e-3 * NM
+    assert drift_factor(CompensationParams(drift_fraction=a), 0.0) == 1.0
+
+
+def test_hysteresis_is_undone_along_a_trajectory() -> None:
+    a, r = 0.3, 20.0
+    ff = feedforward(hysteresis_weight=a, hysteresis_threshold_v=r)
+    state = np.zeros(SHAPE)
+    worst = 0.0
+    for step in range(120):  # up, down and up again: the play operator switches branches
+        z_ref = smooth_setpoint() * (1 + 0.8 * np.sin(2 * np.pi * step / 60))
+        voltage = ff.command(z_ref, step * 0.01).voltage
+        state = play(state, voltage, r)
+        v_eff = (1 - a) * voltage + a * state
+        worst = max(worst, np.max(np.abs(hyperbolic_forward(v_eff, TEMPERATURE, PARAMS) - z_ref)))
+    assert worst < 1e-3 * NM
+
+
+def test_hysteresis_inverse_branches() -> None:
+    inverse = HysteresisInverse(0.5, 10.0, (3,))
+    v_eff = np.array([0.0, 20.0, 4.0])
+    voltage = inverse.invert(v_eff)
+    # play at 0: 0 stays; 20 pushes the play up (V = V_eff + a r); 4 stays inside (V = 2 V_eff)
+    np.testing.assert_allclose(voltage, [0.0, 25.0, 8.0])
+    inverse.apply(voltage)
+    np.testing.assert_allclose(inverse.play, [0.0, 15.0, 0.0])
+
+
+def test_delay_is_predicted_on_a_ramp() -> None:
+    d = 0.004
+    ff = feedforward(delay_s=d)
+    dt = 0.001
+    history: list[np.ndarray] = []
+    errors = []
+    for step in range(20):
+        t = step * dt
+        history.append(ff.command(smooth_setpoint() + 100 * NM * t, t).voltage)
+        delayed = step - round(d / dt)
+        if delayed >= 1:  # the plant applies the command sent d earlier
+            z_plant = hyperbolic_forward(history[delayed], TEMPERATURE, PARAMS)
+            errors.append(np.max(np.abs(z_plant - (smooth_setpoint() + 100 * NM * t))))
+    assert max(errors) < 1e-3 * NM
+
+
+def test_temperature_lead_undoes_a_first_order_sensor_lag() -> None:
+    tau, dt = 5.0, 0.1
+    lead = TemperatureLead(tau, filter_s=0.5)
+    actuator = sensor = 40.0
+    for step in range(600):  # actuator heats at 0.02 degC/s; the sensor lags by tau
+        actuator = 40.0 + 0.02 * step * dt
+        sensor += dt / tau * (actuator - sensor)
+        used = lead(np.array([sensor]), step * dt)
+    assert abs(sensor - actuator) > 0.08  # the lag is real: about tau * rate
+    assert used[0] == pytest.approx(actuator, abs=0.005)
+
+
+def test_unknown_or_out_of_range_compensation_parameters_are_rejected() -> None:
+    with pytest.raises(ValueError, match="unknown"):
+        CompensationParams.from_mapping({"compensation.bogus": 1.0})
+    with pytest.raises(ValueError, match="hysteresis_weight"):
+        CompensationParams.from_mapping({"compensation.hysteresis_weight": 0.95})
+    ok = CompensationParams.from_mapping({"compensation.delay_s": 0.0024, "coupling": 0.01})
+    assert (ok.delay_s, ok.coupling) == (0.0024, 0.01)

@@ -1,0 +1,214 @@
+"""Contract messages over real DDS, and the `record` executable as a process."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.node import Node
+from rclpy.qos import QoSProfile
+from rosgraph_msgs.msg import Clock
+from std_msgs.msg import Float64MultiArray
+from support.ros import NodeProcess, executable, spin_until
+from support.ros import test_node as ros_node
+
+from es_msgs_py.arrays import grid_to_msg, msg_to_grid, msg_to_sensors, sensors_to_msg
+from es_msgs_py.bag import decode_float64_multi_arrays, read_bag
+from es_msgs_py.topics import CLOCK, COMMAND, DIAGNOSTICS, DM_QOS, TEMPERATURE_RAW, qos_for
+
+pytestmark = pytest.mark.dds
+
+# The test's publishers keep every sample until it is acknowledged, so that a lost message
+# can only be the recorder's fault (the contract's keep-last-10 would let a slow test
+# machine overwrite unacknowledged samples in the publisher itself).
+PUBLISHER_QOS = QoSProfile(
+    history=DM_QOS.history, depth=5000, reliability=DM_QOS.reliability, durability=DM_QOS.durability
+)
+
+
+def test_dds_round_trip_in_process() -> None:
+    grids = [np.arange(12.0).reshape(3, 4) * k for k in range(5)]
+    sensors = np.array([40.0, 41.5, np.nan])
+    received: list[Float64MultiArray] = []
+    raw: list[bytes] = []
+    with ros_node("es_round_trip") as node:
+        node.create_subscription(Float64MultiArray, COMMAND, received.append, qos_for(COMMAND))
+        node.create_subscription(Float64MultiArray, COMMAND, raw.append, qos_for(COMMAND), raw=True)
+        got_sensors: list[Float64MultiArray] = []
+        node.create_subscription(
+            Float64MultiArray, TEMPERATURE_RAW, got_sensors.append, qos_for(TEMPERATURE_RAW)
+        )
+        command = node.create_publisher(Float64MultiArray, COMMAND, PUBLISHER_QOS)
+        temperature = node.create_publisher(Float64MultiArray, TEMPERATURE_RAW, PUBLISHER_QOS)
+        assert spin_until(node, lambda: command.get_subscription_count() == 2, 10.0)
+        for grid in grids:
+            command.publish(grid_to_msg(grid))
+        temperature.publish(sensors_to_msg(sensors))
+        assert spin_until(
+            node, lambda: len(received) == len(raw) == 5 and len(got_sensors) == 1, 10.0
+        )
+    for msg, grid in zip(received, grids, strict=True):
+        np.testing.assert_array_equal(msg_to_grid(msg, (3, 4)), grid)
+    np.testing.assert_array_equal(msg_to_sensors(got_sensors[0], 3), sensors)
+    # The bag decoder reads what DDS delivers (rclpy's CDR, padding and all).
+    np.testing.assert_array_equal(decode_float64_multi_arrays(COMMAND, raw), np.stack(grids))
+
+
+def _written_counts(msg: DiagnosticArray) -> dict[str, int]:
+    counts = {}
+    for status in msg.status:
+        if status.name == "record: bag":
+            for pair in status.values:
+                if pair.key.endswith(" written"):
+                    counts[pair.key.removesuffix(" written")] = int(pair.value)
+    return counts
+
+
+def _record_and_publish(
+    node: Node, recorder: NodeProcess, topics: dict[str, list[Float64MultiArray]]
+) -> None:
+    """Publish every message of ``topics`` and wait until the recorder reports them written."""
+    latest: dict[str, int] = {}
+    node.create_subscription(
+        DiagnosticArray,
+        DIAGNOSTICS,
+        lambda msg: latest.update(_written_counts(msg)),
+        qos_for(DIAGNOSTICS),
+    )
+    publishers = {t: node.create_publisher(Float64MultiArray, t, PUBLISHER_QOS) for t in topics}
+    assert spin_until(
+        node, lambda: all(p.get_subscription_count() >= 1 for p in publishers.values()), 20.0
+    ), recorder.output()
+    for i in range(max(len(m) for m in topics.values())):
+        for topic, msgs in topics.items():
+            if i < len(msgs):
+                publishers[topic].publish(msgs[i])
+        time.sleep(0.001)  # about 1 kHz
+    expected = {t: len(m) for t, m in topics.items()}
+    done = spin_until(node, lambda: all(latest.get(t) == n for t, n in expected.items()), 30.0)
+    assert done, f"recorder reports {latest}, published {expected}\n{recorder.output()}"
+
+
+def test_recorder_writes_every_message_and_closes_on_sigint(tmp_path: Path) -> None:
+    grids = np.random.default_rng(1).normal(size=(300, 4, 4))
+    sensors = np.random.default_rng(2).normal(size=(30, 5))
+    bag = tmp_path / "bag"
+    recorder = NodeProcess(
+        "es_msgs_py", "record", ["-o", str(bag), COMMAND, TEMPERATURE_RAW, DIAGNOSTICS]
+    )
+    try:
+        with ros_node("es_record_test") as node:
+            _record_and_publish(
+                node,
+                recorder,
+                {
+                    COMMAND: [grid_to_msg(g) for g in grids],
+                    TEMPERATURE_RAW: [sensors_to_msg(s) for s in sensors],
+                },
+            )
+    finally:
+        code = recorder.stop(signal.SIGINT)
+    assert code == 0, recorder.output()
+    assert "/dm/command: received 300, written 300, lost before reception 0" in recorder.output()
+    assert (bag / "metadata.yaml").is_file()
+    series = read_bag(bag)
+    np.testing.assert_array_equal(series[COMMAND].values, grids)
+    np.testing.assert_array_equal(series[TEMPERATURE_RAW].values, sensors)
+    assert np.all(np.diff(series[COMMAND].times) >= 0)
+    assert abs(series[COMMAND].times[0] - time.time()) < 120  # wall-clock stamps
+    assert len(series[DIAGNOSTICS]) >= 1  # its own counts, at least
+
+
+def test_recorder_stamps_with_sim_time(tmp_path: Path) -> None:
+    bag = tmp_path / "bag"
+    args = ["-o", str(bag), COMMAND, "--ros-args", "-p", "use_sim_time:=true"]
+    recorder = NodeProcess("es_msgs_py", "record", args)
+    try:
+        with ros_node("es_record_clock") as node:
+            clock = node.create_publisher(Clock, CLOCK, qos_for(CLOCK))
+            command = node.create_publisher(Float64MultiArray, COMMAND, PUBLISHER_QOS)
+
+            def tick() -> None:
+                clock.publish(Clock(clock=Time(sec=100, nanosec=250_000_000)))
+
+            node.create_timer(0.02, tick)
+            assert spin_until(
+                node,
+                lambda: (
+                    clock.get_subscription_count() >= 1 and command.get_subscription_count() >= 1
+                ),
+                20.0,
+            ), recorder.output()
+            spin_until(node, lambda: False, 0.5)  # the recorder's clock reaches t = 100.25 s
+            for k in range(20):
+                command.publish(grid_to_msg(np.full((2, 2), float(k))))
+            spin_until(node, lambda: False, 1.0)
+    finally:
+        assert recorder.stop(signal.SIGINT) == 0, recorder.output()
+    series = read_bag(bag)[COMMAND]
+    assert len(series) == 20
+    np.testing.assert_array_equal(series.times, np.full(20, 100.25))
+
+
+def test_recorder_throughput_loses_nothing(tmp_path: Path) -> None:
+    """1000 grids of 64 x 64 doubles at about 1 kHz (a test of loss, not of speed)."""
+    grid = np.zeros((64, 64))
+    msgs = []
+    for i in range(1000):
+        grid[0, 0] = i
+        msgs.append(grid_to_msg(grid))
+    bag = tmp_path / "bag"
+    recorder = NodeProcess(
+        "es_msgs_py", "record", ["-o", str(bag), "--storage", "sqlite3", COMMAND]
+    )
+    try:
+        with ros_node("es_record_rate") as node:
+            _record_and_publish(node, recorder, {COMMAND: msgs})
+    finally:
+        code = recorder.stop(signal.SIGTERM)
+    assert code == 0, recorder.output()
+    values = read_bag(bag)[COMMAND].values
+    assert values is not None
+    np.testing.assert_array_equal(values[:, 0, 0], np.arange(1000.0))
+
+
+def test_sigkilled_recorder_bag_is_readable_up_to_last_flush(tmp_path: Path) -> None:
+    grids = np.random.default_rng(3).normal(size=(200, 3, 3))
+    bag = tmp_path / "bag"
+    recorder = NodeProcess(
+        "es_msgs_py", "record", ["-o", str(bag), "--flush-interval", "0.1", COMMAND]
+    )
+    try:
+        with ros_node("es_record_kill") as node:
+            _record_and_publish(node, recorder, {COMMAND: [grid_to_msg(g) for g in grids]})
+        time.sleep(0.5)  # several flush periods after the last message was written
+    finally:
+        code = recorder.stop(signal.SIGKILL)
+    assert code == -signal.SIGKILL
+    assert not (bag / "metadata.yaml").exists()
+    np.testing.assert_array_equal(read_bag(bag)[COMMAND].values, grids)
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        ([], "the following arguments are required: -o/--output"),
+        (["-o", "{tmp}/bag"], "give at least one TOPIC or --all-dm"),
+        (["-o", "{tmp}/bag", "--storage", "rosbag1", "/x"], "invalid choice: 'rosbag1'"),
+        (["-o", "{tmp}/bag", "/bad topic"], "invalid topic name '/bad topic'"),
+        (["-o", "{tmp}", "/dm/command"], "exists already"),
+    ],
+)
+def test_bad_arguments_exit_2_with_one_line(tmp_path: Path, args: list[str], message: str) -> None:
+    command = [str(executable("es_msgs_py", "record")), *(a.format(tmp=tmp_path) for a in args)]
+    proc = subprocess.run(command, capture_output=True, text=True, timeout=60, check=False)
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1, proc.stderr
+    assert message in lines[0]

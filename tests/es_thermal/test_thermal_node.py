@@ -1,0 +1,175 @@
+"""The thermal node as a process over DDS: estimates, faults, recovery, diagnostics."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+
+import numpy as np
+import pytest
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from rclpy.node import Node
+from std_msgs.msg import Float64MultiArray
+from support.ros import NodeProcess, node_process, spin_until
+from support.ros import test_node as ros_node
+
+from es_msgs_py import topics
+from es_msgs_py.arrays import grid_to_msg, msg_to_grid, sensors_to_msg
+from es_msgs_py.diagnostics import Level, level_of
+
+pytestmark = pytest.mark.dds
+
+SHAPE = (4, 4)
+SENSORS = 4  # one per 2 x 2 block
+RNG = np.random.default_rng(5)
+
+
+@dataclass
+class Harness:
+    """A test node wired to the thermal node's topics."""
+
+    node: Node
+    estimates: list[np.ndarray] = field(default_factory=list)
+    diagnostics: dict[str, DiagnosticStatus] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        node = self.node
+        node.create_subscription(
+            Float64MultiArray,
+            topics.TEMPERATURE,
+            lambda msg: self.estimates.append(msg_to_grid(msg, SHAPE)),
+            topics.qos_for(topics.TEMPERATURE),
+        )
+        node.create_subscription(
+            DiagnosticArray, topics.DIAGNOSTICS, self._on_diag, topics.qos_for(topics.DIAGNOSTICS)
+        )
+        self.raw = node.create_publisher(
+            Float64MultiArray, topics.TEMPERATURE_RAW, topics.qos_for(topics.TEMPERATURE_RAW)
+        )
+        self.heat = node.create_publisher(
+            Float64MultiArray, topics.HEAT_LOAD, topics.qos_for(topics.HEAT_LOAD)
+        )
+
+    def _on_diag(self, msg: DiagnosticArray) -> None:
+        for status in msg.status:
+            if status.name.startswith("thermal: "):
+                self.diagnostics[status.name.removeprefix("thermal: ")] = status
+
+    def wait_connected(self) -> None:
+        assert spin_until(
+            self.node,
+            lambda: (
+                self.raw.get_subscription_count() > 0
+                and self.heat.get_subscription_count() > 0
+                and self.node.count_publishers(topics.TEMPERATURE) > 0
+            ),
+            30.0,
+        )
+
+    def exchange(self, msg: Float64MultiArray, expect: bool = True) -> np.ndarray | None:
+        """Publish one raw message; return the estimate it produced (None if none came)."""
+        before = len(self.estimates)
+        self.raw.publish(msg)
+        got = spin_until(self.node, lambda: len(self.estimates) > before, 5.0 if expect else 0.5)
+        assert got == expect, f"estimate {'missing' if expect else 'published'}"
+        return self.estimates[-1] if got else None
+
+    def diagnostic(
+        self, aspect: str, check: Callable[[DiagnosticStatus], bool], timeout: float = 5.0
+    ) -> DiagnosticStatus:
+        self.diagnostics.pop(aspect, None)
+        assert spin_until(
+            self.node,
+            lambda: aspect in self.diagnostics and check(self.diagnostics[aspect]),
+            timeout,
+        ), f"no matching diagnostic {aspect}: {self.diagnostics.get(aspect)}"
+        return self.diagnostics[aspect]
+
+
+def readings(value: float = 40.0) -> np.ndarray:
+    return value + 0.01 * RNG.standard_normal(SENSORS)
+
+
+def is_level(level: Level) -> Callable[[DiagnosticStatus], bool]:
+    return lambda s: level_of(s) == level
+
+
+@pytest.fixture
+def harness() -> Iterator[tuple[Harness, NodeProcess]]:
+    args = [
+        "--ros-args",
+        "-p", "rows:=4", "-p", "cols:=4", "-p", "sensor_pitch:=2",
+        "-p", "time_scale:=0.05", "-p", "diagnostics_period:=0.2",
+        "-p", "fault.stale_timeout:=1.0", "-p", "model.sensor_noise:=0.01",
+    ]  # fmt: skip
+    with node_process("es_thermal", "thermal_node", args) as proc, ros_node("thermal_test") as node:
+        h = Harness(node)
+        h.wait_connected()
+        yield h, proc
+
+
+def test_node_estimates_faults_and_recovery(harness: tuple[Harness, NodeProcess]) -> None:
+    h, proc = harness
+    # One estimate per raw message, per actuator, near the readings.
+    h.heat.publish(grid_to_msg(np.zeros(SHAPE)))
+    for _ in range(5):
+        estimate = h.exchange(sensors_to_msg(readings()))
+    assert estimate is not None and estimate.shape == SHAPE
+    np.testing.assert_allclose(estimate, 40.0, atol=0.05)
+    assert h.diagnostic("sensors", is_level(Level.OK)).message == "all sensors valid"
+
+    # A NaN and an out-of-range sensor: excluded, the estimate continues from the others.
+    bad = readings()
+    bad[1], bad[2] = np.nan, 900.0
+    estimate = h.exchange(sensors_to_msg(bad))
+    assert estimate is not None and np.all(np.isfinite(estimate))
+    np.testing.assert_allclose(estimate, 40.0, atol=0.05)
+    status = h.diagnostic("sensors", is_level(Level.WARN))
+    values = {kv.key: kv.value for kv in status.values}
+    assert (values["non_finite"], values["out_of_range"], values["valid"]) == ("1", "1", "2")
+    assert values["first_excluded"] == "1, 2"
+
+    # Wrong size and wrong layout: rejected, nothing published, diagnostic WARN.
+    assert h.exchange(sensors_to_msg(readings()[:3]), expect=False) is None
+    assert h.exchange(grid_to_msg(np.full((2, 2), 40.0)), expect=False) is None
+    status = h.diagnostic("input", is_level(Level.WARN))
+    assert "rejected" in status.message
+    assert {kv.key: kv.value for kv in status.values}["rejected_raw"] == "2"
+
+    # Every sensor dead: no estimate (the feedforward holds), diagnostic ERROR ...
+    assert h.exchange(sensors_to_msg(np.full(SENSORS, np.nan)), expect=False) is None
+    assert "no valid sensor" in h.diagnostic("sensors", is_level(Level.ERROR)).message
+    # ... and recovery by itself when valid readings return.
+    estimate = h.exchange(sensors_to_msg(readings(40.1)))
+    assert estimate is not None and np.all(np.isfinite(estimate))
+    h.diagnostic("sensors", is_level(Level.OK))
+
+    # No raw message for longer than the stale timeout: ERROR, then recovery.
+    time.sleep(1.3)
+    assert "no /dm/temperature/raw" in h.diagnostic("sensors", is_level(Level.ERROR)).message
+    assert h.exchange(sensors_to_msg(readings())) is not None
+    h.diagnostic("sensors", is_level(Level.OK))
+    estimate_status = h.diagnostic("estimate", lambda s: True)
+    assert {kv.key for kv in estimate_status.values} >= {"estimator", "update_ms_mean"}
+    assert proc.process.poll() is None  # nothing crashed the node
+
+
+@pytest.mark.parametrize(
+    ("args", "reason"),
+    [
+        (["-p", "sensor_positions:=[0.5, 0.5, 9.0]"], "even count"),
+        (["-p", "sensor_positions:=[0.5, 9.0]"], "outside"),
+        (["-p", "estimator:=magic"], "estimator"),
+        (["-p", "lowpass.cutoff_hz:=7.0", "-p", "estimator:=lowpass"], "Nyquist"),
+    ],
+)
+def test_invalid_configuration_exits_with_one_line(args: list[str], reason: str) -> None:
+    proc = NodeProcess("es_thermal", "thermal_node", ["--ros-args", *args])
+    try:
+        proc.process.wait(30.0)
+    finally:
+        code = proc.stop()
+    lines = [line for line in proc.output().splitlines() if line.strip()]
+    assert code == 2, proc.output()
+    assert reason in lines[-1] and "Traceback" not in proc.output()

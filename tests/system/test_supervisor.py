@@ -1,0 +1,100 @@
+"""The bring-up's process supervisor, with small stand-in processes (no ROS)."""
+
+from __future__ import annotations
+
+import sys
+import threading
+from pathlib import Path
+
+from es_sim_plant.supervisor import EXIT_INTERRUPTED, ProcessSpec, StopTimeouts, Supervisor
+
+# A stand-in node: prints, then waits; on SIGINT appends "<name> stopped" to a journal file.
+NODE = r"""
+import signal, sys, time
+name, journal, behaviour = sys.argv[1], sys.argv[2], sys.argv[3]
+def on_int(*_):
+    if behaviour == "ignore_sigint":
+        return
+    with open(journal, "a") as f:
+        f.write(f"{name} stopped\n")
+    sys.exit(0)
+signal.signal(signal.SIGINT, on_int)
+print(f"{name} up", flush=True)
+if behaviour.startswith("exit"):
+    time.sleep(0.3)
+    sys.exit(int(behaviour[4:]))
+while True:
+    time.sleep(0.05)
+"""
+
+FAST = StopTimeouts(after_sigint=1.0, after_sigterm=1.0)
+
+
+def spec(name: str, journal: Path, behaviour: str = "wait", primary: bool = False) -> ProcessSpec:
+    # the recorder stand-in is stopped in a later stage than the nodes it records
+    stage = 1 if name == "recorder" else 0
+    command = [sys.executable, "-c", NODE, name, str(journal), behaviour]
+    return ProcessSpec(name, command, primary, stop_stage=stage)
+
+
+def test_primary_finishing_stops_the_others_recorder_last(tmp_path: Path) -> None:
+    journal = tmp_path / "journal"
+    messages: list[str] = []
+    sup = Supervisor(tmp_path / "logs", timeouts=FAST, announce=messages.append)
+    sup.start(spec("recorder", journal))
+    sup.start(spec("thermal", journal))
+    sup.start(spec("plant", journal, "exit0", primary=True))
+    outcome = sup.run(wall_timeout=20)
+    assert outcome.exit_code == 0, outcome.reason
+    assert outcome.exit_codes == {"recorder": 0, "thermal": 0, "plant": 0}
+    # the recorder started first is stopped last, after the node it records
+    assert journal.read_text().splitlines() == ["thermal stopped", "recorder stopped"]
+    assert (tmp_path / "logs" / "thermal.log").read_text() == "thermal up\n"
+    assert any("plant finished" in m for m in messages)
+
+
+def test_a_node_dying_stops_the_rest_with_a_clear_reason(tmp_path: Path) -> None:
+    journal = tmp_path / "journal"
+    messages: list[str] = []
+    sup = Supervisor(tmp_path / "logs", timeouts=FAST, announce=messages.append)
+    sup.start(spec("recorder", journal))
+    sup.start(spec("thermal", journal, "exit3"))
+    sup.start(spec("plant", journal, primary=True))
+    outcome = sup.run(wall_timeout=20)
+    assert outcome.exit_code == 1
+    assert outcome.reason == "thermal exited unexpectedly with exit code 3"
+    assert journal.read_text().splitlines() == ["plant stopped", "recorder stopped"]
+    assert any("| thermal up" in m for m in messages)  # the dead node's last log lines
+
+
+def test_a_failing_primary_is_a_failure(tmp_path: Path) -> None:
+    sup = Supervisor(tmp_path / "logs", timeouts=FAST, announce=lambda _m: None)
+    sup.start(spec("plant", tmp_path / "journal", "exit2", primary=True))
+    outcome = sup.run(wall_timeout=20)
+    assert (outcome.exit_code, outcome.reason) == (1, "plant failed with exit code 2")
+
+
+def test_a_process_ignoring_sigint_is_escalated_and_reported(tmp_path: Path) -> None:
+    sup = Supervisor(tmp_path / "logs", timeouts=FAST, announce=lambda _m: None)
+    sup.start(spec("stubborn", tmp_path / "journal", "ignore_sigint"))
+    sup.start(spec("plant", tmp_path / "journal", "exit0", primary=True))
+    outcome = sup.run(wall_timeout=20)
+    assert outcome.exit_code == 1
+    assert "unclean stop of stubborn" in outcome.reason
+    assert outcome.exit_codes["stubborn"] == -15  # SIGTERM ended it
+
+
+def test_interrupt_and_wall_timeout_stop_everything(tmp_path: Path) -> None:
+    journal = tmp_path / "journal"
+    sup = Supervisor(tmp_path / "logs", timeouts=FAST, announce=lambda _m: None)
+    sup.start(spec("thermal", journal))
+    sup.start(spec("plant", journal, primary=True))
+    threading.Timer(0.5, sup.interrupt).start()
+    assert sup.run(wall_timeout=20).exit_code == EXIT_INTERRUPTED
+    assert sorted(journal.read_text().splitlines()) == ["plant stopped", "thermal stopped"]
+
+    sup2 = Supervisor(tmp_path / "logs2", timeouts=FAST, announce=lambda _m: None)
+    sup2.start(spec("plant", journal, primary=True))
+    outcome = sup2.run(wall_timeout=0.5)
+    assert outcome.exit_code == 1
+    assert "wall-clock limit" in outcome.reason
