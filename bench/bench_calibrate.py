@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
 from es_feedforward.calibrate import run
 from es_feedforward.models import hyperbolic_forward
 from es_feedforward.params import ActuatorParams
@@ -42,15 +43,20 @@ class CalibrationTiming:
     calibrate_s: float
 
 
-def write_measured_bag(path: Path, rows: int, cols: int, duration: float, rate: float,
-                       seed: int = 0) -> None:
+def write_measured_bag(
+    path: Path, rows: int, cols: int, duration: float, rate: float, *, seed: int = 0
+) -> None:
     """Write a synthetic measured-data bag (see the module docstring) to ``path``."""
     rng = np.random.default_rng(seed)
     shape = (rows, cols)
     params = ActuatorParams().as_arrays(shape)
     params = ActuatorParams(
-        m1=params.m1, m2=params.m2 * (1 + 0.02 * rng.standard_normal(shape)), m3=0.0,
-        k1=params.k1, k2=params.k2 * (1 + 0.01 * rng.standard_normal(shape)), k3=0.0,
+        m1=params.m1,
+        m2=params.m2 * (1 + 0.02 * rng.standard_normal(shape)),
+        m3=0.0,
+        k1=params.k1,
+        k2=params.k2 * (1 + 0.01 * rng.standard_normal(shape)),
+        k3=0.0,
     )
     phase = rng.uniform(0, 2 * np.pi, shape)
     spatial = rng.uniform(-0.5, 0.5, shape)
@@ -70,24 +76,34 @@ def write_measured_bag(path: Path, rows: int, cols: int, duration: float, rate: 
             amplitude = np.array([50.0, 150.0, 250.0])[level % 3]
             freq = np.where((level // 3) % 2 == 0, 1.0, 4.0)
             V = offset[:, None, None] + amplitude[:, None, None] * np.sin(
-                2 * np.pi * freq[:, None, None] * t[:, None, None] + phase[None])
+                2 * np.pi * freq[:, None, None] * t[:, None, None] + phase[None]
+            )
             T = temperature(t + 1.0 / rate)
             z = hyperbolic_forward(V, T, params) + EXPANSION_M_PER_DEGC * (T - 40.0)
             z += 0.5e-9 * rng.standard_normal(z.shape)
             for i, tk in enumerate(t):
-                ns = int(round(tk * 1e9))
-                bag.write("/dm/command", ns, encode_float64_multi_array(V[i], "grid"),
-                          FLOAT64_MULTI_ARRAY)
-                bag.write("/dm/displacement", int(round((tk + 1.0 / rate) * 1e9)),
-                          encode_float64_multi_array(z[i], "grid"), FLOAT64_MULTI_ARRAY)
+                ns = round(tk * 1e9)
+                bag.write(
+                    "/dm/command", ns, encode_float64_multi_array(V[i], "grid"), FLOAT64_MULTI_ARRAY
+                )
+                bag.write(
+                    "/dm/displacement",
+                    round((tk + 1.0 / rate) * 1e9),
+                    encode_float64_multi_array(z[i], "grid"),
+                    FLOAT64_MULTI_ARRAY,
+                )
                 if k[i] % sensor_every == 0:
-                    bag.write("/dm/temperature/raw", ns,
-                              encode_float64_multi_array(temperature(t[i : i + 1])[0].ravel(),
-                                                         "sensor"), FLOAT64_MULTI_ARRAY)
+                    bag.write(
+                        "/dm/temperature/raw",
+                        ns,
+                        encode_float64_multi_array(temperature(t[i : i + 1])[0].ravel(), "sensor"),
+                        FLOAT64_MULTI_ARRAY,
+                    )
 
 
-def bench_calibrate(rows: int = 32, cols: int = 32, duration: float = 300.0,
-                    rate: float = 500.0) -> CalibrationTiming:
+def bench_calibrate(
+    rows: int = 32, cols: int = 32, duration: float = 300.0, rate: float = 500.0
+) -> CalibrationTiming:
     """Generate one bag, then time the calibration tool on it."""
     with tempfile.TemporaryDirectory(prefix="bench_calibrate_") as tmp:
         bag = Path(tmp) / "bag"
@@ -111,8 +127,10 @@ def main() -> None:
     args = parser.parse_args()
     for n in args.grid:
         timing = bench_calibrate(n, n, args.duration, args.rate)
-        print(f"calibrate {n} x {n}, {args.duration:g} s at {args.rate:g} Hz: "
-              f"{timing.calibrate_s:.1f} s (bag generation {timing.generate_s:.1f} s)")
+        print(
+            f"calibrate {n} x {n}, {args.duration:g} s at {args.rate:g} Hz: "
+            f"{timing.calibrate_s:.1f} s (bag generation {timing.generate_s:.1f} s)"
+        )
 
 
 if __name__ == "__main__":

@@ -8,19 +8,21 @@ For each grid size N (a near-square R x C grid with per-actuator parameter maps,
 0-150 nm, temperatures in 40-52 degC) it times:
 
 - ``laws+inverse_hyperbolic``: temperature laws and hyperbolic inverse together
-  (``CompiledLaws.at(T).hyperbolic_inverse(z)``), the issue-3 figure;
+  (``CompiledLaws.hyperbolic_inverse(z, T)``), the issue-3 figure;
 - ``inverse_hyperbolic`` ... ``uncompensated``: ``Feedforward.command(z, t)`` of each mode
   with the temperature already taken (what the node pays per set point);
 - ``update_temperature``: ``Feedforward.update_temperature`` (once per temperature message).
 
-Each figure is the best of several repeats, and the np.sqrt floor is measured next to it in the
-same repeat, so the ratio holds under the machine's load at that moment.
+Each figure is the best of several repeats of this thread's CPU time (so other processes on
+the machine do not inflate it), and the np.sqrt floor is measured next to it in the same
+repeat.
 :func:`bench_kernels` returns the rows for a benchmark suite; ``main`` prints a table.
 """
 
 from __future__ import annotations
 
 import argparse
+import time
 import timeit
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -32,6 +34,8 @@ from es_feedforward.models import DEFAULT_V_LIMIT, CompiledLaws
 from es_feedforward.params import ActuatorParams
 
 DEFAULT_SIZES = (1, 144, 1024, 4096, 16384)
+#: CPU time of this thread: time the process waits for a core (other load) does not count.
+CPU_TIMER = time.thread_time
 
 
 @dataclass(frozen=True)
@@ -57,21 +61,27 @@ def grid_shape(size: int) -> tuple[int, int]:
     return rows, size // rows
 
 
-def _best_time(call: Callable[[], object], repeats: int, budget_s: float) -> float:
-    timer = timeit.Timer(call)
-    number, _ = timer.autorange()
-    number = max(1, int(number * budget_s / 0.2))
-    return min(timer.repeat(repeat=repeats, number=number)) / number
+def _calls_per_repeat(call: Callable[[], object], budget_s: float) -> int:
+    """Return how many calls take about ``budget_s``."""
+    start = time.thread_time()
+    call()
+    once = max(time.thread_time() - start, 1e-7)
+    return max(1, int(budget_s / once))
 
 
 def _paired(
-    call: Callable[[], object], floor: Callable[[], object], repeats: int
+    call: Callable[[], object], floor: Callable[[], object], repeats: int, budget_s: float = 0.02
 ) -> tuple[float, float]:
-    """Best time of ``call`` and of ``floor``, measured alternately."""
+    """Best time per call of ``call`` and of ``floor``, measured alternately."""
+    call()  # warm caches (cached coefficients, allocator)
+    n_call = _calls_per_repeat(call, budget_s)
+    n_floor = _calls_per_repeat(floor, budget_s)
     best, best_floor = np.inf, np.inf
     for _ in range(repeats):
-        best = min(best, _best_time(call, 1, 0.05))
-        best_floor = min(best_floor, _best_time(floor, 1, 0.05))
+        best = min(best, timeit.timeit(call, timer=CPU_TIMER, number=n_call) / n_call)
+        best_floor = min(
+            best_floor, timeit.timeit(floor, timer=CPU_TIMER, number=n_floor) / n_floor
+        )
     return best, best_floor
 
 
@@ -96,8 +106,8 @@ def bench_kernels(sizes: Sequence[int] = DEFAULT_SIZES, repeats: int = 5) -> lis
 
         compiled = CompiledLaws(params, shape)
         kernels: dict[str, Callable[[], object]] = {
-            "laws+inverse_hyperbolic": lambda c=compiled, T=T, z=z: c.at(T).hyperbolic_inverse(
-                z, DEFAULT_V_LIMIT
+            "laws+inverse_hyperbolic": lambda c=compiled, T=T, z=z: c.hyperbolic_inverse(
+                z, T, DEFAULT_V_LIMIT
             ),
         }
         for mode in Mode:

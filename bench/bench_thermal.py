@@ -4,6 +4,8 @@ Usage (from the repository root, after ./scripts/bootstrap)::
 
     .venv/bin/python bench/bench_thermal.py [--scenario dm_exposure] [--pitch 2]
         [--noise 0.01] [--error 0.2] [--pattern mixed|high|low|exact] [--duration S]
+        [--time-scale X] [--sensor-rate HZ] [--sensor-lag]
+    .venv/bin/python bench/bench_thermal.py --cost 32x32/2     # build and update time
 
 The issue-5 goal run (the defaults): ``dm_exposure`` with 0.01 degC sensor noise, one sensor
 per 2 x 2 actuators (at the block centres, reading the bilinear mean of the four), no sensor
@@ -14,20 +16,22 @@ Butterworth at 0.1 Hz physical, i.e. 0.1 Hz / time_scale in a shortened scenario
 both see the same dynamics. The first 10 % of the run (start-up) is not scored.
 
 :func:`thermal_accuracy` returns the figures (``thermal_rms_model``, ``thermal_rms_lowpass``
-and more) for the benchmark suite; ``main`` prints them as JSON.
+and more) for the benchmark suite, :func:`update_cost` the model estimator's cost; ``main``
+prints them as JSON.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import time
 from dataclasses import asdict, fields, replace
 
 import numpy as np
 
 from es_sim_plant.plant import Plant, simulate
 from es_sim_plant.scenario import Scenario, load_scenario
-from es_thermal.estimator import EstimatorConfig
+from es_thermal.estimator import EstimatorConfig, TemperatureEstimator
 from es_thermal.evaluation import replay, score
 from es_thermal.interpolation import actuator_positions, block_centre_positions
 from es_thermal.kalman import KalmanTuning
@@ -64,24 +68,25 @@ def goal_scenario(
     time_scale: float | None = None,
     sensor_rate: float | None = None,
     effects: dict[str, bool] | None = None,
+    keep_offsets: bool = False,
 ) -> Scenario:
     """Return ``name`` with the goal's sensors.
 
     One sensor per ``pitch`` x ``pitch`` block, ``noise`` rms, the scenario's quantisation,
-    no offsets; the plant steps at the sensor rate.
+    no offsets unless ``keep_offsets`` (the scenario's fixed per-sensor offsets: no
+    estimator can tell them from temperature without a calibration).
     """
     sc = load_scenario(name, time_scale=time_scale).with_overrides(
         duration=duration, sensor_rate=sensor_rate, effects=effects
     )
-    # Only temperatures matter here: step the plant at the sensor rate (its thermal network
-    # is discretised exactly, so this changes nothing but the actuator work).
-    sc = sc.with_overrides(control_rate=sc.sensor_rate)
     positions = (
         None
         if pitch == 1
         else tuple((float(r), float(c)) for r, c in block_centre_positions(sc.rows, sc.cols, pitch))
     )
-    sensors = replace(sc.sensors, positions=positions, noise_sd=noise, offset_sd=0.0, offsets=None)
+    sensors = replace(sc.sensors, positions=positions, noise_sd=noise)
+    if not keep_offsets:
+        sensors = replace(sensors, offset_sd=0.0, offsets=None)
     return replace(sc, sensors=sensors)
 
 
@@ -96,6 +101,7 @@ def thermal_accuracy(
     time_scale: float | None = None,
     sensor_rate: float | None = None,
     effects: dict[str, bool] | None = None,
+    keep_offsets: bool = False,
 ) -> dict[str, float]:
     """Simulate ``scenario`` and score both estimators on it; return the figures [degC, s].
 
@@ -117,6 +123,7 @@ def thermal_accuracy(
         time_scale=time_scale,
         sensor_rate=sensor_rate,
         effects=effects,
+        keep_offsets=keep_offsets,
     )
     plant = Plant(sc)
     result = simulate(plant, commands=np.zeros(plant.steps))
@@ -152,6 +159,38 @@ def thermal_accuracy(
     return out
 
 
+def update_cost(
+    rows: int, cols: int, pitch: int, *, sensor_tau: float = 0.0, updates: int = 200
+) -> dict[str, float]:
+    """Return the model estimator's build time [s] and time per update [ms].
+
+    R x C grid, one sensor per ``pitch`` x ``pitch`` block, the simulator's thermal defaults,
+    physical time, 10 Hz; the update figures are median, min and max over ``updates``.
+    """
+    positions = block_centre_positions(rows, cols, pitch)
+    config = EstimatorConfig(rows, cols, positions, sensor_tau=sensor_tau)
+    started = time.perf_counter()
+    est = TemperatureEstimator(config)
+    build = time.perf_counter() - started
+    rng = np.random.default_rng(0)
+    heat = np.full((rows, cols), 0.01)
+    est.update(0.0, np.full(len(positions), 40.0))
+    spent = []
+    for k in range(1, updates + 1):
+        readings = 40.0 + 0.01 * rng.standard_normal(len(positions))
+        started = time.perf_counter()
+        est.set_heat_load(heat)
+        est.update(0.1 * k, readings)
+        spent.append(time.perf_counter() - started)
+    ms = 1e3 * np.asarray(spent)
+    return {
+        "build_s": build,
+        "update_ms_median": float(np.median(ms)),
+        "update_ms_min": float(np.min(ms)),
+        "update_ms_max": float(np.max(ms)),
+    }
+
+
 def main() -> None:
     """Print the figures of one accuracy run as JSON."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -164,11 +203,21 @@ def main() -> None:
     parser.add_argument("--time-scale", type=float, default=None)
     parser.add_argument("--sensor-rate", type=float, default=None, help="Hz")
     parser.add_argument("--sensor-lag", action="store_true", help="simulate sensor lag")
+    parser.add_argument("--offsets", action="store_true", help="keep the sensor offsets")
+    parser.add_argument(
+        "--cost", metavar="RxC/P", help="instead: time the model estimator, e.g. 32x32/2"
+    )
     args = parser.parse_args()
+    if args.cost:
+        size, pitch = args.cost.split("/")
+        rows, cols = (int(v) for v in size.split("x"))
+        print(json.dumps(update_cost(rows, cols, int(pitch)), indent=2))
+        return
     figures = thermal_accuracy(
         args.scenario, pitch=args.pitch, noise=args.noise, error=args.error,
         pattern=args.pattern, duration=args.duration, time_scale=args.time_scale,
         sensor_rate=args.sensor_rate, effects={"sensor_lag": True} if args.sensor_lag else None,
+        keep_offsets=args.offsets,
     )
     print(json.dumps(figures, indent=2))
 

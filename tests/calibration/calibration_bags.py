@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
 from es_msgs_py.bag import write_array_bag
 from es_sim_plant.plant import Plant, SimulationResult, simulate
 from es_sim_plant.scenario import Scenario

@@ -87,7 +87,7 @@ def test_observer_mode_tracks_a_slow_sine() -> None:
 def test_linearized_mode_reports_its_own_error_within_the_bound() -> None:
     ff = make(Mode.LINEARIZED_DMAX)
     laws = CompiledLaws(PARAMS, SHAPE).at(TEMPERATURE)
-    z_mid = laws.z_sat() / 3
+    z_mid = laws.z_sat / 3
     for amplitude in (1 * NM, 10 * NM, 40 * NM):
         z = z_mid + amplitude * np.cos(np.arange(12).reshape(SHAPE))
         result = ff.command(z, 0.0)
@@ -229,3 +229,19 @@ def test_reconfiguration_keeps_the_state_of_the_same_grid() -> None:
     assert np.max(np.abs(z_plant - z)) < 0.01 * NM
     np.testing.assert_array_equal(quadratic.last_voltage, result.voltage)
     assert not np.array_equal(result.voltage, first.voltage)
+
+
+def test_switching_to_the_observer_is_bumpless() -> None:
+    ff = make(Mode.INVERSE_HYPERBOLIC)
+    z = setpoints(11, 150 * NM)
+    ff.command(z, 0.0)
+    observer = Feedforward(
+        FeedforwardConfig(
+            shape=SHAPE, params=PARAMS, mode=Mode.OBSERVER, observer=ObserverGains(iterations=1)
+        ),
+        previous=ff,
+    )
+    # the integrator starts at the command being applied: already on target
+    first = observer.command(z, 0.01)
+    z_plant = hyperbolic_forward(first.voltage, TEMPERATURE, PARAMS)
+    assert np.max(np.abs(z_plant - z)) < 0.01 * NM

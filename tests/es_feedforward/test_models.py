@@ -181,9 +181,9 @@ def test_elements_whose_law_is_not_positive_at_their_temperature_are_invalid() -
 def test_laws_at_temperature_match_the_functions() -> None:
     T = np.array([41.0, 47.0, 51.0])
     laws = CompiledLaws(THESIS, (3,)).at(T)
-    np.testing.assert_allclose(laws.z_sat(), z_sat(T, THESIS), rtol=1e-14)
-    np.testing.assert_allclose(laws.d_max(), d_max(T, THESIS), rtol=1e-14)
-    np.testing.assert_allclose(laws.v_max(), v_max(T, THESIS), rtol=1e-14)
+    np.testing.assert_allclose(laws.z_sat, z_sat(T, THESIS), rtol=1e-14)
+    np.testing.assert_allclose(laws.d_max, d_max(T, THESIS), rtol=1e-14)
+    np.testing.assert_allclose(laws.v_max, v_max(T, THESIS), rtol=1e-14)
     V = np.array([10.0, 120.0, 300.0])
     np.testing.assert_allclose(laws.hyperbolic_forward(V), hyperbolic_forward(V, T, THESIS))
     np.testing.assert_allclose(laws.hyperbolic_slope(V), hyperbolic_slope(V, T, THESIS))

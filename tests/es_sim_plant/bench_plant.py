@@ -20,10 +20,10 @@ import time
 
 import numpy as np
 import rclpy
-from es_msgs_py import topics
-from es_msgs_py.arrays import grid_to_msg, msg_to_grid
 from std_msgs.msg import Float64MultiArray
 
+from es_msgs_py import topics
+from es_msgs_py.arrays import grid_to_msg, msg_to_grid
 from es_sim_plant.effects import EFFECT_NAMES
 from es_sim_plant.plant import Plant
 from es_sim_plant.scenario import load_scenario
@@ -47,7 +47,9 @@ def bench_core() -> None:
 
 def bench_lockstep(duration: float = 10.0) -> None:
     """Run plant_node in lockstep against an echo command source and print its rate."""
-    launcher = os.environ.get("BENCH_PLANT", os.path.join(sys.prefix, "lib", "es_sim_plant", "plant_node"))
+    launcher = os.environ.get(
+        "BENCH_PLANT", os.path.join(sys.prefix, "lib", "es_sim_plant", "plant_node")
+    )
     args = [
         launcher, "--ros-args", "-p", "scenario:=dm_exposure", "-p", "sync_temperature:=false",
         "-p", f"duration:={duration}", "-p", "exit_when_done:=true",

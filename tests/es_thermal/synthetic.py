@@ -54,7 +54,11 @@ def simulate(
     substeps: int = 5,
     seed: int = 0,
 ) -> Run:
-    """Integrate the network with the heat load and base temperature held per substep."""
+    """Integrate the network finely; the heat load is held per sample interval.
+
+    ``heat(t)`` is the load from sample time t on (what /dm/heat_load carries); ``base(t)``
+    the base-plate temperature.
+    """
     sampling = sampling_matrix(rows, cols, positions)
     A, B, _, layout = continuous_model(params, rows, cols, sampling, 0.0)
     dt = sample_period / substeps
@@ -74,15 +78,16 @@ def simulate(
         heat=np.zeros((steps, rows, cols)),
         truth=np.zeros((steps, rows, cols)),
     )
-    t = 0.0
     act = layout.actuator
     for k in range(steps):
-        for _ in range(substeps):
-            u = np.concatenate([heat(t).ravel(), [base(t + 0.5 * dt)]])
+        # The heat load is held over each sample interval, as the estimator assumes it.
+        power = heat(k * sample_period).ravel()
+        for j in range(substeps):
+            u = np.concatenate([power, [base(k * sample_period + (j + 0.5) * dt)]])
             x = A_d @ x + B_d @ u
-            t += dt
             site = sampling @ x[act]
             lagged = site + (lagged - site) * decay
+        t = (k + 1) * sample_period
         out.times[k] = t
         out.readings[k] = lagged + noise * rng.standard_normal(lagged.size)
         out.heat[k] = heat(t)

@@ -105,7 +105,7 @@ def test_laplacian_and_single_cell_steady_state() -> None:
 
 def test_doubling_matches_scipy_dare() -> None:
     pos = block_centre_positions(4, 4, 2)
-    A, B, H, layout = continuous_model(NetworkParams(), 4, 4, sampling_matrix(4, 4, pos), 2.0)
+    A, B, H, _ = continuous_model(NetworkParams(), 4, 4, sampling_matrix(4, 4, pos), 2.0)
     A_d, _ = discretise(A, B, 0.1)
     Q = np.diag(np.r_[np.full(32, 1e-6), np.full(4, 1e-12), 1e-5])
     R = 1e-4 * np.eye(4)
@@ -124,10 +124,14 @@ def test_discretise_matches_matrix_exponential() -> None:
 
 def test_model_estimator_requires_state_and_tracks_noise_free_model() -> None:
     rows = cols = 3
-    sampling = np.eye(9)
     params = NetworkParams().time_scaled(0.05)
     est = ModelEstimator(
-        rows, cols, sampling, params=params, sensor_tau=0.0, sample_period=0.1,
+        rows,
+        cols,
+        actuator_positions(rows, cols),
+        params=params,
+        sensor_tau=0.0,
+        sample_period=0.1,
         tuning=KalmanTuning(),
     )
     with pytest.raises(ValueError, match="no state"):
@@ -140,3 +144,31 @@ def test_model_estimator_requires_state_and_tracks_noise_free_model() -> None:
         est.correct(np.full(9, 40.0), np.ones(9, bool))
     np.testing.assert_allclose(est.actuator_temperatures(), 40.0, atol=1e-9)
     assert all(abs(b) < 1e-9 for b in est.biases.values())
+
+
+@pytest.mark.parametrize(
+    ("positions", "tau"),
+    [
+        (block_centre_positions(4, 6, 2), 0.5),  # regular: solved mode group by mode group
+        (actuator_positions(4, 6), 0.0),  # one per actuator
+        (np.array([[0.0, 0.0], [1.5, 2.2], [3.0, 5.0], [2.0, 1.0]]), 0.5),  # irregular: dense
+    ],
+)
+def test_modal_gain_equals_dense_solution(positions: np.ndarray, tau: float) -> None:
+    rows, cols, dt = 4, 6, 0.1
+    params = NetworkParams().time_scaled(0.05)
+    tuning = KalmanTuning()
+    est = ModelEstimator(
+        rows, cols, positions, params=params, sensor_tau=tau, sample_period=dt, tuning=tuning
+    )
+    sampling = sampling_matrix(rows, cols, positions)
+    A, B, H, layout = continuous_model(params, rows, cols, sampling, tau)
+    A_d, _ = discretise(A, B, dt)
+    q = np.zeros(layout.size)
+    q[: 2 * layout.cells] = tuning.process_noise**2
+    q[layout.sensor] = (1e-3 * tuning.process_noise) ** 2
+    q[layout.base] = tuning.base_drift**2
+    R = tuning.sensor_noise**2 * np.eye(len(positions))
+    P = steady_state_covariance(A_d, H, np.diag(q * dt), R)
+    gain = np.linalg.solve(H @ P @ H.T + R, H @ P).T
+    np.testing.assert_allclose(est.gain, gain, atol=1e-9)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from es_thermal.estimator import EstimatorConfig, TemperatureEstimator
+from es_thermal.estimator import EstimatorConfig, SampleClock, TemperatureEstimator
 from es_thermal.faults import FaultConfig, SensorFaultMonitor, StaleWatch
 from es_thermal.interpolation import actuator_positions, block_centre_positions
 from es_thermal.network import NetworkParams
@@ -138,3 +138,10 @@ def test_config_validation() -> None:
         EstimatorConfig(2, 2, np.zeros((3,)))
     with pytest.raises(ValueError, match="sample_period"):
         EstimatorConfig(2, 2, pos, sample_period=0.0)
+
+
+def test_sample_clock_counts_through_jitter_and_follows_gaps() -> None:
+    clock = SampleClock(0.1)
+    arrivals = [5.0, 5.0, 5.2, 5.3, 5.3, 6.5, 6.6, 1.0]  # jittery clock, gap, restart
+    stamps = [clock.stamp(t) for t in arrivals]
+    np.testing.assert_allclose(stamps, [5.0, 5.1, 5.2, 5.3, 5.4, 6.5, 6.6, 1.0])

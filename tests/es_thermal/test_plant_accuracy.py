@@ -38,10 +38,10 @@ def _show(name: str, figures: dict[str, float]) -> None:
     )
 
 
-@pytest.mark.parametrize("pattern", ["mixed", "high"])
-def test_model_beats_lowpass_on_heating_scenario(pattern: str) -> None:
-    figures = bench.thermal_accuracy("dm_exposure", duration=12.0, pattern=pattern)
-    _show(f"dm_exposure 2x2 sensors, parameters 20 % off ({pattern})", figures)
+def test_model_beats_lowpass_on_heating_scenario() -> None:
+    # Thermal parameters 20 % off in mixed directions: gains and time constants both wrong.
+    figures = bench.thermal_accuracy("dm_exposure", duration=12.0, pattern="mixed")
+    _show("dm_exposure 2x2 sensors, parameters 20 % off (mixed)", figures)
     assert figures["temperature_span"] > 2.0  # the mirror really heats
     assert figures["thermal_rms_model"] < figures["thermal_rms_lowpass"] / 3
     assert figures["thermal_rms_model"] < 0.03
@@ -49,7 +49,7 @@ def test_model_beats_lowpass_on_heating_scenario(pattern: str) -> None:
 
 def test_sensor_lag_is_compensated_with_dense_sensors() -> None:
     figures = bench.thermal_accuracy(
-        "dm_exposure", pitch=1, noise=0.02, duration=8.0, effects={"sensor_lag": True}
+        "dm_exposure", pitch=1, noise=0.02, duration=6.0, effects={"sensor_lag": True}
     )
     _show("dm_exposure, sensor per actuator, sensor lag", figures)
     assert figures["thermal_rms_model"] < figures["thermal_rms_lowpass"] / 3

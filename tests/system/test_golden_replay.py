@@ -19,16 +19,14 @@ floating-point noise, ``np.allclose(rtol=1e-9, atol=ATOL)`` with ATOL = 1e-15 m,
 functions). Times are the protocol's t_k = k / control_rate (the nodes use sim time for
 staleness only; no golden case depends on it).
 
-One documented race is allowed: the feedforward node receives the estimate of step k from
-the thermal node and the set point of step k from the plant on different connections, so
-it may compute set point k with the estimate of the previous sensor step. Each command must
-equal the core's output for the newest estimate or, failing that, the previous one; the
-count of the latter is printed and may be 0.
+Order: a sensor step's heat load comes before its readings at the thermal node, and its
+estimate before its set point at the feedforward node (the plant sends them in that order
+and both nodes serve those subscriptions first), so set point k uses the estimate of the
+newest sensor step <= k. A node that breaks this order fails here.
 """
 
 from __future__ import annotations
 
-import copy
 import math
 from pathlib import Path
 
@@ -43,7 +41,7 @@ from es_msgs_py.bag import TopicSeries, read_bag
 from es_sim_plant.bringup import scenario_parameters
 from es_sim_plant.golden import CASES, GoldenCase
 from es_sim_plant.plant import Plant, simulate
-from es_sim_plant.scenario import Scenario, load_scenario
+from es_sim_plant.scenario import Scenario
 from es_thermal.estimator import TemperatureEstimator
 from es_thermal.thermal_node import SPECS as THERMAL_SPECS
 from es_thermal.thermal_node import config_from_parameters as thermal_config
@@ -51,16 +49,6 @@ from es_thermal.thermal_node import config_from_parameters as thermal_config
 GOLDEN = Path(__file__).resolve().parents[1] / "golden"
 RTOL = 1e-9
 ATOL_M, ATOL_DEGC, ATOL_V = 1e-15, 1e-9, 1e-9
-
-
-def golden_scenario(case: GoldenCase) -> Scenario:
-    """The scenario as the plant node builds it from the case's parameters."""
-    plant = case.plant
-    return load_scenario(case.scenario).with_overrides(
-        rows=int(plant["rows"]) if "rows" in plant else None,  # type: ignore[call-overload]
-        cols=int(plant["cols"]) if "cols" in plant else None,  # type: ignore[call-overload]
-        duration=float(plant["duration"]) if "duration" in plant else None,  # type: ignore[arg-type]
-    )
 
 
 def values_of(bag: dict[str, TopicSeries], topic: str) -> np.ndarray:
@@ -72,7 +60,7 @@ def values_of(bag: dict[str, TopicSeries], topic: str) -> np.ndarray:
 @pytest.fixture(scope="module", params=CASES, ids=[c.name for c in CASES])
 def golden(request: pytest.FixtureRequest) -> tuple[GoldenCase, Scenario, dict[str, TopicSeries]]:
     case: GoldenCase = request.param
-    return case, golden_scenario(case), read_bag(GOLDEN / case.name)
+    return case, case.load(), read_bag(GOLDEN / case.name)
 
 
 def test_message_counts_are_exact(golden: tuple[GoldenCase, Scenario, dict]) -> None:
@@ -142,21 +130,10 @@ def test_feedforward_core_reproduces_the_commands(
     every = round(scenario.control_rate / scenario.sensor_rate)
     setpoints, commands = values_of(bag, topics.SETPOINT), values_of(bag, topics.COMMAND)
     estimates = values_of(bag, topics.TEMPERATURE)
-    raced = 0
-    for k, (setpoint, recorded) in enumerate(zip(setpoints, commands, strict=True)):
-        t = k / scenario.control_rate
-        newest = k // every
-        candidates = [newest, newest - 1] if k % every == 0 else [newest]
-        for choice, sample in enumerate(candidates):
-            trial = copy.deepcopy(core)
-            if sample >= 0:  # -1: the first set point came before any estimate
-                trial.update_temperature(estimates[sample], sample * every / scenario.control_rate)
-            voltage = trial.command(setpoint, t).voltage
-            if np.allclose(voltage, recorded, rtol=RTOL, atol=ATOL_V):
-                core, raced = trial, raced + choice
-                break
-        else:
-            np.testing.assert_allclose(
-                voltage, recorded, rtol=RTOL, atol=ATOL_V, err_msg=f"command of step {k}"
-            )
-    print(f"{case.name}: {raced} of {len(commands)} set points used the previous estimate")
+    replayed = []
+    for k, setpoint in enumerate(setpoints):
+        if k % every == 0:
+            sample = k // every
+            core.update_temperature(estimates[sample], sample * every / scenario.control_rate)
+        replayed.append(core.command(setpoint, k / scenario.control_rate).voltage)
+    np.testing.assert_allclose(commands, np.array(replayed), rtol=RTOL, atol=ATOL_V)

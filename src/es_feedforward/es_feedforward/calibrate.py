@@ -56,8 +56,10 @@ def run(argv: Sequence[str] | None = None) -> int:
     candidates = tuple(c for c in args.candidates.split(",") if c)
     unknown = sorted(set(candidates) - set(CANDIDATES))
     if unknown:
-        print(f"calibrate: unknown candidate(s) {', '.join(unknown)}; known: "
-              f"{', '.join(CANDIDATES)}", file=sys.stderr)
+        print(
+            f"calibrate: unknown candidate(s) {', '.join(unknown)}; known: {', '.join(CANDIDATES)}",
+            file=sys.stderr,
+        )
         return EXIT_BAD_INPUT
     try:
         measured = read_measured_bags(args.bags)
@@ -74,9 +76,11 @@ def run(argv: Sequence[str] | None = None) -> int:
     report = write_report(cal, args.output, notes)
     if not args.quiet:
         found = ", ".join(f"{e.name}" for e in cal.effects) or "none"
-        print(f"held-out RMS {cal.base.heldout_rms * 1e9:.4g} nm -> "
-              f"{cal.final.heldout_rms * 1e9:.4g} nm (noise floor "
-              f"{cal.noise_floor_m * 1e9:.4g} nm); effects added: {found}; report: {report}")
+        print(
+            f"held-out RMS {cal.base.heldout_rms * 1e9:.4g} nm -> "
+            f"{cal.final.heldout_rms * 1e9:.4g} nm (noise floor "
+            f"{cal.noise_floor_m * 1e9:.4g} nm); effects added: {found}; report: {report}"
+        )
     return 0
 
 

@@ -168,10 +168,10 @@ def linearization_error_bound(laws: LawsAtTemperature, amplitude: npt.ArrayLike)
     The error e(dV) = z(V_max + dV) - z_sat/3 - d_max dV never rises (d_max is the largest
     slope), so its extremes over [-a, a] (a = amplitude / d_max) are at the two ends.
     """
-    dmax = laws.d_max()
-    v_max = laws.v_max()
+    dmax = laws.d_max
+    v_max = laws.v_max
     dv = np.asarray(amplitude, np.float64) / dmax
-    z_mid = laws.z_sat() / 3.0
+    z_mid = laws.z_sat / 3.0
     ends = [
         np.abs(laws.hyperbolic_forward(np.maximum(v_max + s * dv, 0.0)) - z_mid - s * dmax * dv)
         for s in (-1.0, 1.0)
@@ -232,6 +232,13 @@ class Feedforward:
             self._temperature = None
             self._temperature_time = None
             self._temperature_problem = "no temperature received yet"
+        if previous is not None and keep:
+            # bumpless switches: a new observer starts from the command being applied, a new
+            # hysteresis inverse from the play output nearest to it
+            if previous.config.mode is not Mode.OBSERVER:
+                self._integral = np.array(self._last_voltage)
+            if not previous._hysteresis.active:
+                self._hysteresis.play = np.array(self._last_voltage)
         # new effect parameters apply from now on; their states carry over
         self._lead.tau_s = comp.temperature_lead_s
         self._lead.filter_s = comp.temperature_lead_filter_s
@@ -269,7 +276,7 @@ class Feedforward:
         low, high = PLAUSIBLE_TEMPERATURE
         if T.size and not (T.min() >= low and T.max() <= high):  # NaN fails too
             bad = int(np.count_nonzero(~np.isfinite(T)))
-            implausible = int(np.count_nonzero((T < low) | (T > high)))
+            implausible = int(np.count_nonzero(np.clip(T, low, high) != T))
             self._temperature_problem = (
                 f"temperature estimate has {bad} non-finite value(s)"
                 if bad
@@ -371,7 +378,9 @@ class Feedforward:
     ) -> tuple[InverseResult, FloatArray]:
         """Bias at V_max(T), drive z - z_sat/3 through 1 / d_max(T)."""
         reach = laws.hyperbolic_inverse(z, self.config.v_limit)  # statuses of the set point
-        voltage = laws.v_max() + (np.maximum(z, 0.0) - laws.z_sat() / 3.0) / laws.d_max()
+        voltage = np.maximum(z, 0.0)
+        voltage /= laws.d_max
+        voltage += laws.linear_offset
         voltage = np.clip(voltage, 0.0, self.config.v_limit)
         high = reach.status == CODE_CLIPPED_HIGH
         voltage[high] = self.config.v_limit
@@ -389,17 +398,29 @@ class Feedforward:
         v_limit = self.config.v_limit
         reach = laws.hyperbolic_inverse(z, v_limit)
         target = np.sqrt(np.clip(z, 0.0, None))
-        sqrt_n = np.sqrt(laws.n)
-        sqrt_z_sat = np.sqrt(laws.z_sat())
+        q, sqrt_n, sqrt_z_sat = laws.q, laws.sqrt_n, laws.sqrt_z_sat
         floor = 1e-6 * sqrt_n
         integral = np.clip(self._integral, 0.0, v_limit)
         voltage = integral
+        t = np.empty_like(integral)
+        gain = np.empty_like(integral)
+        error = np.empty_like(integral)
         for _ in range(gains.iterations):
-            t = np.tanh(laws.q * voltage)
-            gain = np.maximum(sqrt_n * (1.0 - t * t), floor)
-            error = (target - sqrt_z_sat * t) / gain
-            integral = np.clip(integral + gains.ki * error, 0.0, v_limit)  # anti-windup
-            voltage = np.clip(integral + gains.kp * error, 0.0, v_limit)
+            np.multiply(q, voltage, out=t)
+            np.tanh(t, out=t)
+            # local gain of sqrt(z) over V: sqrt(M/L) sech^2(u)
+            np.multiply(t, t, out=gain)
+            np.subtract(1.0, gain, out=gain)
+            gain *= sqrt_n
+            np.maximum(gain, floor, out=gain)
+            np.multiply(sqrt_z_sat, t, out=error)
+            np.subtract(target, error, out=error)
+            error /= gain
+            integral = integral + (error if gains.ki == 1.0 else gains.ki * error)
+            np.clip(integral, 0.0, v_limit, out=integral)  # anti-windup
+            voltage = (
+                integral if gains.kp == 0.0 else np.clip(integral + gains.kp * error, 0.0, v_limit)
+            )
         self._integral = integral
         model_error = laws.hyperbolic_forward(voltage) - target * target
         return limit_voltages(voltage, reach.status, v_limit), np.asarray(model_error, np.float64)

@@ -57,6 +57,8 @@ _LEVEL_OF_STATUS: Final = {
     Status.CLIPPED_HIGH: Level.WARN,
     Status.INVALID: Level.ERROR,
 }
+_OK: Final = int(Level.OK)
+_ERROR: Final = int(Level.ERROR)
 _STATUS_LEVELS: Final = np.array([_LEVEL_OF_STATUS[s] for s in Status], np.int8)
 
 
@@ -188,7 +190,7 @@ class FeedforwardNode(Node):
         self._rejected = {SETPOINT: 0, TEMPERATURE: 0}
         self._last_rejection: dict[str, str | None] = {SETPOINT: None, TEMPERATURE: None}
         self._last_result: CommandResult | None = None
-        self._published_levels: tuple[Level, ...] = ()
+        self._published_levels: tuple[int, ...] = ()
         self.create_timer(
             float(self._values["diagnostics_period"]),  # type: ignore[arg-type]
             self._publish_diagnostics,
@@ -211,12 +213,13 @@ class FeedforwardNode(Node):
             self._publish_command(self._core.last_voltage)
             return
         self._last_rejection[SETPOINT] = None
-        result = self._core.command(setpoint, self._now())
+        now = self._now()
+        result = self._core.command(setpoint, now)
         self._publish_command(result.voltage)
         self._last_result = result
         if result.held:
             self._counts["held"] += 1
-        self._publish_diagnostics_on_change()
+        self._publish_diagnostics_on_change(now)
 
     def _on_temperature(self, msg: Float64MultiArray) -> None:
         self._counts["temperatures"] += 1
@@ -226,10 +229,11 @@ class FeedforwardNode(Node):
             self._reject(TEMPERATURE, str(err))
             return
         self._last_rejection[TEMPERATURE] = None
-        problem = self._core.update_temperature(temperature, self._now())
+        now = self._now()
+        problem = self._core.update_temperature(temperature, now)
         if problem is not None:
             self.get_logger().error(problem, throttle_duration_sec=1.0)
-        self._publish_diagnostics_on_change()
+        self._publish_diagnostics_on_change(now)
 
     def _publish_command(self, voltage: np.ndarray) -> None:
         self._command_pub.publish(grid_to_msg(voltage))
@@ -245,8 +249,11 @@ class FeedforwardNode(Node):
 
     def _check_parameter_set(self, params: list[Parameter]) -> SetParametersResult:
         """Validate the whole resulting parameter set and build the new core (not yet used)."""
-        candidate = dict(self._values)
-        candidate.update({p.name: p.value for p in params if p.name in self._names})
+        changes = {p.name: p.value for p in params if p.name in self._names}
+        if not changes:  # e.g. use_sim_time: nothing of the feedforward changes
+            self._pending = None
+            return SetParametersResult(successful=True)
+        candidate = {**self._values, **changes}
         try:
             config = config_from_parameters(candidate)
             self._pending = Feedforward(config, previous=self._core)
@@ -350,7 +357,7 @@ class FeedforwardNode(Node):
 
     def _publish_diagnostics(self) -> None:
         statuses = self._statuses()
-        self._published_levels = tuple(Level(s.level[0]) for s in statuses)
+        self._published_levels = tuple(s.level[0] for s in statuses)
         self._diag_pub.publish(make_array(self.get_clock().now().to_msg(), statuses))
 
     def _temperature_level(self, problem: str | None) -> Level:
@@ -360,20 +367,24 @@ class FeedforwardNode(Node):
             return Level.ERROR
         return Level.WARN if self._last_rejection[TEMPERATURE] else Level.OK
 
-    def _current_levels(self) -> tuple[Level, ...]:
-        """Cheap level summary to detect changes (same order as :meth:`_statuses`)."""
-        temperature = self._temperature_level(self._core.temperature_problem(self._now()))
+    def _current_levels(self, now: float) -> tuple[int, ...]:
+        """Cheap level summary to detect changes (same order as :meth:`_statuses`).
+
+        Plain ints: this runs on every set point, and enum arithmetic costs microseconds.
+        """
+        temperature = int(self._temperature_level(self._core.temperature_problem(now)))
         result = self._last_result
         actuators = (
-            Level(int(_STATUS_LEVELS[result.status.max()]))
+            int(_STATUS_LEVELS[result.status.max()])
             if result is not None and result.status.size
-            else Level.OK
+            else _OK
         )
-        setpoint = Level.ERROR if self._last_rejection[SETPOINT] else Level.OK
-        return (temperature, actuators, setpoint, Level.OK)
+        setpoint = _ERROR if self._last_rejection[SETPOINT] else _OK
+        return (temperature, actuators, setpoint, _OK)
 
-    def _publish_diagnostics_on_change(self) -> None:
-        if self._current_levels() != self._published_levels:
+    def _publish_diagnostics_on_change(self, now: float | None = None) -> None:
+        levels = self._current_levels(self._now() if now is None else now)
+        if levels != self._published_levels:
             self._publish_diagnostics()
 
 

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, fields
 from enum import IntEnum
+from functools import cached_property
 from typing import Final
 
 import numpy as np
@@ -123,7 +124,30 @@ class CompiledLaws:
         # Laws that are positive over the whole validity range stay positive after clamping,
         # so only parameter sets failing this need a per-call check.
         self.usable = self.positive_between(VALIDITY_MARGIN_BELOW_TM, VALIDITY_SPAN_ABOVE_TM)
-        self._all_usable = bool(np.all(self.usable))
+        self._safe_low, self._safe_high = self._common_positive_range()
+
+    def _common_positive_range(self) -> tuple[float, float]:
+        """Return the open T* interval in which every element's k and M are positive.
+
+        Linear laws only (empty interval otherwise): calls whose temperatures all fall inside
+        it skip the per-element positivity check.
+        """
+        empty = (np.inf, -np.inf)
+        if self._q_curved or self._n_curved:
+            return empty
+        low, high = -np.inf, np.inf
+        for c0, c1, _ in (self.q, self.n):
+            c0, c1 = np.broadcast_arrays(c0, c1)
+            if not (np.all(np.isfinite(c0)) and np.all(np.isfinite(c1))):
+                return empty
+            if np.any((c1 == 0.0) & (c0 <= 0.0)):
+                return empty
+            falling, rising = c1 < 0.0, c1 > 0.0
+            if np.any(falling):
+                high = min(high, float(np.min(-c0[falling] / c1[falling])))
+            if np.any(rising):
+                low = max(low, float(np.max(-c0[rising] / c1[rising])))
+        return (low, high) if np.all(np.isfinite(self.Tm)) else empty
 
     def positive_between(self, ts_low: float, ts_high: float) -> npt.NDArray[np.bool_]:
         """Return, per element, whether k and M stay finite and > 0 for T* in [low, high]."""
@@ -142,7 +166,8 @@ class CompiledLaws:
         """Evaluate the laws at temperatures ``T`` (clamped into the validity range).
 
         Elements whose law is not positive at their temperature get ``Status.INVALID`` and
-        neutral coefficients (checked only for parameter sets not positive over the range).
+        neutral coefficients (checked per element only when some temperature lies outside
+        the interval in which every element's laws are positive).
         """
         T = np.asarray(T, np.float64)
         ts = np.asarray(T - self.Tm, np.float64)
@@ -172,7 +197,9 @@ class CompiledLaws:
         if self._n_curved:
             n += self.n[2] * ts * ts
         q, n = np.asarray(q, np.float64), np.asarray(n, np.float64)
-        if not self._all_usable:
+        if flagged and ts.size:  # clamped: the range to check is that of the clamped values
+            lo, hi = ts.min(), ts.max()
+        if not (self._safe_low < lo and hi < self._safe_high):
             bad = ~((q > 0.0) & (n > 0.0) & np.isfinite(q) & np.isfinite(n))
             status[bad] = CODE_INVALID
             q = np.where(bad, 1.0, q)
@@ -183,6 +210,41 @@ class CompiledLaws:
         return LawsAtTemperature(
             q=q, n=n, inv_zsat=np.asarray(inv_zsat, np.float64), status=status, flagged=flagged
         )
+
+    def hyperbolic_inverse(
+        self, z: npt.ArrayLike, T: npt.ArrayLike, v_limit: float = DEFAULT_V_LIMIT
+    ) -> InverseResult:
+        """Return ``self.at(T).hyperbolic_inverse(z, v_limit)``, fused for speed.
+
+        The common case (temperatures in range, set points in reach, usable laws) runs as a
+        dozen in-place array operations; anything else falls back to the general path.
+        """
+        ts = np.subtract(T, self.Tm)
+        # 0-d: numpy returns scalars, which the in-place steps below cannot use
+        if not (np.ndim(ts) and ts.size):
+            return self.at(T).hyperbolic_inverse(z, v_limit)
+        lo, hi = ts.min(), ts.max()
+        if not (
+            VALIDITY_MARGIN_BELOW_TM <= lo
+            and hi <= VALIDITY_SPAN_ABOVE_TM
+            and self._safe_low < lo
+            and hi < self._safe_high
+        ):
+            return self.at(T).hyperbolic_inverse(z, v_limit)
+        q = np.multiply(self.q[1], ts)
+        q += self.q[0]
+        n = np.multiply(self.n[1], ts, out=ts)
+        n += self.n[0]
+        ratio = np.multiply(z, q)  # z / z_sat = z q^2 / n
+        ratio *= q
+        ratio /= n
+        if not (ratio.min() >= 0.0 and ratio.max() < RATIO_CAP):  # NaN fails too
+            return self.at(T).hyperbolic_inverse(z, v_limit)
+        np.sqrt(ratio, out=ratio)
+        np.arctanh(ratio, out=ratio)
+        ratio /= q
+        status = np.zeros(ratio.shape, np.int8)
+        return limit_voltages(ratio, status, v_limit, flagged=False)
 
 
 @dataclass(frozen=True)
@@ -204,17 +266,37 @@ class LawsAtTemperature:
     status: StatusArray
     flagged: bool = True
 
+    # Derived coefficients are computed on first use and kept: a feedforward evaluates the
+    # laws once per temperature update and uses them for every set point until the next.
+    @cached_property
     def z_sat(self) -> FloatArray:
-        """Return z_sat = M L / k^2 [m]."""
+        """z_sat = M L / k^2 [m]."""
         return np.asarray(1.0 / self.inv_zsat, np.float64)
 
+    @cached_property
     def d_max(self) -> FloatArray:
-        """Return the largest slope 4 M / (3 sqrt(3) k) [m/V] of the hyperbolic model."""
+        """The largest slope 4 M / (3 sqrt(3) k) [m/V] of the hyperbolic model."""
         return np.asarray(4.0 / (3.0 * np.sqrt(3.0)) * self.n / self.q, np.float64)
 
+    @cached_property
     def v_max(self) -> FloatArray:
-        """Return the voltage u* L / k [V] of the largest slope."""
+        """The voltage u* L / k [V] of the largest slope."""
         return np.asarray(U_STAR / self.q, np.float64)
+
+    @cached_property
+    def linear_offset(self) -> FloatArray:
+        """V_max - (z_sat / 3) / d_max [V]: V = linear_offset + z / d_max linearises at V_max."""
+        return np.asarray(self.v_max - self.z_sat / 3.0 / self.d_max, np.float64)
+
+    @cached_property
+    def sqrt_n(self) -> FloatArray:
+        """sqrt(M / L) [sqrt(m)/V]: the low-field gain of sqrt(z) over V."""
+        return np.asarray(np.sqrt(self.n), np.float64)
+
+    @cached_property
+    def sqrt_z_sat(self) -> FloatArray:
+        """sqrt(z_sat) [sqrt(m)]."""
+        return np.asarray(np.sqrt(self.z_sat), np.float64)
 
     def hyperbolic_forward(self, V: npt.ArrayLike) -> FloatArray:
         """Return z = z_sat tanh^2(q V) [m]."""
@@ -317,7 +399,8 @@ def hyperbolic_inverse(
     """
     z = np.asarray(z, np.float64)
     shape = broadcast_shape(params, z, T)
-    return laws_at(T, params, shape).hyperbolic_inverse(np.broadcast_to(z, shape), v_limit)
+    T = np.broadcast_to(np.asarray(T, np.float64), shape)
+    return CompiledLaws(params, shape).hyperbolic_inverse(np.broadcast_to(z, shape), T, v_limit)
 
 
 def quadratic_inverse(

@@ -34,7 +34,8 @@ def _buffer_of(
     if arr.ndim != expected_ndim:
         raise LayoutError(f"{what} must be {expected_ndim}-D, got shape {arr.shape}")
     buf = array.array("d")
-    buf.frombytes(arr.data.cast("B"))
+    if arr.size:  # a memoryview of an empty array cannot be cast (0 x C grids stay empty)
+        buf.frombytes(arr.data.cast("B"))
     return arr, buf
 
 

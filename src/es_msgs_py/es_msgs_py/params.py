@@ -16,6 +16,7 @@ from rcl_interfaces.msg import (
     ParameterDescriptor,
     SetParametersResult,
 )
+from rclpy.exceptions import ParameterException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
@@ -94,7 +95,10 @@ def declare_parameters(node: Node, specs: Sequence[ParameterSpec]) -> dict[str, 
     by_name = {spec.name: spec for spec in specs}
     values: dict[str, object] = {}
     for spec in specs:
-        param = node.declare_parameter(spec.name, spec.default, spec.descriptor())
+        try:
+            param = node.declare_parameter(spec.name, spec.default, spec.descriptor())
+        except ParameterException as err:  # rclpy's own range check of an initial value
+            raise ValueError(f"invalid parameter {spec.name}: {err}") from None
         values[spec.name] = param.value
         reason = spec.reason_to_reject(param.value)
         if reason is not None:

@@ -44,6 +44,14 @@ ParamValue = bool | int | float | str | list[float] | list[int] | list[str]
 #: Topics the bring-up records: every /dm topic and /diagnostics.
 RECORDED_TOPICS: tuple[str, ...] = (*topics.DM_TOPICS, topics.DIAGNOSTICS)
 
+#: Longest wait for a test stand's recorder to catch up after the plant finished [s].
+DRAIN_TIMEOUT_S = 60.0
+#: Recorder queue depth of a test stand: the whole backlog of a fast plant fits.
+TEST_STAND_QUEUE_DEPTH = 200_000
+#: Speed limit of a test stand (x real time): at 250 Hz, 750 steps/s of two messages each,
+#: about half what the recorder was measured to sustain here on a loaded machine.
+TEST_STAND_SPEED = 3.0
+
 #: Node names (the defaults of the node executables; parameter files use them).
 PLANT, THERMAL, FEEDFORWARD, RECORDER = "plant", "thermal", "feedforward", "record"
 
@@ -146,6 +154,11 @@ def node_specs(config: GraphConfig) -> tuple[list[ProcessSpec], ProcessSpec]:
                     str(config.bag),
                     "--storage",
                     config.storage,
+                    *(
+                        []
+                        if config.with_controllers
+                        else ["--queue-depth", str(TEST_STAND_QUEUE_DEPTH)]
+                    ),
                     *RECORDED_TOPICS,
                     *ros_arguments(RECORDER, sim_time),
                 ],
@@ -158,8 +171,13 @@ def node_specs(config: GraphConfig) -> tuple[list[ProcessSpec], ProcessSpec]:
         "scenario": config.scenario,
         "lockstep": True,
         "exit_when_done": True,
-        # without a thermal node there is no /dm/temperature to wait for
-        **({} if config.with_controllers else {"sync_temperature": False}),
+        # without a thermal node there is no /dm/temperature to wait for, and no controller
+        # paces the plant: it runs at a speed the recorder keeps up with
+        **(
+            {}
+            if config.with_controllers
+            else {"sync_temperature": False, "max_speed": TEST_STAND_SPEED}
+        ),
         # the recorder's subscriptions must match before the first message goes out
         **({"start_subscribers": 1} if config.bag is not None else {}),
         **config.plant,
@@ -291,7 +309,70 @@ class Bringup:
             outcome.reason = problem
             return outcome
         self.supervisor.start(plant)
-        return self.supervisor.run(wall_timeout=self.config.wall_timeout)
+        drain = None
+        if self.config.bag is not None and not self.config.with_controllers:
+            drain = self._drain_recorder
+        return self.supervisor.run(wall_timeout=self.config.wall_timeout, on_primary_done=drain)
+
+    def _drain_recorder(self) -> None:
+        """Wait until the recorder has received everything the plant published.
+
+        A test stand is paced by nobody: the plant may run ahead of the recorder, whose
+        deep queue (``--queue-depth``) holds the backlog. The recorder reports its received
+        counts on /diagnostics every second; the plant's exit log has what it published.
+        """
+        from es_sim_plant.invariants import published_counts_from_log
+
+        log = self.config.log_dir / f"{PLANT}.log"
+        lines = log.read_text(encoding="utf-8", errors="replace").splitlines()
+        published = {
+            t: n for t, n in published_counts_from_log(lines).items() if t in RECORDED_TOPICS
+        }
+        if not wait_for_recorder(published, DRAIN_TIMEOUT_S, self.config.domain_id):
+            self.supervisor.announce(
+                f"recorder still behind after {DRAIN_TIMEOUT_S:g} s; stopping it anyway"
+            )
+
+
+def wait_for_recorder(
+    published: Mapping[str, int], timeout: float, domain_id: int | None = None
+) -> bool:
+    """Return True once a recorder report on /diagnostics shows ``published`` all received."""
+    import rclpy
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.signals import SignalHandlerOptions
+
+    done = threading.Event()
+
+    def on_report(msg: DiagnosticArray) -> None:
+        for status in msg.status:
+            if not status.name.startswith(f"{RECORDER}:"):
+                continue
+            received = {kv.key: kv.value for kv in status.values}
+            if all(received.get(f"{t} received") == str(n) for t, n in published.items()):
+                done.set()
+
+    context = rclpy.Context()
+    rclpy.init(
+        args=[], context=context, domain_id=domain_id,
+        signal_handler_options=SignalHandlerOptions.NO,
+    )  # fmt: skip
+    node = rclpy.create_node("bringup_drain", context=context)
+    node.create_subscription(
+        DiagnosticArray, topics.DIAGNOSTICS, on_report, topics.qos_for(topics.DIAGNOSTICS)
+    )
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    deadline = time.monotonic() + timeout
+    try:
+        while not done.is_set() and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.1)
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.shutdown(context=context)
+    return done.is_set()
 
 
 def wait_for_subscriptions(

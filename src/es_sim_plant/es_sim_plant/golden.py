@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import NoReturn
 
 from es_sim_plant.bringup import GraphConfig, ParamValue, run_graph
+from es_sim_plant.scenario import Scenario, load_scenario
 from es_sim_plant.supervisor import Outcome
 
 
@@ -33,6 +34,20 @@ class GoldenCase:
     mode: str
     plant: dict[str, ParamValue] = field(default_factory=dict)
     description: str = ""
+
+    def load(self) -> Scenario:
+        """Return the scenario as the plant node builds it from this case's parameters."""
+
+        def number(name: str) -> float | None:
+            value = self.plant.get(name)
+            return float(value) if isinstance(value, int | float) else None
+
+        rows, cols = number("rows"), number("cols")
+        return load_scenario(self.scenario).with_overrides(
+            rows=None if rows is None else int(rows),
+            cols=None if cols is None else int(cols),
+            duration=number("duration"),
+        )
 
     def config(self, bag: Path | None, log_dir: Path, domain_id: int | None = None) -> GraphConfig:
         """Return the bring-up configuration of this case."""

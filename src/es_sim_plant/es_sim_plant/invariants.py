@@ -2,11 +2,12 @@
 
 1. Nothing non-finite and nothing beyond the amplifier limit was ever commanded: every value
    recorded on /dm/command is finite and within +-``v_limit``.
-2. Nothing was lost on the way to the bag: for every recorded topic, the number of messages
-   its publishers say they published equals the number of messages in the bag.
+2. Nothing was lost on the way to the bag: for every recorded data topic, the number of
+   messages its publishers say they published equals the number of messages in the bag, and
+   the recorder wrote everything it received, with no loss reported by the middleware.
 
 Pure (no rclpy); the counts of published messages come from the nodes' exit logs (see
-:func:`published_counts_from_log`).
+:func:`published_counts_from_log`), the recorder's from its exit log.
 """
 
 from __future__ import annotations
@@ -21,7 +22,9 @@ import numpy.typing as npt
 #: Line a node logs at exit for each topic it published on (es_dm convention):
 #: ``published <topic>: <count>``; the recorder logs ``<topic>: received <n>, written <m>``.
 _PUBLISHED = re.compile(r"published (/[\w/]+):? (\d+)")
-_RECORDED = re.compile(r"(/[\w/]+): received (\d+), written (\d+)")
+_RECORDED = re.compile(
+    r"(/[\w/]+): received (\d+), written (\d+)(?:, lost before reception (\d+))?"
+)
 
 
 @dataclass
@@ -34,6 +37,8 @@ class InvariantReport:
     command_beyond_limit: int = 0
     published: dict[str, int] = field(default_factory=dict)
     recorded: dict[str, int] = field(default_factory=dict)
+    #: /diagnostics reports a node sent before the recorder had matched it (start-up).
+    diagnostics_before_recording: dict[str, int] = field(default_factory=dict)
     failures: list[str] = field(default_factory=list)
 
     @property
@@ -70,13 +75,24 @@ def published_counts_from_log(lines: Iterable[str]) -> dict[str, int]:
     return counts
 
 
-def recorder_counts_from_log(lines: Iterable[str]) -> dict[str, tuple[int, int]]:
-    """Return ``{topic: (received, written)}`` from the recorder's exit log."""
-    counts: dict[str, tuple[int, int]] = {}
+def recorder_counts_from_log(lines: Iterable[str]) -> dict[str, tuple[int, int, int]]:
+    """Return ``{topic: (received, written, lost before reception)}`` from the recorder's log."""
+    counts: dict[str, tuple[int, int, int]] = {}
     for line in lines:
-        for topic, received, written in _RECORDED.findall(line):
-            counts[topic] = (int(received), int(written))
+        for topic, received, written, lost in _RECORDED.findall(line):
+            counts[topic] = (int(received), int(written), int(lost or 0))
     return counts
+
+
+def check_recorder(counts: Mapping[str, tuple[int, int, int]], report: InvariantReport) -> None:
+    """Fail when the recorder did not write what it received or the middleware lost some."""
+    if not counts:
+        report.failures.append("the recorder reported no counts")
+    for topic, (received, written, lost) in counts.items():
+        if written != received:
+            report.failures.append(f"{topic}: recorder received {received}, wrote {written}")
+        if lost:
+            report.failures.append(f"{topic}: middleware lost {lost} before the recorder")
 
 
 def check_counts(

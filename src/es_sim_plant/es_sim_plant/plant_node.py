@@ -56,7 +56,7 @@ NODE_NAME = "plant"
 #: Longest stretch [s wall] the plant steps without returning to the executor.
 _BATCH_WALL = 0.02
 #: Period of the wall watchdog that enforces the timeouts [s].
-_WATCHDOG_PERIOD = 0.01
+_WATCHDOG_PERIOD = 0.05
 #: How often the watchdog refreshes who publishes commands and temperatures [s wall].
 _GRAPH_PERIOD = 0.2
 
@@ -178,6 +178,15 @@ SPECS: tuple[ParameterSpec, ...] = (
         read_only=True,
     ),
     ParameterSpec(
+        "max_speed",
+        0.0,
+        "Lockstep: run at most this many times faster than real time (0: no limit). A test "
+        "stand waits for no controller: a recorder needs this to keep up.",
+        0.0,
+        1.0e6,
+        read_only=True,
+    ),
+    ParameterSpec(
         "exit_when_done",
         False,
         "When the scenario ends: log a summary and exit 0 (else stay idle).",
@@ -251,6 +260,8 @@ class PlantNode(Node):
         self.start_timeout = float(values["start_timeout"])  # type: ignore[arg-type]
         self.start_subscribers = int(values["start_subscribers"])  # type: ignore[call-overload]
         self.exit_when_done = bool(values["exit_when_done"])
+        self.max_speed = float(values["max_speed"])  # type: ignore[arg-type]
+        self._paced = False
 
         qos = topics.DM_QOS
         self._pub_clock = self.create_publisher(ClockMsg, topics.CLOCK, topics.CLOCK_QOS)
@@ -298,6 +309,7 @@ class PlantNode(Node):
         self._deadline = 0.0
         self._start_wall = time.monotonic()
         self._run_wall_start = 0.0
+        self._run_cpu_start = 0.0
         # A cancelled zero-period timer, reset to resume stepping after the executor served
         # other callbacks (a guard condition would do, but not every executor supports one).
         self._kick = self.create_timer(0.0, self._on_kick, clock=wall, autostart=False)
@@ -307,6 +319,7 @@ class PlantNode(Node):
         else:
             self._phase = Phase.BEGIN
             self._run_wall_start = time.monotonic()
+            self._run_cpu_start = time.process_time()
             self.create_timer(self.plant.dt, self._realtime_tick, clock=wall)
         self.get_logger().info(
             f"scenario '{scenario.name}': {scenario.rows} x {scenario.cols}, "
@@ -390,7 +403,12 @@ class PlantNode(Node):
                 self._refresh_graph(now)
                 self._phase = Phase.BEGIN
                 self._run_wall_start = now
+                self._run_cpu_start = time.process_time()
                 self._advance()
+            return
+        if self._paced:
+            self._paced = False
+            self._advance()
             return
         if self._phase is Phase.WAIT_TEMPERATURE and now > self._deadline:
             self.counts["sync_timeouts"] += 1
@@ -424,6 +442,9 @@ class PlantNode(Node):
                     self._publish_state()
                     self._finish()
                     return
+                if self._ahead_of_max_speed():
+                    self._paced = True  # the watchdog resumes
+                    return
                 due = self._publish_state()
                 if due and self.sync_temperature:
                     if self._has_temperature_source:
@@ -456,6 +477,11 @@ class PlantNode(Node):
     def _on_kick(self) -> None:
         self._kick.cancel()
         self._advance()
+
+    def _ahead_of_max_speed(self) -> bool:
+        if self.max_speed <= 0.0:
+            return False
+        return self.plant.time > (time.monotonic() - self._run_wall_start) * self.max_speed
 
     def _play_excitation(self) -> None:
         command = self.plant.excitation_command()
@@ -500,15 +526,20 @@ class PlantNode(Node):
     def _finish(self) -> None:
         self._phase = Phase.DONE
         wall = max(time.monotonic() - self._run_wall_start, 1e-9)
+        cpu_per_step = (time.process_time() - self._run_cpu_start) / max(self.plant.k, 1)
         sim = self.plant.time
         counts = ", ".join(f"{k} {v}" for k, v in self.counts.items())
         self.get_logger().info(
             f"scenario '{self.scenario.name}' finished: {self.plant.k} steps, {sim:g} s sim in "
             f"{wall:.2f} s wall ({sim / wall:.2f}x real time, {self.plant.k / wall:.0f} "
-            f"steps/s); {counts}"
+            f"steps/s, plant CPU {cpu_per_step * 1e3:.3f} ms/step); {counts}"
         )
         self._publish_diagnostics()
         if self.exit_when_done:
+            # Reliable subscribers (a recorder) must get the final displacement before exit.
+            timeout = rclpy.duration.Duration(seconds=self.command_timeout)
+            for pub in (self._pub_displacement, self._pub_setpoint, self._pub_raw, self._pub_diag):
+                pub.wait_for_all_acked(timeout)
             rclpy.try_shutdown(context=self.context)
 
     def _statuses(self) -> list[DiagnosticStatus]:

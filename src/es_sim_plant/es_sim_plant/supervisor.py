@@ -164,6 +164,10 @@ class Supervisor:
         self._running.append(running)
         self._announce(f"started {spec.name} (pid {running.popen.pid})")
 
+    def announce(self, text: str) -> None:
+        """Pass a one-line progress message on."""
+        self._announce(text)
+
     def interrupt(self) -> None:
         """Ask :meth:`run` to stop the group (safe from a signal handler)."""
         self._interrupted.set()
@@ -179,8 +183,16 @@ class Supervisor:
                 return self._fail(running, code)
         return None
 
-    def run(self, wall_timeout: float | None = None, poll_s: float = 0.05) -> Outcome:
+    def run(
+        self,
+        wall_timeout: float | None = None,
+        poll_s: float = 0.05,
+        on_primary_done: Callable[[], None] | None = None,
+    ) -> Outcome:
         """Watch the started processes until the primary exits, then stop the rest.
+
+        ``on_primary_done`` runs after the primary exited 0, before the others are stopped
+        (e.g. to let a recorder catch up).
 
         Returns:
             exit code 0 when the primary exited 0 and every other process stopped cleanly;
@@ -200,6 +212,9 @@ class Supervisor:
                 if code is None:
                     continue
                 if running.spec.primary and code == 0:
+                    if on_primary_done is not None:
+                        running.finish_log()  # its whole output is in the log first
+                        on_primary_done()
                     self._announce(f"{running.spec.name} finished; stopping the others")
                     return self._finish_after_primary(running)
                 return self._fail(running, code)

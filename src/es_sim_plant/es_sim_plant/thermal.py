@@ -38,6 +38,7 @@ state. Every value is a parameter; scenarios shorten time by scaling the capacit
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, fields, replace
 from typing import Any, Final
 
@@ -341,7 +342,7 @@ class ExposureSchedule:
             return 0.0
         period = self.exposure_s + self.swap_s
         elapsed = t - self.start_s
-        full = np.floor(elapsed / period)
+        full = math.floor(elapsed / period)  # scalar: math is ~10x cheaper than numpy
         if self.count and full >= self.count:
             return self.count * self.exposure_s
         return float(full * self.exposure_s + min(elapsed - full * period, self.exposure_s))

@@ -22,7 +22,7 @@ import numpy as np
 import numpy.typing as npt
 
 from es_thermal.faults import FaultConfig, SensorFaultMonitor, SensorHealth
-from es_thermal.interpolation import interpolation_matrix, sampling_matrix
+from es_thermal.interpolation import interpolation_matrix
 from es_thermal.kalman import KalmanTuning, ModelEstimator
 from es_thermal.lowpass import DEFAULT_CUTOFF_HZ, DEFAULT_ORDER, LowpassBank
 from es_thermal.network import NetworkParams
@@ -125,11 +125,10 @@ class TemperatureEstimator:
                 cfg.sensor_count, cfg.sample_period, cfg.lowpass_cutoff_hz, cfg.lowpass_order
             )
         else:
-            sampling = sampling_matrix(cfg.rows, cfg.cols, self.positions)
             self._model = ModelEstimator(
                 cfg.rows,
                 cfg.cols,
-                sampling,
+                self.positions,
                 params=cfg.network,
                 sensor_tau=cfg.sensor_tau,
                 sample_period=cfg.sample_period,
@@ -240,3 +239,32 @@ class TemperatureEstimator:
                 return None  # the model runs on through the outage, nothing is published
             model.correct(values, valid)
         return model.actuator_temperatures().reshape(self.shape)
+
+
+class SampleClock:
+    """Sample times of a periodic stream whose arrival times jitter.
+
+    Under sim time a message can be handled before the clock update that precedes it, so
+    its arrival time may read a period early or late. Consecutive samples are therefore
+    counted (one ``period`` each); the clock is followed again only after a real gap (more
+    than ``resync_periods`` periods) or when it runs backwards (a simulation restarted).
+    """
+
+    def __init__(self, period: float, resync_periods: float = 2.5) -> None:
+        if period <= 0.0:
+            raise ValueError(f"sample period must be > 0, got {period}")
+        self.period = period
+        self.resync_periods = resync_periods
+        self._last_arrival: float | None = None
+        self._last_stamp = 0.0
+
+    def stamp(self, arrival: float) -> float:
+        """Return the sample time of a message arriving at ``arrival`` [s]."""
+        previous = self._last_arrival
+        self._last_arrival = arrival
+        elapsed = None if previous is None else arrival - previous
+        if elapsed is None or not -self.period <= elapsed <= self.resync_periods * self.period:
+            self._last_stamp = arrival
+        else:
+            self._last_stamp += self.period
+        return self._last_stamp

@@ -20,8 +20,10 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 from scipy import linalg, sparse
+from scipy.sparse import csgraph
 
-from es_thermal.network import NetworkParams, StateLayout, continuous_model
+from es_thermal.interpolation import sampling_matrix
+from es_thermal.network import NetworkParams, StateLayout, grid_dct, modal_model, sensor_transform
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
@@ -146,7 +148,7 @@ class ModelEstimator:
 
     Args:
         rows, cols: actuator grid.
-        sampling: S x N map from actuator field to sensors (:mod:`es_thermal.interpolation`).
+        positions: sensor (row, col) positions (S, 2) (:mod:`es_thermal.interpolation`).
         params: the network's parameters as the estimator believes them.
         sensor_tau: first-order sensor lag [s] (0: none).
         sample_period: the sensor sample period the filter is discretised for [s].
@@ -160,7 +162,7 @@ class ModelEstimator:
         self,
         rows: int,
         cols: int,
-        sampling: FloatArray,
+        positions: FloatArray,
         *,
         params: NetworkParams,
         sensor_tau: float,
@@ -169,19 +171,33 @@ class ModelEstimator:
     ) -> None:
         if sample_period <= 0.0 or sensor_tau < 0.0:
             raise ValueError("sample_period must be > 0 and sensor_tau >= 0")
-        A, B, H, layout = continuous_model(params, rows, cols, sampling, sensor_tau)
-        A_d, B_d = discretise(A, B, sample_period)
+        sampling = sampling_matrix(rows, cols, positions)
+        to_sensor_modes = sensor_transform(positions)
+        A, B, H, layout = modal_model(
+            params, rows, cols, sampling, sensor_tau, sensors=to_sensor_modes
+        )
         q = np.zeros(layout.size)
         q[layout.face] = tuning.process_noise**2
         q[layout.actuator] = tuning.process_noise**2
         q[layout.sensor] = (1e-3 * tuning.process_noise) ** 2  # lag model taken as known
         q[layout.base] = tuning.base_drift**2
-        R = tuning.sensor_noise**2 * np.eye(H.shape[0])
-        P = steady_state_covariance(A_d, H, np.diag(q * sample_period), R)
-        innovation_cov = H @ P @ H.T + R
-        self.gain: FloatArray = np.asarray(np.linalg.solve(innovation_cov, H @ P).T, float)
+        # Every noise is isotropic within its group of states, so it looks the same in modes.
+        modal = _modal_solution(
+            A, B, H, q=q * sample_period, r=tuning.sensor_noise**2, dt=sample_period
+        )
+        to_grid_modes = grid_dct(rows, cols)
+        basis = [to_grid_modes, to_grid_modes] + ([to_sensor_modes] if layout.sensors else [])
+        A_d = _to_grid(basis, modal.A_d @ sparse.block_diag([*basis, np.eye(1)]).toarray())
+        B_d = _to_grid(basis, modal.B_d @ to_grid_modes)
+        self.gain: FloatArray = _to_grid(basis, modal.gain @ to_sensor_modes)
+        innovation_cov = to_sensor_modes.T @ modal.innovation_cov @ to_sensor_modes
         # Innovation weights of the bias fit (diagonal: a sensor subset needs no inversion).
         self._innovation_weight: FloatArray = 1.0 / np.diag(innovation_cov)
+        H = np.zeros((sampling.shape[0], layout.size))
+        if layout.sensors:
+            H[:, layout.sensor] = np.eye(sampling.shape[0])
+        else:
+            H[:, layout.actuator] = sampling
         self.layout: StateLayout = layout
         self.sampling = sampling
         self.tuning = tuning
@@ -240,17 +256,19 @@ class ModelEstimator:
         """Advance the model ``steps`` sample periods with the heat load (N,) held."""
         x = self._require_state()
         drive = np.asarray(self._B @ heat_load)
-        sens = self._sens
+        # One sparse product advances the state and both sensitivities together.
+        cols = np.column_stack([x, self._sens])
+        thermal = self._thermal
         for _ in range(steps):
-            x_next = np.asarray(self._A @ x) + drive
-            # Sensitivities: more heat -> more of the heat drive; faster -> more of the step.
-            sens = np.asarray(self._A @ sens)
-            sens[:, 0] += drive
-            # Only the thermal nodes speed up; the sensor lag and the base plate do not.
-            sens[self._thermal, 1] += (x_next - x)[self._thermal]
-            x = x_next
-        self._state = x
-        self._sens = sens
+            nxt = np.asarray(self._A @ cols)
+            nxt[:, 0] += drive
+            # Sensitivities: more heat -> more of the heat drive; faster -> more of the step
+            # (only the thermal nodes speed up; the sensor lag and the base plate do not).
+            nxt[:, 1] += drive
+            nxt[thermal, 2] += nxt[thermal, 0] - cols[thermal, 0]
+            cols = nxt
+        self._state = cols[:, 0].copy()
+        self._sens = cols[:, 1:].copy()
 
     def correct(self, readings: FloatArray, valid: BoolArray) -> FloatArray:
         """Correct the predicted state with the valid readings; return the innovations.
@@ -258,11 +276,14 @@ class ModelEstimator:
         Invalid sensors get a zero innovation: their gain columns are left out.
         """
         x = self._require_state()
-        innovation = np.where(valid, readings - self._H @ x, 0.0)
-        regressor = np.asarray(self._H @ self._sens)
+        seen = np.asarray(self._H @ np.column_stack([x, self._sens]))
+        innovation = np.where(valid, readings - seen[:, 0], 0.0)
+        regressor = seen[:, 1:]
         regressor[~valid] = 0.0
-        self._state = x + self.gain @ innovation
-        self._sens = self._sens - self.gain @ regressor
+        # One pass over the (large, dense) gain corrects the state and the sensitivities.
+        update = self.gain @ np.column_stack([innovation, -regressor])
+        self._state = x + update[:, 0]
+        self._sens = self._sens + update[:, 1:]
         # Exponentially forgotten least squares, pulled towards the prior (zero bias).
         forget = np.exp(-self.sample_period / self.tuning.adaptation_time)
         weighted = regressor * self._innovation_weight[:, None]
@@ -279,6 +300,68 @@ class ModelEstimator:
 
     def _estimate(self) -> FloatArray:
         return self._require_state() + self._sens @ self._bias
+
+
+@dataclass(frozen=True)
+class _ModalSolution:
+    """Discretised network and steady-state filter in modal coordinates."""
+
+    A_d: sparse.csr_matrix
+    B_d: sparse.csr_matrix
+    gain: sparse.csr_matrix
+    innovation_cov: FloatArray
+
+
+def _modal_solution(
+    A: FloatArray, B: FloatArray, H: FloatArray, *, q: FloatArray, r: float, dt: float
+) -> _ModalSolution:
+    """Discretise and solve the filter DARE block by block.
+
+    In modal coordinates the network falls apart into independent groups of states and
+    measurements (connected components of the coupling graph): each is discretised and
+    solved on its own, which costs little even for a 32 x 32 grid. An irregular sensor
+    layout couples everything into one group and this becomes the dense solution.
+    """
+    n, s = A.shape[0], H.shape[0]
+    state_links = sparse.csr_matrix(A != 0.0)
+    sensor_links = sparse.csr_matrix(H != 0.0)
+    coupled = sparse.bmat([[state_links, sensor_links.T], [sensor_links, None]])
+    _, label = csgraph.connected_components(coupled, directed=False)
+    state_label, measurement_label = label[:n], label[n:]
+    inputs = np.flatnonzero(np.any(B != 0.0, axis=0))
+    A_d = sparse.lil_matrix((n, n))
+    B_d = sparse.lil_matrix((n, B.shape[1]))
+    gain = sparse.lil_matrix((n, s))
+    innovation_cov = np.zeros((s, s))
+    for group in np.unique(state_label):
+        st = np.flatnonzero(state_label == group)
+        ms = np.flatnonzero(measurement_label == group)
+        cols = inputs[np.any(B[np.ix_(st, inputs)] != 0.0, axis=0)]
+        Ad, Bd = discretise(A[np.ix_(st, st)], B[np.ix_(st, cols)], dt)
+        A_d[np.ix_(st, st)] = Ad
+        B_d[np.ix_(st, cols)] = Bd
+        if ms.size == 0:
+            continue  # unobserved and stable (the Laplacian's higher modes decay to the base)
+        Hc = H[np.ix_(ms, st)]
+        R = r * np.eye(ms.size)
+        P = steady_state_covariance(Ad, Hc, np.diag(q[st]), R)
+        cov = Hc @ P @ Hc.T + R
+        gain[np.ix_(st, ms)] = np.linalg.solve(cov, Hc @ P).T
+        innovation_cov[np.ix_(ms, ms)] = cov
+    return _ModalSolution(A_d.tocsr(), B_d.tocsr(), gain.tocsr(), innovation_cov)
+
+
+def _to_grid(basis: list[FloatArray], modal_rows: FloatArray | sparse.spmatrix) -> FloatArray:
+    """Return T' X for the block-diagonal modal transform T = diag(basis..., 1)."""
+    dense = modal_rows if isinstance(modal_rows, np.ndarray) else modal_rows.toarray()
+    out = np.empty_like(dense)
+    start = 0
+    for block in basis:
+        stop = start + block.shape[0]
+        out[start:stop] = block.T @ dense[start:stop]
+        start = stop
+    out[start:] = dense[start:]
+    return np.asarray(out, float)
 
 
 def _sparsified(matrix: FloatArray) -> sparse.csr_matrix | FloatArray:

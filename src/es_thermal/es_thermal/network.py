@@ -30,7 +30,7 @@ FloatArray = npt.NDArray[np.float64]
 class NetworkParams:
     """Lumped thermal parameters of one actuator cell (uniform over the grid).
 
-    Defaults: a 5 mm pitch grid behind a 2 mm glass face sheet with PMN-PT actuator columns
+    Defaults: a 5 mm pitch grid behind a 4 mm glass face sheet with PMN-PT actuator columns
     (the simulator's defaults; their derivation is in es_sim_plant.thermal).
 
     Attributes:
@@ -43,11 +43,11 @@ class NetworkParams:
 
     """
 
-    face_capacitance: float = 0.082
-    actuator_capacitance: float = 0.117
-    face_to_actuator: float = 5.4e-3
-    actuator_to_base: float = 5.4e-3
-    face_lateral: float = 2.6e-3
+    face_capacitance: float = 0.163
+    actuator_capacitance: float = 0.187
+    face_to_actuator: float = 3.4e-3
+    actuator_to_base: float = 3.4e-3
+    face_lateral: float = 5.2e-3
     actuator_lateral: float = 0.2e-3
 
     def __post_init__(self) -> None:
@@ -131,15 +131,96 @@ def continuous_model(
     sampling: FloatArray,
     sensor_tau: float,
 ) -> tuple[FloatArray, FloatArray, FloatArray, StateLayout]:
-    """Return (A, B, H, layout) of dx/dt = A x + B P, y = H x.
+    """Return (A, B, H, layout) of dx/dt = A x + B P, y = H x in grid coordinates.
 
     ``sampling`` (S x N) maps the actuator field to the sensors; ``sensor_tau`` [s] is their
     first-order lag (0: no lag states, the sensors see the actuators directly).
     """
-    cells = rows * cols
+    lap = grid_laplacian(rows, cols).toarray()
+    return _assemble(params, lap, np.ones(rows * cols), sampling, sensor_tau)
+
+
+def dct_matrix(n: int) -> FloatArray:
+    """Return the orthonormal DCT-II matrix of size n (rows are the modes)."""
+    k = np.arange(n)[:, None]
+    i = np.arange(n)[None, :]
+    c = np.sqrt(2.0 / n) * np.cos(np.pi * k * (2 * i + 1) / (2 * n))
+    c[0] /= np.sqrt(2.0)
+    return np.asarray(c, float)
+
+
+def grid_dct(rows: int, cols: int) -> FloatArray:
+    """Return the orthonormal 2-D DCT-II of a row-major R x C grid as an N x N matrix.
+
+    It diagonalises :func:`grid_laplacian`: ``D L D' = diag(laplacian_eigenvalues)``.
+    """
+    return np.asarray(np.kron(dct_matrix(rows), dct_matrix(cols)), float)
+
+
+def laplacian_eigenvalues(rows: int, cols: int) -> FloatArray:
+    """Return the eigenvalues of :func:`grid_laplacian` in :func:`grid_dct` mode order (N,)."""
+    lam_r = 2.0 - 2.0 * np.cos(np.pi * np.arange(rows) / rows)
+    lam_c = 2.0 - 2.0 * np.cos(np.pi * np.arange(cols) / cols)
+    return np.asarray((lam_r[:, None] + lam_c[None, :]).ravel(), float)
+
+
+def sensor_transform(positions: FloatArray) -> FloatArray:
+    """Return an orthonormal S x S transform of the sensor vector that keeps modes apart.
+
+    Sensors on a full regular grid, listed row-major (one per actuator, or one per block),
+    get the 2-D DCT of that grid: sensor modes then see only a few actuator modes each.
+    Any other layout gets the identity.
+    """
+    rows_at = np.unique(positions[:, 0])
+    cols_at = np.unique(positions[:, 1])
+    if rows_at.size * cols_at.size == positions.shape[0]:
+        r, c = np.meshgrid(rows_at, cols_at, indexing="ij")
+        if np.array_equal(np.column_stack([r.ravel(), c.ravel()]), positions):
+            return grid_dct(rows_at.size, cols_at.size)
+    return np.eye(positions.shape[0])
+
+
+def modal_model(
+    params: NetworkParams,
+    rows: int,
+    cols: int,
+    sampling: FloatArray,
+    sensor_tau: float,
+    *,
+    sensors: FloatArray,
+) -> tuple[FloatArray, FloatArray, FloatArray, StateLayout]:
+    """Return :func:`continuous_model` in modal coordinates.
+
+    Face and actuator fields are expressed in grid DCT modes (``grid_dct``), lag states and
+    measurements through the sensor transform ``sensors`` (S x S, orthonormal). The network
+    is then block diagonal: mode k of the face sheet couples only to mode k of the actuators,
+    the base plate only to mode 0, and a sensor mode only to the few actuator modes that
+    alias onto it. The input is the heat load in modes as well.
+    """
+    dct = grid_dct(rows, cols)
+    lam = np.diag(laplacian_eigenvalues(rows, cols))
+    uniform = np.zeros(rows * cols)
+    uniform[0] = np.sqrt(rows * cols)  # a uniform field is all mode 0 (exactly, not ~1e-16)
+    sampled = sensors @ sampling @ dct.T
+    sampled[np.abs(sampled) < 1e-12 * np.max(np.abs(sampled))] = 0.0  # round-off, not coupling
+    return _assemble(params, lam, uniform, sampled, sensor_tau)
+
+
+def _assemble(
+    params: NetworkParams,
+    lap: FloatArray,
+    base_coupling: FloatArray,
+    sampling: FloatArray,
+    sensor_tau: float,
+) -> tuple[FloatArray, FloatArray, FloatArray, StateLayout]:
+    """Build (A, B, H, layout) in any orthonormal basis of the grid.
+
+    ``lap`` is the Laplacian, ``base_coupling`` a uniform unit field and ``sampling`` the
+    sensors' view of the actuator field, all in that basis.
+    """
+    cells = lap.shape[0]
     count = sampling.shape[0]
     layout = StateLayout(cells, count if sensor_tau > 0.0 else 0)
-    lap = grid_laplacian(rows, cols).toarray()
     eye = np.eye(cells)
     p = params
     A = np.zeros((layout.size, layout.size))
@@ -150,7 +231,7 @@ def continuous_model(
     A[a, a] = -(
         (p.face_to_actuator + p.actuator_to_base) * eye + p.actuator_lateral * lap
     ) / p.actuator_capacitance
-    A[a, b] = p.actuator_to_base / p.actuator_capacitance
+    A[a, b] = base_coupling * p.actuator_to_base / p.actuator_capacitance
     B = np.zeros((layout.size, cells))
     B[m, :] = eye / p.face_capacitance
     H = np.zeros((count, layout.size))

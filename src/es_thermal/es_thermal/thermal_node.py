@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import array
 import time
+from collections import deque
 from collections.abc import Sequence
 from dataclasses import fields
 
@@ -44,7 +45,12 @@ from es_msgs_py.arrays import LayoutError, grid_to_msg, msg_to_grid, msg_to_sens
 from es_msgs_py.diagnostics import Level, make_array, make_status
 from es_msgs_py.node_main import run_node
 from es_msgs_py.params import ParameterSpec, declare_parameters
-from es_thermal.estimator import ESTIMATORS, EstimatorConfig, TemperatureEstimator
+from es_thermal.estimator import (
+    ESTIMATORS,
+    EstimatorConfig,
+    SampleClock,
+    TemperatureEstimator,
+)
 from es_thermal.faults import FaultConfig, StaleWatch
 from es_thermal.interpolation import block_centre_positions, sensor_positions
 from es_thermal.kalman import KalmanTuning
@@ -54,6 +60,10 @@ from es_thermal.network import NetworkParams
 NODE_NAME = "thermal"
 #: Measured sample intervals this far off the configured ``sample_rate`` give a WARN.
 _RATE_TOLERANCE = 0.25
+#: A rejected message keeps the input diagnostic at WARN this long [wall s].
+_REJECTION_HOLD = 5.0
+#: Updates the estimate diagnostic's timing and rate figures cover.
+_WINDOW = 200
 
 
 def _check_positions(value: object) -> str | None:
@@ -258,12 +268,14 @@ class ThermalNode(Node):
         self._raw_watch = StaleWatch(self.config.faults.stale_timeout)
         self._heat_watch = StaleWatch(self.config.faults.stale_timeout)
         self._rejected = {"raw": 0, "heat_load": 0}  # since start
-        self._rejected_recently = False  # since the last diagnostics
         self._last_rejection = ""
+        self._last_rejection_wall = -np.inf
         self._published = 0
-        self._update_seconds: list[float] = []
-        self._intervals: list[float] = []
-        self._last_sample_time: float | None = None
+        # Recent update costs and sample intervals, for the estimate diagnostic.
+        self._update_seconds: deque[float] = deque(maxlen=_WINDOW)
+        self._intervals: deque[float] = deque(maxlen=_WINDOW)
+        self._last_arrival: float | None = None
+        self._sample_clock = SampleClock(self.config.sample_period)
         self._levels: dict[str, Level] = {}
         self._pub = self.create_publisher(
             Float64MultiArray, topics.TEMPERATURE, topics.qos_for(topics.TEMPERATURE)
@@ -298,7 +310,7 @@ class ThermalNode(Node):
 
     def _reject(self, what: str, reason: str) -> None:
         self._rejected[what] += 1
-        self._rejected_recently = True
+        self._last_rejection_wall = self._wall_now()
         self._last_rejection = f"{what}: {reason}"
         self.get_logger().warning(
             f"rejected /dm/{what.replace('_', '/') if what == 'raw' else what} message: "
@@ -323,11 +335,11 @@ class ThermalNode(Node):
             return
         self._raw_watch.feed(self._wall_now())
         now = self._now()
-        if self._last_sample_time is not None and now > self._last_sample_time:
-            self._intervals.append(now - self._last_sample_time)
-        self._last_sample_time = now
+        if self._last_arrival is not None and now > self._last_arrival:
+            self._intervals.append(now - self._last_arrival)
+        self._last_arrival = now
         started = time.perf_counter()
-        estimate = self.core.update(now, readings)
+        estimate = self.core.update(self._sample_clock.stamp(now), readings)
         self._update_seconds.append(time.perf_counter() - started)
         if estimate.temperatures is not None and not self._timer_mode:
             self._publish(estimate.temperatures)
@@ -381,7 +393,7 @@ class ThermalNode(Node):
         }
         if self._last_rejection:
             kv["last_rejection"] = self._last_rejection
-        if self._rejected_recently:
+        if self._wall_now() - self._last_rejection_wall < _REJECTION_HOLD:
             return Level.WARN, "message(s) of wrong layout, size or value rejected", kv
         if self.config.kind == "model":
             if not self._heat_watch.seen:
@@ -394,6 +406,7 @@ class ThermalNode(Node):
         kv: dict[str, object] = {"estimator": self.config.kind, "published": self._published}
         if self._update_seconds:
             kv["update_ms_mean"] = 1e3 * float(np.mean(self._update_seconds))
+            kv["update_ms_median"] = 1e3 * float(np.median(self._update_seconds))
             kv["update_ms_max"] = 1e3 * float(np.max(self._update_seconds))
         model = self.core.model
         if model is not None and model.initialised:
@@ -416,7 +429,7 @@ class ThermalNode(Node):
                 )
         return level, message, kv
 
-    def _statuses(self, reset: bool) -> list[DiagnosticStatus]:
+    def _statuses(self) -> list[DiagnosticStatus]:
         out = []
         for aspect, build in (
             ("sensors", self._sensor_status),
@@ -426,10 +439,6 @@ class ThermalNode(Node):
             level, message, kv = build()
             self._levels[aspect] = level
             out.append(make_status(f"{self.get_name()}: {aspect}", level, message, kv))
-        if reset:
-            self._update_seconds.clear()
-            self._intervals = self._intervals[-100:]
-            self._rejected_recently = False
         return out
 
     def _publish_if_level_changed(self) -> None:
@@ -438,7 +447,7 @@ class ThermalNode(Node):
             self._publish_diagnostics()
 
     def _publish_diagnostics(self) -> None:
-        array = make_array(_stamp(self._now()), self._statuses(reset=True))
+        array = make_array(_stamp(self._now()), self._statuses())
         self._pub_diag.publish(array)
 
     def close(self) -> None:

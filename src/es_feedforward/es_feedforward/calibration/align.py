@@ -69,7 +69,8 @@ class AlignedData:
         grid: (rows, cols).
         start_time: bag time of the first kept displacement sample [s].
         t: sample times since ``start_time`` (N,) [s].
-        displacement: (N, A) [m]; ``valid`` (N, A) marks usable samples.
+        displacement: (N, A) [m]; ``valid`` (N, A) marks finite displacements (a sample also
+            needs a finite command in effect, checked where the sample is used).
         command_times: (Nc,) since ``start_time``; ``command`` (Nc, A), NaN held from the last
             finite value (for the play operator); ``command_finite`` (Nc, A).
         temperature_times: uniform (Nt,) since ``start_time``; ``temperature`` and
@@ -96,6 +97,11 @@ class AlignedData:
     temperature_source: str
     dropped: dict[str, int] = field(default_factory=dict)
     include_same_stamp: bool = True
+
+    @property
+    def command_finite_all(self) -> bool:
+        """Return whether every command value was finite."""
+        return self.dropped.get("command NaN", 0) == 0
 
     @property
     def n_actuators(self) -> int:
@@ -126,8 +132,9 @@ class AlignedData:
     def has_same_stamps(self) -> bool:
         """Return whether some command stamps coincide with displacement stamps."""
         pos = np.clip(np.searchsorted(self.command_times, self.t), 1, self.command_times.size - 1)
-        nearest = np.minimum(np.abs(self.t - self.command_times[pos - 1]),
-                             np.abs(self.t - self.command_times[pos]))
+        nearest = np.minimum(
+            np.abs(self.t - self.command_times[pos - 1]), np.abs(self.t - self.command_times[pos])
+        )
         return bool(np.any(nearest < self.stamp_tolerance))
 
     def command_index(self, rows: IndexArray, delay_s: float = 0.0) -> IndexArray:
@@ -155,7 +162,9 @@ class AlignedData:
         """Return dT/dt (A, n) at samples ``rows`` for ``actuators``."""
         return self._interpolate(self.temperature_rate, rows, actuators)
 
-    def _interpolate(self, series: FloatArray, rows: IndexArray, actuators: IndexArray) -> FloatArray:
+    def _interpolate(
+        self, series: FloatArray, rows: IndexArray, actuators: IndexArray
+    ) -> FloatArray:
         pos, w = self.interpolation(rows)
         sub = series[:, actuators]
         return np.asarray((sub[pos] * (1.0 - w[:, None]) + sub[pos + 1] * w[:, None]).T)
@@ -202,16 +211,17 @@ def align(data: MeasuredData, n_blocks: int | None = None) -> AlignedData:
     dropped: dict[str, int] = {}
 
     # samples before the first command have no known input: drop them
-    keep = data.displacement_times > data.command_times[0]
-    dropped["displacement before first command"] = int((~keep).sum())
-    t_abs = data.displacement_times[keep]
+    # stamps are sorted: the kept samples are a suffix (a view, no copy of a large record)
+    first = int(np.searchsorted(data.displacement_times, data.command_times[0], side="right"))
+    dropped["displacement before first command"] = first
+    t_abs = data.displacement_times[first:]
     if t_abs.size < MIN_SAMPLES:
         raise CalibrationInputError(
             f"too short to fit: {t_abs.size} displacement samples after the first command "
             f"(need {MIN_SAMPLES})"
         )
     start = float(t_abs[0])
-    z = data.displacement[keep].reshape(-1, A)
+    z = data.displacement[first:].reshape(-1, A)
     z_finite = np.isfinite(z)
     dropped["displacement NaN"] = int((~z_finite).sum())
 
@@ -238,7 +248,7 @@ def align(data: MeasuredData, n_blocks: int | None = None) -> AlignedData:
     pos = np.clip(np.searchsorted(temp_times, uniform, side="right") - 1, 0, len(temp_times) - 2)
     w = np.clip((uniform - temp_times[pos]) / np.maximum(np.diff(temp_times)[pos], 1e-12), 0, 1)
     temp_u = temp[pos] * (1.0 - w[:, None]) + temp[pos + 1] * w[:, None]
-    window = max(int(round(RATE_WINDOW_S / t_period)) | 1, 5)
+    window = max(round(RATE_WINDOW_S / t_period) | 1, 5)
     if window <= temp_u.shape[0]:
         rate = savgol_filter(temp_u, window, 2, deriv=1, delta=t_period, axis=0)
     else:
@@ -274,10 +284,6 @@ def align(data: MeasuredData, n_blocks: int | None = None) -> AlignedData:
         temperature_source=data.temperature_source,
         dropped=dropped,
     )
-    all_rows = np.arange(t.size)
-    ci = aligned.command_index(all_rows)
-    valid &= aligned.command_finite[np.maximum(ci, 0)] & (ci >= 0)[:, None]
-    dropped["samples with a NaN command in effect"] = int((z_finite & ~valid).sum())
     if valid.sum(axis=0).min() < MIN_SAMPLES:
         worst = int(np.argmin(valid.sum(axis=0)))
         raise CalibrationInputError(

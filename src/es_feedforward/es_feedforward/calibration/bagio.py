@@ -13,9 +13,9 @@ from pathlib import Path
 
 import numpy as np
 import yaml
-from es_msgs_py.bag import BagError, TopicSeries, read_bag
 
 from es_feedforward.calibration.align import CalibrationInputError, MeasuredData
+from es_msgs_py.bag import BagError, TopicSeries, read_bag
 
 # The contract's topic names (es_msgs_py.topics imports rclpy; this tool must not need it).
 COMMAND = "/dm/command"

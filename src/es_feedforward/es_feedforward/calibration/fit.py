@@ -53,29 +53,36 @@ class FitResult:
         return float(self.cost.sum())
 
 
-Evaluate = Callable[[FloatArray, FloatArray], Evaluation]
+#: (local (A, P), glob (G,), with Jacobians?) -> Evaluation
+Evaluate = Callable[[FloatArray, FloatArray, bool], Evaluation]
+#: Rejected steps in a row after which the fit counts as converged.
+MAX_STALLS = 3
 
 
 def _normal_equations(
     ev: Evaluation, target: FloatArray, valid: BoolArray
-) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
-    weight = valid.astype(np.float64)
-    resid = (target - ev.prediction) * weight
-    jl = ev.jac_local * weight[..., None]
-    jg = ev.jac_global * weight[..., None]
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
+    """Return U, W, Vg, bl, bg and the per-actuator cost (the Jacobians are masked in place)."""
+    resid = np.where(valid, target - ev.prediction, 0.0)
+    jl = ev.jac_local
+    jg = ev.jac_global
+    invalid = ~valid
+    if invalid.any():
+        jl[invalid] = 0.0
+        jg[invalid] = 0.0
     jlt = np.swapaxes(jl, 1, 2)
     U = jlt @ jl
     W = jlt @ jg
     Vg = np.einsum("anp,anq->pq", jg, jg)
     bl = (jlt @ resid[..., None])[..., 0]
     bg = np.einsum("anp,an->p", jg, resid)
-    cost = np.sum(resid * resid, axis=1)
-    return U, W, Vg, bl, bg, cost, resid
+    cost = np.einsum("an,an->a", resid, resid)
+    return U, W, Vg, bl, bg, cost
 
 
 def _cost(ev: Evaluation, target: FloatArray, valid: BoolArray) -> FloatArray:
     resid = np.where(valid, target - ev.prediction, 0.0)
-    return np.asarray(np.sum(resid * resid, axis=1), np.float64)
+    return np.asarray(np.einsum("an,an->a", resid, resid), np.float64)
 
 
 def _solve_step(
@@ -84,23 +91,24 @@ def _solve_step(
     Vg: FloatArray,
     bl: FloatArray,
     bg: FloatArray,
+    *,
     damping_local: FloatArray,
     damping_global: float,
-) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-    """Solve the (scaled, damped) arrow system; return steps and the undamped inverses."""
+) -> tuple[FloatArray, FloatArray]:
+    """Solve the (scaled, damped) arrow system; return the local (A, P) and global (G,) steps."""
     P = U.shape[1]
     G = Vg.shape[0]
     eye = np.eye(P)
     Ud = U + damping_local[:, None, None] * eye
     Ud_inv_bl = np.linalg.solve(Ud, bl[..., None])[..., 0]
     if G == 0:
-        return Ud_inv_bl, np.zeros(0), Ud, np.zeros((0, 0))
+        return np.asarray(Ud_inv_bl, np.float64), np.zeros(0)
     Ud_inv_W = np.linalg.solve(Ud, W)
     S = Vg + damping_global * np.eye(G) - np.einsum("apg,aph->gh", W, Ud_inv_W)
     rhs = bg - np.einsum("apg,ap->g", W, Ud_inv_bl)
     dg = np.linalg.solve(S, rhs)
     dl = Ud_inv_bl - Ud_inv_W @ dg
-    return dl, dg, Ud, S
+    return np.asarray(dl, np.float64), np.asarray(dg, np.float64)
 
 
 def levenberg_marquardt(
@@ -112,7 +120,7 @@ def levenberg_marquardt(
     *,
     max_iter: int = 40,
     ridge: float = 1e-8,
-    rel_tol: float = 1e-10,
+    rel_tol: float = 1e-8,
     variance_inflation: float = 1.0,
 ) -> FitResult:
     """Minimise the summed squared residual ``target - prediction`` over valid samples.
@@ -134,13 +142,14 @@ def levenberg_marquardt(
     prior_l, prior_g = local.copy(), glob.copy()
     A, P = local.shape
     G = glob.size
-    ev = evaluate(local, glob)
-    U, W, Vg, bl, bg, cost, _ = _normal_equations(ev, target, valid)
+    ev = evaluate(local, glob, True)
+    U, W, Vg, bl, bg, cost = _normal_equations(ev, target, valid)
     sl = np.sqrt(np.maximum(np.einsum("app->ap", U), 1e-300))
     sg = np.sqrt(np.maximum(np.diag(Vg), 1e-300))
     lam_l = np.full(A, 1e-3)
     lam_g = 1e-3
     iterations = 0
+    stalls = 0
 
     def penalised(cost_a: FloatArray, loc: FloatArray, gl: FloatArray) -> FloatArray:
         pen = ridge * np.sum(((loc - prior_l) * sl) ** 2, axis=1)
@@ -154,16 +163,23 @@ def levenberg_marquardt(
         Vs = Vg / np.outer(sg, sg) if G else Vg
         bls = bl / sl - ridge * (local - prior_l) * sl
         bgs = bg / sg - ridge * (glob - prior_g) * sg if G else bg
-        dl_s, dg_s, _, _ = _solve_step(
-            Us + ridge * np.eye(P), Ws, Vs + ridge * np.eye(G), bls, bgs, lam_l, lam_g
+        dl_s, dg_s = _solve_step(
+            Us + ridge * np.eye(P),
+            Ws,
+            Vs + ridge * np.eye(G),
+            bls,
+            bgs,
+            damping_local=lam_l,
+            damping_global=lam_g,
         )
         new_local = local + dl_s / sl
         new_glob = glob + dg_s / sg if G else glob
-        new_ev = evaluate(new_local, new_glob)
+        new_ev = evaluate(new_local, new_glob, False)
         new_cost = _cost(new_ev, target, valid)
         ok_values = np.isfinite(new_cost)
-        trial = np.where(ok_values, penalised(np.where(ok_values, new_cost, 0.0), new_local,
-                                              new_glob), np.inf)
+        trial = np.where(
+            ok_values, penalised(np.where(ok_values, new_cost, 0.0), new_local, new_glob), np.inf
+        )
         before = current.sum()
         if G == 0:
             better = trial < current
@@ -176,12 +192,16 @@ def levenberg_marquardt(
                 local, glob = new_local, new_glob
             lam_g = lam_g * 0.3 if improved else lam_g * 10.0
             lam_l = np.full(A, lam_g)
-        if improved:
-            ev = evaluate(local, glob)
-            U, W, Vg, bl, bg, cost, _ = _normal_equations(ev, target, valid)
-            current = penalised(cost, local, glob)
-        decrease = (before - current.sum()) / max(before, 1e-300)
-        if (improved and decrease < rel_tol) or np.all(lam_l > 1e8):
+        if not improved:
+            stalls += 1
+            if stalls >= MAX_STALLS:
+                break
+            continue
+        stalls = 0
+        ev = evaluate(local, glob, True)
+        U, W, Vg, bl, bg, cost = _normal_equations(ev, target, valid)
+        current = penalised(cost, local, glob)
+        if (before - current.sum()) / max(before, 1e-300) < rel_tol:
             break
 
     count = valid.sum(axis=1).astype(np.float64)

@@ -137,9 +137,7 @@ class CompositeModel:
         base = base or ActuatorParams()
         self.L = float(np.asarray(base.L).ravel()[0])
         self.Tm = float(np.asarray(base.Tm).ravel()[0])
-        self.local_names = (
-            QUADRATIC_LAW if "temperature_curvature" in self.effects else LINEAR_LAW
-        )
+        self.local_names = QUADRATIC_LAW if "temperature_curvature" in self.effects else LINEAR_LAW
         self.global_names: tuple[str, ...] = tuple(
             f"{name}.{p}" for name in self.effects for p in GLOBAL_PARAMETERS[name]
         )
@@ -151,8 +149,13 @@ class CompositeModel:
     def _global(self, g: FloatArray, name: str) -> float:
         return float(g[self.global_names.index(name)])
 
-    def evaluate(self, local: FloatArray, g: FloatArray, data: FitInputs) -> Evaluation:
-        """Return the prediction and Jacobians for local (A, P) and global (G,) parameters."""
+    def evaluate(
+        self, local: FloatArray, g: FloatArray, data: FitInputs, jacobian: bool = True
+    ) -> Evaluation:
+        """Return the prediction and Jacobians for local (A, P) and global (G,) parameters.
+
+        With ``jacobian=False`` only the prediction is computed (the Jacobians are empty).
+        """
         names = self.global_names
         jac_g: dict[str, FloatArray] = {}
         T = data.temperature
@@ -179,69 +182,83 @@ class CompositeModel:
         M = m2 + Ts * (m1 + Ts * m3)
         k = k2 + Ts * (k1 + Ts * k3)
         th = np.tanh(k * V / self.L)
-        sech2 = 1.0 - th * th
         dH_dM = self.L / (k * k) * th * th
         H = M * dH_dM
-        dH_dk = -2.0 * H / k + 2.0 * M * V * th * sech2 / (k * k)
-        dH_dV = 2.0 * M * th * sech2 / k
-        dH_dT = dH_dM * (m1 + 2.0 * m3 * Ts) + dH_dk * (k1 + 2.0 * k3 * Ts)
-        if dV_dTa is not None:
-            dH_dT = dH_dT + dH_dV * dV_dTa
-        columns = [dH_dM, dH_dM * Ts, dH_dk, dH_dk * Ts]
-        if curved:
-            columns += [dH_dM * Ts * Ts, dH_dk * Ts * Ts]
-        jac_l = np.stack(columns, axis=-1)
+        columns: list[FloatArray] = []
+        dH_dT: FloatArray | float = 0.0
+        if jacobian:
+            # th (1 - th^2) M / k: shared by the slope dz/dV and dz/dk
+            slope_part = M * th * (1.0 - th * th) / k
+            dH_dk = (V * slope_part - H) * (2.0 / k)
+            dH_dV = 2.0 * slope_part
+            columns = [dH_dM, dH_dM * Ts, dH_dk, dH_dk * Ts]
+            if curved:
+                columns += [dH_dM * Ts * Ts, dH_dk * Ts * Ts]
+            if self.has("sensor_lag"):
+                dH_dT = dH_dM * (m1 + 2.0 * m3 * Ts) + dH_dk * (k1 + 2.0 * k3 * Ts)
+                if dV_dTa is not None:
+                    dH_dT = dH_dT + dH_dV * dV_dTa
 
         scale: FloatArray | float = 1.0  # d(prediction)/dH
-        if self.has("hysteresis"):
+        if self.has("hysteresis") and jacobian:
             jac_g["hysteresis.weight"] = dH_dV * dV_dweight
         F = H
         if self.has("drift"):
             frac = self._global(g, "drift.fraction")
             d_tau = float(np.exp(self._global(g, "drift.log_tau_s")))
             # nu beyond [1/5, 5] makes a step or a flat line, not an aging law
-            nu = float(np.exp(np.clip(self._global(g, "drift.log_nu"), -DRIFT_LOG_NU_LIMIT,
-                                      DRIFT_LOG_NU_LIMIT)))
+            nu = float(
+                np.exp(
+                    np.clip(
+                        self._global(g, "drift.log_nu"), -DRIFT_LOG_NU_LIMIT, DRIFT_LOG_NU_LIMIT
+                    )
+                )
+            )
             ratio = np.maximum(data.t, 0.0) / d_tau
             s = np.minimum(ratio, 1e6) ** nu
             e = np.exp(-s)
             gain = 1.0 - frac * (1.0 - e)
             log_ratio = np.log(np.where(ratio > 0.0, ratio, 1.0))
             F = H * gain
-            jac_g["drift.fraction"] = -(1.0 - e) * H
-            jac_g["drift.log_tau_s"] = frac * e * nu * s * H
-            jac_g["drift.log_nu"] = -frac * e * s * log_ratio * nu * H
-            for key in ("hysteresis.weight",):
-                if key in jac_g:
-                    jac_g[key] = jac_g[key] * gain
+            if jacobian:
+                jac_g["drift.fraction"] = -(1.0 - e) * H
+                jac_g["drift.log_tau_s"] = frac * e * nu * s * H
+                jac_g["drift.log_nu"] = -frac * e * s * log_ratio * nu * H
+                if "hysteresis.weight" in jac_g:
+                    jac_g["hysteresis.weight"] = jac_g["hysteresis.weight"] * gain
             scale = gain
+        # d F / d T_a, for the sensor lag (before the coupling spreads it to the neighbours)
+        if self.has("sensor_lag") and jacobian:
+            jac_g["sensor_lag.tau_s"] = scale * dH_dT * data.temperature_rate
         Z = F
         if self.has("coupling"):
             c = self._global(g, "coupling.coefficient")
-            own = 1.0 - c * neighbour_count(data.grid)
-            jac_g["coupling.coefficient"] = neighbour_laplacian(F, data.grid)
-            Z = F + c * jac_g["coupling.coefficient"]
-            for key in ("hysteresis.weight", "drift.fraction", "drift.log_tau_s", "drift.log_nu"):
-                if key in jac_g:
-                    jac_g[key] = jac_g[key] * own
-            scale = scale * own
-        dZ_dTa = scale * dH_dT
+            lap_F = neighbour_laplacian(F, data.grid)
+            Z = F + c * lap_F
+            # shared parameters move every actuator: (I + c lap) of their columns is exact
+            for key, column in jac_g.items():
+                jac_g[key] = column + c * neighbour_laplacian(column, data.grid)
+            jac_g["coupling.coefficient"] = lap_F
+            scale = scale * (1.0 - c * neighbour_count(data.grid))
         if self.has("thermal_expansion"):
             alpha = self._global(g, "thermal_expansion.alpha_m_per_degc")
             offset = self._global(g, "thermal_expansion.offset_m")
             Z = Z + alpha * (Ta - data.mean_temperature) + offset
             jac_g["thermal_expansion.alpha_m_per_degc"] = Ta - data.mean_temperature
-            jac_g["thermal_expansion.offset_m"] = np.ones_like(Z)
-            dZ_dTa = dZ_dTa + alpha
-        if self.has("sensor_lag"):
-            jac_g["sensor_lag.tau_s"] = dZ_dTa * data.temperature_rate
-        jac_l = jac_l * np.asarray(scale)[..., None] if not isinstance(scale, float) else jac_l
+            jac_g["thermal_expansion.offset_m"] = np.ones(1)
+            if self.has("sensor_lag") and jacobian:
+                jac_g["sensor_lag.tau_s"] = (
+                    jac_g["sensor_lag.tau_s"] + alpha * data.temperature_rate
+                )
         A, n = Z.shape
-        jac_glob = (
-            np.stack([np.broadcast_to(jac_g[name], (A, n)) for name in names], axis=-1)
-            if names
-            else np.zeros((A, n, 0))
-        )
+        if not jacobian:
+            return Evaluation(np.asarray(Z, np.float64), np.zeros((A, n, 0)), np.zeros((A, n, 0)))
+        jac_l = np.empty((A, n, len(columns)))
+        for i, col in enumerate(columns):
+            np.multiply(col, scale, out=jac_l[..., i])
+        jac_glob = np.empty((A, n, len(names)))
+        for i, name in enumerate(names):
+            jac_glob[..., i] = jac_g[name]
         return Evaluation(np.asarray(Z, np.float64), jac_l, jac_glob)
 
 

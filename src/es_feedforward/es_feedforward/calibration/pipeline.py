@@ -93,7 +93,7 @@ class _Analysis:
         a = self.ws.aligned
         act = self.ws.actuators[self.keep]
         rows = self.rows
-        V = a.command[a.command_index(rows)][:, act].T
+        V = a.command[np.ix_(np.maximum(a.command_index(rows), 0), act)].T
         dV = np.gradient(V, a.t[rows], axis=1)
         return {
             "V": ("V", V),
@@ -126,13 +126,17 @@ def _uncertainties(state: ModelState, name: str, command_period: float) -> dict[
     if name == "thermal_expansion":
         return {"alpha_m_per_degc": s["thermal_expansion.alpha_m_per_degc"]}
     if name == "drift":
-        return {"fraction": s["drift.fraction"],
-                "tau_s": float(np.exp(g["drift.log_tau_s"])) * s["drift.log_tau_s"],
-                "nu": float(np.exp(g["drift.log_nu"])) * s["drift.log_nu"]}
+        return {
+            "fraction": s["drift.fraction"],
+            "tau_s": float(np.exp(g["drift.log_tau_s"])) * s["drift.log_tau_s"],
+            "nu": float(np.exp(g["drift.log_nu"])) * s["drift.log_nu"],
+        }
     if name == "temperature_curvature":
         cov = state.fit.cov_local
-        return {"m3": float(np.median(np.sqrt(np.maximum(cov[:, 4, 4], 0)))),
-                "k3": float(np.median(np.sqrt(np.maximum(cov[:, 5, 5], 0))))}
+        return {
+            "m3": float(np.median(np.sqrt(np.maximum(cov[:, 4, 4], 0)))),
+            "k3": float(np.median(np.sqrt(np.maximum(cov[:, 5, 5], 0)))),
+        }
     return {}
 
 
@@ -202,17 +206,24 @@ def calibrate(measured: MeasuredData, candidates: tuple[str, ...] = CANDIDATES) 
     final = prefix_states[-1]
     # re-express the uncertainties with the residual's autocorrelation
     if after.tau_int > 1.0:
-        final.fit = replace(final.fit, cov_local=final.fit.cov_local * after.tau_int,
-                            cov_global=final.fit.cov_global * after.tau_int)
+        final.fit = replace(
+            final.fit,
+            cov_local=final.fit.cov_local * after.tau_int,
+            cov_global=final.fit.cov_global * after.tau_int,
+        )
     timings["refit and analysis"] = time.perf_counter() - clock
 
     period = aligned.command_period
     effects = []
-    for (name, _, _), prev, state in zip(added, prefix_states[:-1], prefix_states[1:],
-                                          strict=True):
+    for (name, _, _), prev, state in zip(added, prefix_states[:-1], prefix_states[1:], strict=True):
         effects.append(
-            AcceptedEffect(name, effect_parameters(state, name, aligned),
-                           _uncertainties(state, name, period), prev.heldout_rms, state.heldout_rms)
+            AcceptedEffect(
+                name,
+                effect_parameters(state, name, aligned),
+                _uncertainties(state, name, period),
+                prev.heldout_rms,
+                state.heldout_rms,
+            )
         )
     inputs = {k: v for k, (_, v) in analysis.regressors().items()}
     return Calibration(

@@ -7,13 +7,13 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
 
-from es_feedforward.calibration.pipeline import NOISE_RATIO_LIMIT, Calibration  # noqa: E402
-from es_feedforward.calibration.residual import ResidualStructure  # noqa: E402
-from es_feedforward.calibration.schema import law_uncertainty  # noqa: E402
-from es_feedforward.params import THESIS_INTERVALS_95  # noqa: E402
+from es_feedforward.calibration.pipeline import NOISE_RATIO_LIMIT, Calibration
+from es_feedforward.calibration.residual import ResidualStructure
+from es_feedforward.calibration.schema import law_uncertainty
+from es_feedforward.params import THESIS_INTERVALS_95
 
 NM = 1e9
 
@@ -43,8 +43,9 @@ def _figure_dependence(cal: Calibration, out: Path) -> str:
     fig, axes = plt.subplots(1, len(deps), figsize=(3.2 * len(deps), 3.2), squeeze=False)
     for ax, (b, a) in zip(axes[0], deps, strict=True):
         for d, label in ((b, "basic law"), (a, "with effects")):
-            ax.errorbar(d.centers, d.mean * NM, yerr=d.bound * NM, fmt="o-", ms=3, capsize=2,
-                        label=label)
+            ax.errorbar(
+                d.centers, d.mean * NM, yerr=d.bound * NM, fmt="o-", ms=3, capsize=2, label=label
+            )
         ax.axhline(0.0, color="k", lw=0.5)
         ax.set_xlabel(f"{b.name} [{b.unit}]")
         ax.set_title(f"r = {b.correlation:+.2f} -> {a.correlation:+.2f}", fontsize=9)
@@ -63,8 +64,13 @@ def _figure_spectrum(cal: Calibration, out: Path) -> str:
     rate = cal.aligned.sample_rate
     floor = cal.noise_floor_m
     if np.isfinite(floor) and floor > 0:
-        ax.axhline(floor * NM / np.sqrt(rate / 2.0), color="k", ls="--", lw=0.8,
-                   label="white noise at the noise floor")
+        ax.axhline(
+            floor * NM / np.sqrt(rate / 2.0),
+            color="k",
+            ls="--",
+            lw=0.8,
+            label="white noise at the noise floor",
+        )
     for f, _ in cal.after.lines:
         ax.axvline(f, color="r", lw=0.5, alpha=0.6)
     ax.set_xlabel("frequency [Hz]")
@@ -115,8 +121,10 @@ def _structure_lines(s: ResidualStructure) -> list[str]:
             f"{flag}); binned means explain {100 * d.explained_fraction:.1f} % of the variance"
         )
     if s.lines:
-        lines.append("- spectral lines: " + ", ".join(
-            f"{f:.3g} Hz ({_fmt(a * NM)} nm rms)" for f, a in s.lines))
+        lines.append(
+            "- spectral lines: "
+            + ", ".join(f"{f:.3g} Hz ({_fmt(a * NM)} nm rms)" for f, a in s.lines)
+        )
     else:
         lines.append("- no spectral line stands out of the local spectral level")
     return lines
@@ -125,14 +133,18 @@ def _structure_lines(s: ResidualStructure) -> list[str]:
 def _law_table(cal: Calibration) -> list[str]:
     local = cal.final.fit.local
     sig = law_uncertainty(cal)
-    rows = ["| coefficient | median | min | max | median 1-sigma | thesis 95 % interval |",
-            "|---|---|---|---|---|---|"]
+    rows = [
+        "| coefficient | median | min | max | median 1-sigma | thesis 95 % interval |",
+        "|---|---|---|---|---|---|",
+    ]
     for i, name in enumerate(cal.final.model.local_names):
         v = local[:, i]
         interval = THESIS_INTERVALS_95.get(name)
         thesis = f"{interval[0]:.4g} .. {interval[1]:.4g}" if interval else "-"
-        rows.append(f"| {name} | {_fmt(float(np.median(v)))} | {_fmt(float(v.min()))} | "
-                    f"{_fmt(float(v.max()))} | {_fmt(float(np.median(sig[name])))} | {thesis} |")
+        rows.append(
+            f"| {name} | {_fmt(float(np.median(v)))} | {_fmt(float(v.min()))} | "
+            f"{_fmt(float(v.max()))} | {_fmt(float(np.median(sig[name])))} | {thesis} |"
+        )
     return rows
 
 
@@ -162,7 +174,7 @@ def write_report(cal: Calibration, out: Path, notes: list[str]) -> Path:
         f"{a.t[-1]:.1f} s ({a.sample_rate:.4g} Hz), command period {a.command_period:.4g} s, "
         f"temperature from `{a.temperature_source}` (resampled at "
         f"{1.0 / np.median(np.diff(a.temperature_times)):.4g} Hz, linearly interpolated)",
-        f"- command in effect at a sample: the last one stamped "
+        "- command in effect at a sample: the last one stamped "
         + ("at or before" if a.include_same_stamp else "strictly before")
         + " it (decided from the data)",
         f"- {a.block_edges.size - 1} interleaved blocks of {a.block_edges[1]:.2f} s: "
@@ -198,38 +210,61 @@ def write_report(cal: Calibration, out: Path, notes: list[str]) -> Path:
         "",
     ]
     for i, rnd in enumerate(cal.rounds, 1):
-        text += [f"Round {i}: " + (f"added **{rnd.added}**" if rnd.added else "nothing added"),
-                 "", "| candidate | RMS before [nm] | RMS after [nm] | dBIC | verdict | parameters |",
-                 "|---|---|---|---|---|---|"]
+        text += [
+            f"Round {i}: " + (f"added **{rnd.added}**" if rnd.added else "nothing added"),
+            "",
+            "| candidate | RMS before [nm] | RMS after [nm] | dBIC | verdict | parameters |",
+            "|---|---|---|---|---|---|",
+        ]
         for s in rnd.scores:
             params = ", ".join(f"{k} = {_fmt(v)}" for k, v in s.parameters.items())
             verdict = "accepted" if s.accepted else s.reason
-            text.append(f"| {s.name} | {_fmt(s.rms_before_m * NM)} | {_fmt(s.rms_after_m * NM)} "
-                        f"| {s.delta_ic:+.1f} | {verdict} | {params} |")
+            text.append(
+                f"| {s.name} | {_fmt(s.rms_before_m * NM)} | {_fmt(s.rms_after_m * NM)} "
+                f"| {s.delta_ic:+.1f} | {verdict} | {params} |"
+            )
         text.append("")
     text += ["## e. Accepted effects and what remains", ""]
     if cal.effects:
-        text += ["| effect | parameters (1-sigma) | held-out RMS before -> after [nm] | "
-                 "after / noise floor |", "|---|---|---|---|"]
+        text += [
+            "| effect | parameters (1-sigma) | held-out RMS before -> after [nm] | "
+            "after / noise floor |",
+            "|---|---|---|---|",
+        ]
         for e in cal.effects:
             params = ", ".join(
-                f"{k} = {_fmt(v)}" + (f" +- {_fmt(e.uncertainties[k])}" if k in e.uncertainties
-                                      else "")
-                for k, v in e.parameters.items())
-            text.append(f"| {e.name} | {params} | {_fmt(e.rms_before_m * NM)} -> "
-                        f"{_fmt(e.rms_after_m * NM)} | {e.rms_after_m / floor:.2f} |")
+                f"{k} = {_fmt(v)}"
+                + (f" +- {_fmt(e.uncertainties[k])}" if k in e.uncertainties else "")
+                for k, v in e.parameters.items()
+            )
+            text.append(
+                f"| {e.name} | {params} | {_fmt(e.rms_before_m * NM)} -> "
+                f"{_fmt(e.rms_after_m * NM)} | {e.rms_after_m / floor:.2f} |"
+            )
     else:
         text.append("No candidate passed: the basic law is kept.")
-    text += ["", "Residual with the final model:", "", *_structure_lines(cal.after), "",
-             "Unexplained structure:", ""]
+    text += [
+        "",
+        "Residual with the final model:",
+        "",
+        *_structure_lines(cal.after),
+        "",
+        "Unexplained structure:",
+        "",
+    ]
     text += [f"- {u}" for u in cal.unexplained] or ["- none beyond the measurement noise"]
     if notes:
         text += ["", "Parameter file notes:", "", *[f"- {n}" for n in notes]]
-    text += ["", "## Outputs", "",
-             "- `calibration.json` (schema: es_feedforward.calibration.schema)",
-             "- `feedforward_params.yaml` (load with `--ros-args --params-file`)", "",
-             "Timings: " + ", ".join(f"{k} {v:.2f} s" for k, v in cal.timings_s.items()), ""]
+    text += [
+        "",
+        "## Outputs",
+        "",
+        "- `calibration.json` (schema: es_feedforward.calibration.schema)",
+        "- `feedforward_params.yaml` (load with `--ros-args --params-file`)",
+        "",
+        "Timings: " + ", ".join(f"{k} {v:.2f} s" for k, v in cal.timings_s.items()),
+        "",
+    ]
     path = out / "report.md"
     path.write_text("\n".join(text), encoding="utf-8")
     return path
-

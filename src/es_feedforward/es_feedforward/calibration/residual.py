@@ -184,8 +184,9 @@ def dependence(
     denom = float(np.sqrt(np.sum(xc * xc) * np.sum(rc * rc)))
     corr = float(np.sum(xc * rc) / denom) if denom > 0 else 0.0
     explained = float(np.sum(counts * (mean - r.mean()) ** 2) / max(np.sum(rc * rc), 1e-300))
-    return Dependence(name, unit, centers, mean, bound, corr,
-                      1.96 / np.sqrt(max(n_effective, 1.0)), explained)
+    return Dependence(
+        name, unit, centers, mean, bound, corr, 1.96 / np.sqrt(max(n_effective, 1.0)), explained
+    )
 
 
 def analyse(

@@ -51,10 +51,10 @@ FINE_THRESHOLDS: Final = 8
 #: Drift time constants tried, as fractions of the record's duration.
 DRIFT_TAU_FRACTIONS: Final = (0.05, 0.25, 1.0)
 #: Samples per actuator used for fits and held-out scores (capped by sample-actuator totals).
-FIT_SAMPLES: Final = 8000
-FIT_BUDGET: Final = 6_000_000
+FIT_SAMPLES: Final = 6000
+FIT_BUDGET: Final = 2_000_000
 SCORE_SAMPLES: Final = 30000
-SCORE_BUDGET: Final = 8_000_000
+SCORE_BUDGET: Final = 3_000_000
 
 
 @dataclass
@@ -109,6 +109,7 @@ class Workspace:
         self.fit_rows = select_rows(aligned.train, n_fit)
         self.score_rows = select_rows(~aligned.train, n_score)
         self._play: dict[tuple[float, float], FloatArray] = {}
+        self._static_cache: dict[tuple[int, int], dict[str, FloatArray]] = {}
 
     def _command_rows(self, delay_s: float) -> tuple[IndexArray, IndexArray]:
         a = self.aligned
@@ -138,23 +139,38 @@ class Workspace:
         stacked = np.stack([self._play[(r, delay_s)] for r in thresholds], axis=1)
         return stacked[: fit_ci.size], stacked[fit_ci.size :]
 
-    def inputs(
-        self, rows: IndexArray, delay_s: float, play: FloatArray | None
-    ) -> FitInputs:
+    def _static(self, rows: IndexArray) -> dict[str, FloatArray]:
+        """Return the delay-independent inputs at ``rows`` (cached per row set)."""
+        key = (id(rows), rows.size)
+        if key not in self._static_cache:
+            a = self.aligned
+            act = self.actuators
+            z = a.displacement[np.ix_(rows, act)].T
+            self._static_cache[key] = {
+                "t": a.t[rows],
+                "temperature": a.temperature_at(rows, act),
+                "temperature_rate": a.temperature_rate_at(rows, act),
+                "displacement": z,
+                "finite": np.isfinite(z),
+            }
+        return self._static_cache[key]
+
+    def inputs(self, rows: IndexArray, delay_s: float, play: FloatArray | None) -> FitInputs:
         """Return model inputs at ``rows`` with the command ``delay_s`` earlier."""
         a = self.aligned
-        act = self.actuators
+        static = self._static(rows)
         ci = a.command_index(rows, delay_s)
-        ok = ci >= 0
-        ci0 = np.maximum(ci, 0)
-        valid = (a.valid[rows][:, act] & a.command_finite[ci0][:, act] & ok[:, None]).T
+        voltage = a.command[np.ix_(np.maximum(ci, 0), self.actuators)].T
+        valid = static["finite"] & np.isfinite(voltage) & (ci >= 0)[None, :]
+        if not a.command_finite_all:
+            valid &= a.command_finite[np.ix_(np.maximum(ci, 0), self.actuators)].T
         return FitInputs(
-            t=a.t[rows],
-            voltage=a.command[ci0][:, act].T.copy(),
-            play=None if play is None else play.T.copy(),
-            temperature=a.temperature_at(rows, act),
-            temperature_rate=a.temperature_rate_at(rows, act),
-            displacement=np.where(valid, a.displacement[rows][:, act].T, 0.0),
+            t=static["t"],
+            voltage=voltage,
+            play=None if play is None else np.ascontiguousarray(play.T),
+            temperature=static["temperature"],
+            temperature_rate=static["temperature_rate"],
+            displacement=np.where(valid, static["displacement"], 0.0),
             valid=valid,
             grid=self.grid,
             mean_temperature=a.mean_temperature,
@@ -162,7 +178,6 @@ class Workspace:
 
     def input_pair(self, delay_s: float, threshold_v: float | None) -> tuple[FitInputs, FitInputs]:
         """Return (training, held-out) inputs for a delay and optional play threshold."""
-        fit_ci, score_ci = self._command_rows(delay_s)
         fit_play = score_play = None
         if threshold_v is not None:
             fit_play, score_play = (p[:, 0, :] for p in self.play_pair([threshold_v], delay_s))
@@ -178,7 +193,7 @@ def initial_law(inputs: FitInputs, base: ActuatorParams | None = None) -> FloatA
     model = CompositeModel(())
     A = inputs.voltage.shape[0]
     local = np.tile([base.m2, base.m1, base.k2, base.k1], (A, 1)).astype(np.float64)
-    H = model.evaluate(local, np.zeros(0), inputs).prediction
+    H = model.evaluate(local, np.zeros(0), inputs, jacobian=False).prediction
     w = inputs.valid
     num = np.sum(np.where(w, H * inputs.displacement, 0.0), axis=1)
     den = np.sum(np.where(w, H * H, 0.0), axis=1)
@@ -194,6 +209,7 @@ def fit_state(
     heldout: FitInputs,
     local0: FloatArray,
     glob0: FloatArray,
+    *,
     delay_s: float,
     threshold_v: float,
     inflation: float = 1.0,
@@ -201,7 +217,7 @@ def fit_state(
 ) -> ModelState:
     """Fit ``model`` on ``train`` from the given start and score it on ``heldout``."""
     result = levenberg_marquardt(
-        lambda loc, glo: model.evaluate(loc, glo, train),
+        lambda loc, glo, jac: model.evaluate(loc, glo, train, jac),
         train.displacement,
         train.valid,
         local0,
@@ -209,17 +225,21 @@ def fit_state(
         variance_inflation=inflation,
         max_iter=max_iter,
     )
-    pred = model.evaluate(result.local, result.glob, heldout).prediction
+    pred = model.evaluate(result.local, result.glob, heldout, jacobian=False).prediction
     resid = np.where(heldout.valid, heldout.displacement - pred, 0.0)
     return ModelState(
-        model, delay_s, threshold_v, result, float(np.sum(resid * resid)),
+        model,
+        delay_s,
+        threshold_v,
+        result,
+        float(np.sum(resid * resid)),
         int(heldout.valid.sum()),
     )
 
 
 def heldout_residual(state: ModelState, heldout: FitInputs) -> FloatArray:
     """Return the held-out residual (A, n), NaN where invalid."""
-    pred = state.model.evaluate(state.fit.local, state.fit.glob, heldout).prediction
+    pred = state.model.evaluate(state.fit.local, state.fit.glob, heldout, jacobian=False).prediction
     return np.where(heldout.valid, heldout.displacement - pred, np.nan)
 
 
@@ -245,42 +265,71 @@ def _candidate_states(
     out: list[ModelState] = []
     threshold = state.threshold_v if state.model.has("hysteresis") else None
     if name == "delay":
+        # rank the shifts with the current law (no refit), then refit around the best one
         period = a.command_period
         n_max = int(min(MAX_DELAY_PERIODS, max(1, MAX_DELAY_S / period)))
-        best: ModelState | None = None
+        play = None
+        if threshold is not None:
+            play = ws.play_pair([threshold], state.delay_s)[0][:, 0, :]
+        costs = []
         for j in range(1, n_max + 1):
+            shifted = ws.inputs(ws.fit_rows, j * period, play)
+            pred = state.model.evaluate(state.fit.local, state.fit.glob, shifted, False)
+            costs.append(
+                float(
+                    np.sum(
+                        np.where(shifted.valid, shifted.displacement - pred.prediction, 0.0) ** 2
+                    )
+                )
+            )
+        best_j = int(np.argmin(costs)) + 1
+        for j in sorted({max(1, best_j - 1), best_j, min(n_max, best_j + 1)}):
             train, held = ws.input_pair(j * period, threshold)
-            s = fit_state(model, train, held, local0, _extend_global(state, model, {}), j * period,
-                          state.threshold_v, max_iter=8)
-            if best is None or s.fit.total_cost < best.fit.total_cost:
-                best = s
-            elif j > 3 and s.fit.total_cost > 1.5 * best.fit.total_cost:
-                break  # past the minimum: larger delays only get worse
-        assert best is not None
-        train, held = ws.input_pair(best.delay_s, threshold)
-        out.append(fit_state(model, train, held, best.fit.local, best.fit.glob, best.delay_s,
-                             state.threshold_v))
+            out.append(
+                fit_state(
+                    model,
+                    train,
+                    held,
+                    local0,
+                    _extend_global(state, model, {}),
+                    delay_s=j * period,
+                    threshold_v=state.threshold_v,
+                    max_iter=15,
+                )
+            )
         return out
     if name == "hysteresis":
         span = float(np.ptp(a.command[:, ws.actuators]))
         glob0 = _extend_global(state, model, {"hysteresis.weight": 0.0})
         coarse = [max(f * span, 1e-6) for f in THRESHOLD_FRACTIONS]
-        best = _best_threshold(ws, state, model, local0, glob0, coarse)
+        best = _best_threshold(ws, state, model, (local0, glob0), coarse)
         i = coarse.index(best.threshold_v)
         lo, hi = coarse[max(i - 1, 0)], coarse[min(i + 1, len(coarse) - 1)]
         fine = [float(r) for r in np.geomspace(lo, hi, FINE_THRESHOLDS + 2)[1:-1]]
-        refined = _best_threshold(ws, state, model, best.fit.local, best.fit.glob, fine)
+        refined = _best_threshold(ws, state, model, (best.fit.local, best.fit.glob), fine)
         best = refined if refined.fit.total_cost < best.fit.total_cost else best
         train, held = ws.input_pair(state.delay_s, best.threshold_v)
-        out.append(fit_state(model, train, held, best.fit.local, best.fit.glob, state.delay_s,
-                             best.threshold_v))
+        out.append(
+            fit_state(
+                model,
+                train,
+                held,
+                best.fit.local,
+                best.fit.glob,
+                delay_s=state.delay_s,
+                threshold_v=best.threshold_v,
+            )
+        )
         return out
     train, held = ws.input_pair(state.delay_s, threshold)
     starts: list[dict[str, float]] = [{}]
     if name == "drift":
         starts = [
-            {"drift.fraction": 0.0, "drift.log_tau_s": float(np.log(f * duration)),
-             "drift.log_nu": 0.0}
+            {
+                "drift.fraction": 0.0,
+                "drift.log_tau_s": float(np.log(f * duration)),
+                "drift.log_nu": 0.0,
+            }
             for f in DRIFT_TAU_FRACTIONS
         ]
     for start in starts:
@@ -288,8 +337,17 @@ def _candidate_states(
         if name == "drift":
             # start the nonlinear drift terms from a small fraction so their gradients exist
             glob0[model.global_names.index("drift.fraction")] = 0.01
-        out.append(fit_state(model, train, held, local0, glob0, state.delay_s,
-                             state.threshold_v))
+        out.append(
+            fit_state(
+                model,
+                train,
+                held,
+                local0,
+                glob0,
+                delay_s=state.delay_s,
+                threshold_v=state.threshold_v,
+            )
+        )
     return out
 
 
@@ -297,18 +355,21 @@ def _best_threshold(
     ws: Workspace,
     state: ModelState,
     model: CompositeModel,
-    local0: FloatArray,
-    glob0: FloatArray,
+    start: tuple[FloatArray, FloatArray],
     thresholds: list[float],
 ) -> ModelState:
     """Fit the hysteresis model at each play threshold (one pass of the play for all)."""
+    local0, glob0 = start
     fit_play, score_play = ws.play_pair(thresholds, state.delay_s)
     trials = []
     for i, r in enumerate(thresholds):
         train = ws.inputs(ws.fit_rows, state.delay_s, fit_play[:, i, :])
         held = ws.inputs(ws.score_rows, state.delay_s, score_play[:, i, :])
-        trials.append(fit_state(model, train, held, local0, glob0, state.delay_s, r,
-                                max_iter=10))
+        trials.append(
+            fit_state(
+                model, train, held, local0, glob0, delay_s=state.delay_s, threshold_v=r, max_iter=10
+            )
+        )
     return min(trials, key=lambda s: s.fit.total_cost)
 
 
@@ -329,8 +390,11 @@ def effect_parameters(state: ModelState, name: str, aligned: AlignedData) -> dic
         ref = aligned.mean_temperature - g["thermal_expansion.offset_m"] / alpha if alpha else 0.0
         return {"alpha_m_per_degc": alpha, "reference_temperature": ref}
     if name == "drift":
-        return {"fraction": g["drift.fraction"], "tau_s": float(np.exp(g["drift.log_tau_s"])),
-                "nu": float(np.exp(g["drift.log_nu"]))}
+        return {
+            "fraction": g["drift.fraction"],
+            "tau_s": float(np.exp(g["drift.log_tau_s"])),
+            "nu": float(np.exp(g["drift.log_nu"])),
+        }
     if name == "temperature_curvature":
         local = state.fit.local
         return {"m3": float(np.median(local[:, 4])), "k3": float(np.median(local[:, 5]))}
@@ -351,8 +415,15 @@ def physical_problem(name: str, params: dict[str, float]) -> str | None:
 
 
 def _added_parameters(name: str, n_actuators: int) -> int:
-    return {"sensor_lag": 1, "delay": 1, "hysteresis": 2, "coupling": 1,
-            "thermal_expansion": 2, "drift": 3, "temperature_curvature": 2 * n_actuators}[name]
+    return {
+        "sensor_lag": 1,
+        "delay": 1,
+        "hysteresis": 2,
+        "coupling": 1,
+        "thermal_expansion": 2,
+        "drift": 3,
+        "temperature_curvature": 2 * n_actuators,
+    }[name]
 
 
 def information_delta(
@@ -384,8 +455,9 @@ def search_effects(
         remaining = [c for c in candidates if not state.model.has(c)]
         if not remaining:
             break
-        _, held = ws.input_pair(state.delay_s, state.threshold_v if state.model.has(
-            "hysteresis") else None)
+        _, held = ws.input_pair(
+            state.delay_s, state.threshold_v if state.model.has("hysteresis") else None
+        )
         n_eff = effective_count(ws, state, held)
         scores: list[CandidateScore] = []
         best: tuple[float, str, ModelState] | None = None
@@ -395,8 +467,9 @@ def search_effects(
             tried = _candidate_states(ws, state, name, duration)
             new = min(tried, key=lambda s: s.fit.total_cost)
             params = effect_parameters(new, name, ws.aligned)
-            delta = information_delta(state.heldout_sse, new.heldout_sse, n_eff,
-                                      _added_parameters(name, A))
+            delta = information_delta(
+                state.heldout_sse, new.heldout_sse, n_eff, _added_parameters(name, A)
+            )
             gain = 1.0 - new.heldout_rms / max(state.heldout_rms, 1e-300)
             problem = physical_problem(name, params)
             reason = "passes"
@@ -409,8 +482,9 @@ def search_effects(
             elif gain < MIN_RELATIVE_GAIN:
                 reason = f"held-out RMS cut {100 * gain:.2f} % < {100 * MIN_RELATIVE_GAIN:.0f} %"
             ok = reason == "passes"
-            scores.append(CandidateScore(name, state.heldout_rms, new.heldout_rms, delta, ok,
-                                         reason, params))
+            scores.append(
+                CandidateScore(name, state.heldout_rms, new.heldout_rms, delta, ok, reason, params)
+            )
             if ok and (best is None or delta < best[0]):
                 best = (delta, name, new)
         if best is None:
@@ -437,7 +511,9 @@ def base_state(ws: Workspace) -> ModelState:
     """Fit the plain hyperbolic law (linear in T*) on the workspace's actuators."""
     train, held = ws.input_pair(0.0, None)
     model = CompositeModel(())
-    return fit_state(model, train, held, initial_law(train), np.zeros(0), 0.0, 0.0)
+    return fit_state(
+        model, train, held, initial_law(train), np.zeros(0), delay_s=0.0, threshold_v=0.0
+    )
 
 
 def choose_stamp_convention(aligned: AlignedData) -> AlignedData:
@@ -464,14 +540,18 @@ def refit_full(
     ws = Workspace(aligned, idx, aligned.grid)
     threshold = screened.threshold_v if screened.model.has("hysteresis") else None
     train, held = ws.input_pair(screened.delay_s, threshold)
-    if start is None:
-        local0 = initial_law(train)
-    else:
-        local0 = start.fit.local
+    local0 = initial_law(train) if start is None else start.fit.local
     if len(screened.model.local_names) > local0.shape[1]:
         local0 = np.concatenate([local0, np.zeros((local0.shape[0], 2))], axis=1)
     return (
-        fit_state(screened.model, train, held, local0, screened.fit.glob, screened.delay_s,
-                  screened.threshold_v),
+        fit_state(
+            screened.model,
+            train,
+            held,
+            local0,
+            screened.fit.glob,
+            delay_s=screened.delay_s,
+            threshold_v=screened.threshold_v,
+        ),
         ws,
     )

@@ -1,0 +1,1 @@
+"""Calibration tool tests (a package so that their data helpers import as calibration.*)."""

@@ -1,0 +1,258 @@
+"""Unit tests of the calibration cores: model, batched fit, alignment, residual statistics."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from es_feedforward.calibration.align import CalibrationInputError, MeasuredData, align
+from es_feedforward.calibration.fit import levenberg_marquardt
+from es_feedforward.calibration.model import (
+    CANDIDATES,
+    CompositeModel,
+    FitInputs,
+    neighbour_laplacian,
+    play_operator,
+)
+from es_feedforward.calibration.residual import integrated_autocorrelation_time, noise_floor
+from es_feedforward.models import hyperbolic_forward
+from es_feedforward.params import ActuatorParams
+from es_sim_plant.effects import grid_laplacian, play
+
+
+def _inputs(rng: np.random.Generator, A: int = 6, n: int = 400, grid=(2, 3)) -> FitInputs:
+    t = np.linspace(0.0, 20.0, n)
+    V = 150.0 + 120.0 * np.sin(2 * np.pi * 0.7 * t + rng.uniform(0, 6, (A, 1)))
+    T = 44.0 + 4.0 * np.sin(2 * np.pi * t / 40.0) + rng.uniform(-0.5, 0.5, (A, 1))
+    return FitInputs(
+        t=t,
+        voltage=V,
+        play=V + rng.uniform(-5, 5, V.shape),
+        temperature=T,
+        temperature_rate=np.gradient(T, t, axis=1),
+        displacement=np.zeros_like(V),
+        valid=np.ones(V.shape, bool),
+        grid=grid,
+        mean_temperature=44.0,
+    )
+
+
+def test_play_operator_matches_the_plant_definition() -> None:
+    rng = np.random.default_rng(0)
+    command = np.cumsum(rng.normal(0, 5, (500, 3)), axis=0)
+    keep = np.array([0, 7, 7, 100, 499])
+    got = play_operator(command, 12.0, keep)
+    state = np.clip(np.zeros(3), command[0] - 12.0, command[0] + 12.0)
+    expected = []
+    for i, row in enumerate(command):
+        state = play(state, row, 12.0)
+        expected.extend([state] * int(np.sum(keep == i)))
+    np.testing.assert_allclose(got, np.asarray(expected))
+
+
+def test_laplacian_matches_the_plant_definition() -> None:
+    values = np.random.default_rng(1).normal(size=(3, 4, 5))
+    got = neighbour_laplacian(values.reshape(12, 5), (3, 4))
+    np.testing.assert_allclose(
+        got, grid_laplacian(values.transpose(2, 0, 1)).transpose(1, 2, 0).reshape(12, 5)
+    )
+
+
+def test_model_without_effects_is_the_hyperbolic_law() -> None:
+    rng = np.random.default_rng(2)
+    data = _inputs(rng)
+    p = ActuatorParams()
+    local = np.tile([p.m2, p.m1, p.k2, p.k1], (6, 1))
+    got = CompositeModel(()).evaluate(local, np.zeros(0), data).prediction
+    np.testing.assert_allclose(got, hyperbolic_forward(data.voltage, data.temperature, p))
+
+
+@pytest.mark.parametrize("coupled", [False, True])
+def test_jacobians_match_finite_differences(coupled: bool) -> None:
+    rng = np.random.default_rng(3)
+    data = _inputs(rng)
+    effects = [e for e in CANDIDATES if e != "delay" and (coupled or e != "coupling")]
+    model = CompositeModel(effects)
+    p = ActuatorParams()
+    local = np.tile([p.m2, p.m1, p.k2, p.k1, 1e-19, 1e-10], (6, 1)) * rng.uniform(
+        0.95, 1.05, (6, 6)
+    )
+    values = {
+        "sensor_lag.tau_s": 3.0,
+        "hysteresis.weight": 0.05,
+        "coupling.coefficient": 0.04,
+        "thermal_expansion.alpha_m_per_degc": 4e-10,
+        "thermal_expansion.offset_m": 1e-9,
+        "drift.fraction": 0.03,
+        "drift.log_tau_s": np.log(6.0),
+        "drift.log_nu": -0.5,
+    }
+    glob = np.array([values[n] for n in model.global_names])
+    ev = model.evaluate(local, glob, data)
+    for j in range(glob.size):
+        h = 1e-6 * max(abs(glob[j]), 1e-9)
+        up, down = glob.copy(), glob.copy()
+        up[j] += h
+        down[j] -= h
+        fd = (
+            model.evaluate(local, up, data).prediction
+            - model.evaluate(local, down, data).prediction
+        ) / (2 * h)
+        np.testing.assert_allclose(
+            ev.jac_global[..., j],
+            fd,
+            rtol=1e-4,
+            atol=1e-6 * np.abs(fd).max(),
+            err_msg=model.global_names[j],
+        )
+    for j in range(local.shape[1]):
+        h = 1e-6 * np.abs(local[:, j]).max()
+        up, down = local.copy(), local.copy()
+        up[:, j] += h
+        down[:, j] -= h
+        fd = (
+            model.evaluate(up, glob, data).prediction - model.evaluate(down, glob, data).prediction
+        ) / (2 * h)
+        if coupled:  # only the actuator's own term: neighbours' terms are O(c) and dropped
+            assert np.abs(ev.jac_local[..., j] - fd).max() <= 0.3 * np.abs(fd).max()
+        else:
+            np.testing.assert_allclose(
+                ev.jac_local[..., j], fd, rtol=1e-4, atol=1e-6 * np.abs(fd).max()
+            )
+
+
+def test_batched_fit_recovers_many_actuators_with_honest_uncertainties() -> None:
+    rng = np.random.default_rng(4)
+    A = 200
+    data = _inputs(rng, A=A, n=600, grid=(10, 20))
+    true = ActuatorParams(
+        m2=1504e-18 * rng.uniform(0.9, 1.1, (A, 1)), k2=1167.5e-9 * rng.uniform(0.95, 1.05, (A, 1))
+    )
+    noise = 0.3e-9
+    z = hyperbolic_forward(data.voltage, data.temperature, true)
+    z = z + noise * rng.standard_normal(z.shape)
+    model = CompositeModel(())
+    p = ActuatorParams()
+    start = np.tile([p.m2, p.m1, p.k2, p.k1], (A, 1))
+    result = levenberg_marquardt(
+        lambda loc, glo, jac: model.evaluate(loc, glo, data, jac), z, data.valid, start, np.zeros(0)
+    )
+    sigma = np.sqrt(result.cov_local[:, 0, 0])
+    pull = (result.local[:, 0] - np.asarray(true.m2)[:, 0]) / sigma
+    assert np.abs(pull).max() < 5.0
+    assert 0.7 < np.std(pull) < 1.3  # the uncertainties are neither too small nor too large
+    np.testing.assert_allclose(np.sqrt(result.cost / result.count), noise, rtol=0.15)
+
+
+def test_shared_parameter_is_fitted_jointly_with_the_laws() -> None:
+    rng = np.random.default_rng(5)
+    data = _inputs(rng, A=6, n=800)
+    model = CompositeModel(("thermal_expansion",))
+    p = ActuatorParams()
+    local = np.tile([p.m2, p.m1, p.k2, p.k1], (6, 1))
+    truth = np.array([0.4e-9, 2e-9])
+    z = model.evaluate(local * 1.03, truth, data).prediction + 0.1e-9 * rng.standard_normal(
+        data.voltage.shape
+    )
+    result = levenberg_marquardt(
+        lambda loc, glo, jac: model.evaluate(loc, glo, data, jac), z, data.valid, local, np.zeros(2)
+    )
+    err = np.abs(result.glob - truth) / np.sqrt(np.diag(result.cov_global))
+    assert np.all(err < 5.0)
+    np.testing.assert_allclose(result.glob[0], 0.4e-9, rtol=0.05)
+
+
+def _measured(n: int = 3000, rate: float = 100.0) -> MeasuredData:
+    t = np.arange(n) / rate
+    V = (100 + 50 * np.sin(t))[:, None, None] * np.ones((1, 2, 2))
+    T_times = 0.35 + np.arange(int(n / rate * 4)) / 4.0  # slower and starting later
+    T = (44 + 0.1 * T_times)[:, None, None] * np.ones((1, 2, 2))
+    z = hyperbolic_forward(V, 44.0, ActuatorParams())
+    return MeasuredData(t, V, t + 0.5 / rate, z, T_times, T)
+
+
+def test_alignment_handles_rates_start_times_and_nan() -> None:
+    data = _measured()
+    data.displacement[100, 0, 1] = np.nan
+    data.temperature[5, 1, 1] = np.nan
+    aligned = align(data)
+    assert aligned.dropped["displacement NaN"] == 1
+    assert aligned.dropped["temperature NaN"] == 1
+    assert not aligned.valid[100, 1] and aligned.valid[100, 0]
+    assert np.isfinite(aligned.temperature).all()
+    rows = np.arange(aligned.t.size)
+    # temperature interpolated onto the displacement stamps (held before the first sample)
+    T = aligned.temperature_at(rows, np.array([0]))[0]
+    expected = 44 + 0.1 * np.clip(aligned.t + aligned.start_time, 0.35, None)
+    np.testing.assert_allclose(
+        T[aligned.t + aligned.start_time > 0.35],
+        expected[aligned.t + aligned.start_time > 0.35],
+        atol=1e-9,
+    )
+    np.testing.assert_allclose(aligned.temperature_rate, 0.1, atol=1e-9)
+    # zero-order hold: each sample sees the command stamped half a period before it
+    np.testing.assert_array_equal(aligned.command_index(rows), rows)
+
+
+def test_split_interleaves_training_and_heldout_blocks() -> None:
+    aligned = align(_measured())
+    changes = np.flatnonzero(np.diff(aligned.train.astype(int)))
+    assert changes.size >= 3  # more than a single cut
+    first, second = aligned.train[: aligned.t.size // 2], aligned.train[aligned.t.size // 2 :]
+    for half in (first, second):
+        assert 0.3 < half.mean() < 0.7
+
+
+@pytest.mark.parametrize(
+    ("mutate", "message"),
+    [
+        (
+            lambda d: MeasuredData(
+                d.command_times,
+                d.command[:, :1],
+                d.displacement_times,
+                d.displacement,
+                d.temperature_times,
+                d.temperature,
+            ),
+            "mismatched grid sizes",
+        ),
+        (
+            lambda d: MeasuredData(
+                d.command_times[:50],
+                d.command[:50],
+                d.displacement_times[:50],
+                d.displacement[:50],
+                d.temperature_times,
+                d.temperature,
+            ),
+            "too short",
+        ),
+        (
+            lambda d: MeasuredData(
+                d.command_times,
+                d.command,
+                d.displacement_times,
+                d.displacement * np.nan,
+                d.temperature_times,
+                d.temperature,
+            ),
+            "too short",
+        ),
+    ],
+)
+def test_bad_measurements_raise_one_readable_line(mutate, message: str) -> None:
+    with pytest.raises(CalibrationInputError, match=message) as err:
+        align(mutate(_measured()))
+    assert "\n" not in str(err.value)
+
+
+def test_noise_floor_and_autocorrelation_time_of_white_and_smooth_residuals() -> None:
+    rng = np.random.default_rng(6)
+    t = np.arange(5000) / 500.0
+    white = 0.5e-9 * rng.standard_normal((4, t.size))
+    smooth = 3e-9 * np.sin(2 * np.pi * 1.0 * t)
+    contiguous = np.ones(t.size - 1, bool)
+    assert noise_floor(white + smooth, contiguous) == pytest.approx(0.5e-9, rel=0.05)
+    assert integrated_autocorrelation_time(white, contiguous) < 1.5
+    assert integrated_autocorrelation_time(white + smooth, contiguous) > 10.0

@@ -1,0 +1,202 @@
+"""The plant node over DDS: lockstep protocol, bad commands rejected and held, clean exit."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock
+from std_msgs.msg import Float64MultiArray
+from support import ros
+
+from es_feedforward.models import hyperbolic_forward
+from es_feedforward.params import ActuatorParams
+from es_msgs_py import topics
+from es_msgs_py.arrays import grid_to_msg, msg_to_grid, sensors_to_msg
+from es_msgs_py.diagnostics import Level, level_of
+
+pytestmark = pytest.mark.dds
+
+SCENARIO = """
+name: node_test
+grid: {rows: 2, cols: 2}
+control_rate: 100.0
+sensor_rate: 10.0
+duration: 1.0
+base_temperature: {points: [[0, 45.0]]}
+sensors: {noise_sd: 0.0, resolution: 0.0}
+actuators: {spread: {}}
+setpoint:
+  offset: 50.0e-9
+  sine: {amplitude: 20.0e-9, frequency: 2.0}
+"""
+#: Best effort like the /clock publisher, with room so that a busy test process loses none.
+CLOCK_LISTENER_QOS = QoSProfile(depth=500, reliability=ReliabilityPolicy.BEST_EFFORT)
+BAD_FROM = 60  # set points from this step on are answered with bad commands
+SILENT_STEP = 80  # this set point gets no answer: the plant times out and holds
+
+
+def bad_command(step: int) -> Float64MultiArray:
+    """A rotating choice of invalid commands."""
+    kind = step % 3
+    if kind == 0:
+        return grid_to_msg(np.full((2, 2), np.nan))
+    if kind == 1:
+        return sensors_to_msg(np.full(4, 50.0))  # wrong layout
+    return grid_to_msg(np.full((2, 2), 400.0))  # beyond the amplifier limit
+
+
+def test_lockstep_run_with_echo_source_rejects_and_holds(tmp_path: Path) -> None:
+    scenario = tmp_path / "node_test.yaml"
+    scenario.write_text(SCENARIO)
+    args = [
+        "--ros-args",
+        "-p", f"scenario:={scenario}",
+        "-p", "sync_temperature:=false",
+        "-p", "exit_when_done:=true",
+        "-p", "command_timeout:=0.3",
+    ]  # fmt: skip
+    with ros.test_node("plant_echo") as node:
+        commands: list[np.ndarray] = []
+        displacements: list[np.ndarray] = []
+        clocks: list[float] = []
+        raw: list[np.ndarray] = []
+        warn_values: list[dict[str, str]] = []
+        publisher = node.create_publisher(Float64MultiArray, topics.COMMAND, topics.DM_QOS)
+
+        def on_setpoint(msg: Float64MultiArray) -> None:
+            step = len(commands)
+            setpoint = msg_to_grid(msg, (2, 2))
+            commands.append(setpoint * 1.0e9)  # 50 nm -> 50 V: valid and recognisable
+            if step == SILENT_STEP:
+                return
+            publisher.publish(grid_to_msg(commands[-1]) if step < BAD_FROM else bad_command(step))
+
+        def on_diagnostics(msg: DiagnosticArray) -> None:
+            for status in msg.status:
+                if status.name == "plant: commands" and level_of(status) == Level.WARN:
+                    warn_values.append({kv.key: kv.value for kv in status.values})
+
+        qos = topics.DM_QOS
+        node.create_subscription(Float64MultiArray, topics.SETPOINT, on_setpoint, qos)
+        node.create_subscription(
+            Float64MultiArray,
+            topics.DISPLACEMENT,
+            lambda m: displacements.append(msg_to_grid(m, (2, 2))),
+            qos,
+        )
+        node.create_subscription(
+            Float64MultiArray, topics.TEMPERATURE_RAW, lambda m: raw.append(m.data), qos
+        )
+        node.create_subscription(
+            Clock,
+            topics.CLOCK,
+            lambda m: clocks.append(m.clock.sec + m.clock.nanosec * 1e-9),
+            CLOCK_LISTENER_QOS,
+        )
+        node.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, on_diagnostics, 10)
+        with ros.node_process("es_sim_plant", "plant_node", args) as plant:
+            deadline = time.monotonic() + 60.0
+            ros.spin_until(node, lambda: plant.process.poll() is not None, timeout=60.0)
+            ros.spin_until(node, lambda: len(displacements) >= 101, timeout=2.0)
+            assert time.monotonic() < deadline
+            assert plant.process.returncode == 0, plant.output()
+            log = plant.output()
+
+    assert len(commands) == 100
+    assert len(displacements) == 101  # z(t_0) .. z(t_100)
+    assert len(raw) == 10
+    # /clock is best effort (as rclpy's time source expects): every tick received is a step
+    # time t_k = k / 100, increasing, up to t_100 = 1 s.
+    ticks = np.round(np.asarray(clocks) * 100.0)
+    np.testing.assert_allclose(np.asarray(clocks) * 100.0, ticks, atol=1e-6)
+    assert len(clocks) > 50 and np.all(np.diff(ticks) > 0) and 95 <= ticks[-1] <= 100
+    # Displacement k+1 answers the command of step k (thesis parameters, 45 degC, no spread).
+    for k in range(BAD_FROM):
+        expected = hyperbolic_forward(commands[k], 45.0, ActuatorParams())
+        np.testing.assert_allclose(displacements[k + 1], expected, rtol=1e-9)
+    # From then on the last valid command is held: the displacement stays put.
+    for k in range(BAD_FROM, 100):
+        np.testing.assert_allclose(displacements[k + 1], displacements[BAD_FROM], rtol=1e-12)
+    assert "command rejected" in log
+    assert "finished" in log
+    assert warn_values, "no WARN diagnostic for rejected commands"
+    final = warn_values[-1]
+    assert int(final["rejected"]) >= 1
+    assert "command_timeouts 1" in log
+    assert "rejected 39" in log
+
+
+def test_sync_temperature_barrier_orders_setpoints_after_estimates(tmp_path: Path) -> None:
+    scenario = tmp_path / "node_test.yaml"
+    scenario.write_text(SCENARIO.replace("duration: 1.0", "duration: 0.3"))
+    args = ["--ros-args", "-p", f"scenario:={scenario}", "-p", "exit_when_done:=true"]
+    with ros.test_node("plant_sync") as node:
+        qos = topics.DM_QOS
+        estimates = node.create_publisher(Float64MultiArray, topics.TEMPERATURE, qos)
+        commands = node.create_publisher(Float64MultiArray, topics.COMMAND, qos)
+        replies: list[int] = []
+        replies_seen_at_setpoint: list[int] = []
+
+        def on_raw(msg: Float64MultiArray) -> None:
+            estimates.publish(grid_to_msg(np.full((2, 2), float(msg.data[0]))))
+            replies.append(1)
+
+        def on_setpoint(msg: Float64MultiArray) -> None:
+            replies_seen_at_setpoint.append(len(replies))
+            commands.publish(grid_to_msg(msg_to_grid(msg, (2, 2)) * 1.0e9))
+
+        node.create_subscription(Float64MultiArray, topics.TEMPERATURE_RAW, on_raw, qos)
+        node.create_subscription(Float64MultiArray, topics.SETPOINT, on_setpoint, qos)
+        with ros.node_process("es_sim_plant", "plant_node", args) as plant:
+            ros.spin_until(node, lambda: plant.process.poll() is not None, timeout=60.0)
+            assert plant.process.returncode == 0, plant.output()
+            log = plant.output()
+    # Step k's set point comes only after the estimate answering step k's sample (k = 0, 10, 20).
+    assert replies_seen_at_setpoint == [k // 10 + 1 for k in range(30)]
+    assert "sync_timeouts 0" in log and "command_timeouts 0" in log
+
+
+def test_real_time_mode_runs_on_the_wall_clock(tmp_path: Path) -> None:
+    scenario = tmp_path / "node_test.yaml"
+    scenario.write_text(SCENARIO.replace("duration: 1.0", "duration: 2.0"))
+    args = [
+        "--ros-args", "-p", f"scenario:={scenario}", "-p", "lockstep:=false",
+        "-p", "exit_when_done:=true",
+    ]  # fmt: skip
+    with ros.test_node("plant_rt") as node:
+        clocks: list[float] = []
+        node.create_subscription(
+            Clock,
+            topics.CLOCK,
+            lambda m: clocks.append(m.clock.sec + m.clock.nanosec * 1e-9),
+            CLOCK_LISTENER_QOS,
+        )
+        with ros.node_process("es_sim_plant", "plant_node", args) as plant:
+            ros.spin_until(node, lambda: plant.process.poll() is not None, timeout=30.0)
+            assert plant.process.returncode == 0, plant.output()
+            log = plant.output()
+    assert "real time" in log
+    # Near 1x real time: the wall timer paces it (200 steps of 10 ms), never faster.
+    speed = float(log.split("x real time")[0].rsplit("(", 1)[1])
+    assert 0.3 < speed < 1.05
+    # A subscriber that joined while it ran sees the clock advance up to the end (2 s).
+    assert clocks and 1.0 <= max(clocks) <= 2.0 + 1e-9
+
+
+@pytest.mark.parametrize(
+    ("param", "reason"),
+    [("scenario:=no_such_scenario", "unknown scenario"), ("rows:=-3", "out of range")],
+)
+def test_bad_parameters_exit_2_with_one_line(param: str, reason: str) -> None:
+    with ros.node_process("es_sim_plant", "plant_node", ["--ros-args", "-p", param]) as plant:
+        plant.process.wait(30)
+        output = plant.output()
+    assert plant.process.returncode == 2
+    errors = [line for line in output.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1 and reason in errors[0]
+    assert "Traceback" not in output

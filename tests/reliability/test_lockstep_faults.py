@@ -1,0 +1,153 @@
+"""Faults in the closed loop in lockstep (sim time): nodes killed and restarted, /clock stopping.
+
+The bring-up's processes (recorder, thermal, feedforward, plant on a short 3 x 3
+``dm_exposure``) run with short plant timeouts; a watcher checks every /dm/command. Mid-run
+the feedforward node is killed with SIGKILL and restarted (the plant holds the last valid
+command meanwhile, then the command stream resumes), later the thermal node (the plant
+continues past its sync timeout, the feedforward holds on a stale temperature, then both
+recover). When the plant has finished, /clock stands still: the other nodes must live on and
+still answer a set point. Every message the plant published must be in the bag.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+import pytest
+from rclpy.parameter import Parameter
+
+from es_msgs_py import topics
+from es_msgs_py.arrays import grid_to_msg
+from es_msgs_py.bag import read_bag
+from es_sim_plant.bringup import GraphConfig, node_specs
+
+from .graph import Proc, Watcher
+
+if TYPE_CHECKING:
+    from .conftest import FaultCases
+
+pytestmark = pytest.mark.dds
+
+SHAPE = (3, 3)
+DURATION = 6.0  # sim seconds at 100 Hz control, 10 Hz sensors
+KILL_FEEDFORWARD_AT = 1.0
+KILL_THERMAL_AT = 3.0
+#: Plant topics compared with the bag (the plant logs its published counts at exit).
+PLANT_TOPICS = (topics.DISPLACEMENT, topics.SETPOINT, topics.TEMPERATURE_RAW, topics.HEAT_LOAD)
+
+
+def _kill_and_restart(
+    watcher: Watcher, procs: dict[str, Proc], name: str, at: float, resumed: Callable[[], bool]
+) -> tuple[bool, bool, str]:
+    """SIGKILL ``name`` once sim time passes ``at``, restart it; return (others ok, resumed)."""
+    if not watcher.wait_for(lambda: watcher.clock >= at, 60.0):
+        return False, False, f"sim time stuck at {watcher.clock:.2f} s before the kill"
+    procs[name].kill()
+    clock_at_kill = watcher.clock
+    # the rest goes on without it: the plant steps on its timeouts
+    advanced = watcher.wait_for(lambda: watcher.clock > clock_at_kill + 0.05, 10.0)
+    procs[name] = Proc(name, procs[name].command)
+    came_back = watcher.wait_for(resumed, 30.0)
+    return advanced, came_back, f"killed at {clock_at_kill:.2f} s sim, now {watcher.clock:.2f} s"
+
+
+def test_nodes_killed_and_restarted_in_lockstep(tmp_path: Path, fault_cases: FaultCases) -> None:
+    area = "closed loop in lockstep"
+    bag = tmp_path / "bag"
+    config = GraphConfig(
+        scenario="dm_exposure",
+        bag=bag,
+        plant={"rows": 3, "cols": 3, "duration": DURATION, "command_timeout": 0.1,
+               "sync_timeout": 0.1},
+    )
+    before, plant_spec = node_specs(config)
+    watcher = Watcher(SHAPE)
+    procs = {spec.name: Proc(spec.name, spec.command) for spec in before}
+    try:
+        node = watcher.node
+        ready = watcher.wait_for(
+            lambda: (node.count_subscribers(topics.TEMPERATURE_RAW) >= 2  # thermal, recorder
+                     and node.count_subscribers(topics.SETPOINT) >= 2  # feedforward, recorder
+                     and node.count_publishers(topics.TEMPERATURE) >= 1
+                     and node.count_publishers(topics.COMMAND) >= 1),
+            60.0,
+        )
+        assert ready, {name: p.output()[-600:] for name, p in procs.items()}
+        procs["plant"] = Proc("plant", plant_spec.command)
+
+        # The feedforward killed mid-run: the plant holds, the commands resume after restart.
+        counted = watcher.command_count
+        advanced, resumed, detail = _kill_and_restart(
+            watcher, procs, "feedforward", KILL_FEEDFORWARD_AT,
+            lambda: watcher.clock > KILL_FEEDFORWARD_AT + 0.5 and _grows(counted, watcher))
+        fault_cases.expect(area, "feedforward SIGKILLed: plant steps on (holds the command)",
+                           advanced and procs["plant"].alive(), detail)
+        fault_cases.expect(area, "feedforward restarted: command stream resumes", resumed,
+                           detail)
+
+        # The thermal node killed mid-run: the plant continues, estimates resume on restart.
+        temperatures_seen = watcher.temperatures
+        advanced, resumed, detail = _kill_and_restart(
+            watcher, procs, "thermal", KILL_THERMAL_AT,
+            lambda: watcher.temperatures > temperatures_seen + 2 and watcher.clock > 0)
+        fault_cases.expect(area, "thermal SIGKILLed: plant steps on past its sync timeout",
+                           advanced and procs["plant"].alive(), detail)
+        fault_cases.expect(area, "thermal restarted: estimates resume", resumed, detail)
+
+        (plant_set,) = watcher.set_parameters(
+            "plant", [Parameter("command_timeout", value=100.0)])
+        fault_cases.expect(area, "plant parameter set at run time (read-only): rejected",
+                           not plant_set[0] and bool(plant_set[1]), repr(plant_set))
+
+        finished = watcher.wait_for(lambda: not procs["plant"].alive(), 120.0)
+        plant_exit = procs["plant"].popen.returncode
+        fault_cases.expect(area, "plant finishes the scenario (exit 0)",
+                           finished and plant_exit == 0, f"exit {plant_exit}")
+
+        # /clock stopped with the plant: the others live on and still answer a set point.
+        watcher.wait_for(lambda: False, 1.5)
+        sent = watcher.command_count()
+        watcher.publish(topics.SETPOINT, grid_to_msg(np.full(SHAPE, 50e-9)))
+        answered = watcher.wait_for(lambda: watcher.command_count() > sent, 5.0)
+        alive = [n for n in ("thermal", "feedforward", "record") if procs[n].alive()]
+        fault_cases.expect(area, "/clock stopped: nodes alive and answering",
+                           answered and len(alive) == 3, f"alive: {alive}")
+        for name in ("feedforward", "thermal"):
+            code = procs[name].stop()
+            fault_cases.expect(area, f"{name} exits cleanly after the faults", code == 0,
+                               f"exit {code}: {procs[name].output()[-300:]}")
+            if code != 0:
+                fault_cases.crashed()
+        procs["record"].stop()
+
+        counts = read_bag(bag, PLANT_TOPICS)
+        for topic in PLANT_TOPICS:
+            published = procs["plant"].published(topic)
+            recorded = len(counts[topic]) - watcher.injected.get(topic, 0)
+            lost = (published or 0) - recorded
+            fault_cases.lost(max(lost, 0))
+            fault_cases.expect(area, f"{topic}: published == recorded",
+                               published is not None and lost == 0,
+                               f"published {published}, recorded {recorded}")
+    finally:
+        watcher.close()
+        for proc in procs.values():
+            proc.stop()
+    with watcher.lock:
+        check = watcher.commands
+    fault_cases.commands(check.received, check.non_finite, check.out_of_limit)
+    fault_cases.expect(area, "every /dm/command finite, in limits, contract layout",
+                       check.non_finite == check.out_of_limit == check.bad_layout == 0,
+                       "; ".join(check.problems[:5]))
+    fault_cases.expect(area, "every /dm/temperature finite",
+                       watcher.estimator_non_finite_temperatures() == 0)
+    fault_cases.assert_held()
+
+
+def _grows(count: Callable[[], int], watcher: Watcher, window: float = 0.3) -> bool:
+    """Whether commands keep arriving: the count rises within ``window`` wall seconds."""
+    start = count()
+    return watcher.wait_for(lambda: count() > start + 2, window)
