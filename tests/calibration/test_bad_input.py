@@ -123,3 +123,25 @@ def test_installed_launcher_reports_one_line(tmp_path: Path) -> None:
     )
     assert proc.returncode == EXIT_BAD_INPUT
     assert proc.stderr.count("\n") == 1 and proc.stderr.startswith("calibrate: ")
+
+
+def test_consecutive_bags_are_joined(series, tmp_path: Path) -> None:
+    half = series["/dm/command"][0].size // 2
+    cut = series["/dm/command"][0][half]
+    bags = []
+    for i, keep in enumerate((lambda t: t < cut, lambda t: t >= cut)):
+        bag = tmp_path / f"bag{i}"
+        write_array_bag(bag, {k: (t[keep(t)], v[keep(t)]) for k, (t, v) in series.items()})
+        bags.append(str(bag))
+    assert run([*reversed(bags), "-o", str(tmp_path / "out"), "-q"]) == 0
+    doc = json.loads((tmp_path / "out" / "calibration.json").read_text())
+    assert doc["data"]["samples"] == series["/dm/displacement"][0].size
+    assert doc["heldout_rms_after_m"] < 1.2 * doc["noise_floor_m"]
+
+
+def test_overlapping_bags_are_refused(series, tmp_path: Path, capsys) -> None:
+    bag = tmp_path / "bag"
+    write_array_bag(bag, series)
+    assert run([str(bag), str(bag), "-o", str(tmp_path / "out")]) == EXIT_BAD_INPUT
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "overlap in time" in err

@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -18,6 +19,7 @@ import pytest
 
 from es_feedforward.calibrate import run
 from es_feedforward.param_file import read_params_file
+from es_msgs_py.bag import write_array_bag
 
 from . import calibration_bags as plantdata
 
@@ -155,3 +157,24 @@ def test_report_shows_every_step(calibrated) -> None:
         assert (out / png).stat().st_size > 1000
     if name != "clean":
         assert f"added **{name}**" in report
+
+
+def test_structure_no_candidate_explains_is_reported_not_attributed(tmp_path: Path) -> None:
+    # a 7 Hz vibration on the interferometer reading: no candidate effect produces it
+    result = plantdata.run(plantdata.scenario(1, 1))
+    dt = 1.0 / result.scenario.control_rate
+    line = 1.0e-9 * np.sin(2 * np.pi * 7.0 * (result.time + dt))[:, None, None]
+    bag = tmp_path / "bag"
+    write_array_bag(
+        bag,
+        {
+            "/dm/command": (result.time, result.command),
+            "/dm/displacement": (result.time + dt, result.displacement_measured + line),
+            "/dm/temperature/raw": (result.sensor_time, result.temperature_raw),
+        },
+    )
+    assert run([str(bag), "-o", str(tmp_path / "out"), "-q"]) == 0
+    doc = json.loads((tmp_path / "out" / "calibration.json").read_text())
+    assert doc["effects"] == []
+    assert any("spectral line at 7" in note for note in doc["unexplained"])
+    assert any("noise floor" in note for note in doc["unexplained"])

@@ -245,3 +245,23 @@ def test_switching_to_the_observer_is_bumpless() -> None:
     first = observer.command(z, 0.01)
     z_plant = hyperbolic_forward(first.voltage, TEMPERATURE, PARAMS)
     assert np.max(np.abs(z_plant - z)) < 0.01 * NM
+
+
+def test_a_candidate_configuration_leaves_the_running_one_untouched() -> None:
+    ff = make(Mode.INVERSE_HYPERBOLIC)
+    z = setpoints(12, 100 * NM)
+    before = ff.command(z, 0.0).voltage.copy()
+    # built (e.g. while validating a parameter set) and then discarded
+    Feedforward(
+        FeedforwardConfig(
+            shape=SHAPE,
+            params=PARAMS,
+            compensation=CompensationParams(delay_s=0.5, hysteresis_weight=0.5),
+        ),
+        previous=ff,
+    )
+    np.testing.assert_array_equal(ff.command(z, 0.001).voltage, before)
+    np.testing.assert_array_equal(
+        ff.command(z * 1.1, 0.002).voltage,
+        make(Mode.INVERSE_HYPERBOLIC).command(z * 1.1, 0.0).voltage,
+    )

@@ -188,3 +188,19 @@ def test_laws_at_temperature_match_the_functions() -> None:
     np.testing.assert_allclose(laws.hyperbolic_forward(V), hyperbolic_forward(V, T, THESIS))
     np.testing.assert_allclose(laws.hyperbolic_slope(V), hyperbolic_slope(V, T, THESIS))
     np.testing.assert_allclose(laws.quadratic_forward(V), quadratic_forward(V, T, THESIS))
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    T=st.lists(st.floats(20.0, 80.0) | st.just(np.nan), min_size=4, max_size=4),
+    z=st.lists(st.floats(-1e-8, 3e-7) | st.just(np.inf), min_size=4, max_size=4),
+    steep=st.booleans(),
+)
+def test_fused_kernel_equals_the_general_path(T: list[float], z: list[float], steep: bool) -> None:
+    # steep: one actuator's k(T) turns negative inside the validity range
+    k1 = np.array([-17e-9, -18e-9, -60e-9 if steep else -16e-9, -17.5e-9])
+    compiled = CompiledLaws(ActuatorParams(k1=k1), (4,))
+    fused = compiled.hyperbolic_inverse(np.array(z), np.array(T))
+    general = compiled.at(np.array(T)).hyperbolic_inverse(np.array(z), DEFAULT_V_LIMIT)
+    np.testing.assert_array_equal(fused.status, general.status)
+    np.testing.assert_allclose(fused.voltage, general.voltage, rtol=1e-14)

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from scipy import linalg
 
+from es_thermal.evaluation import score
 from es_thermal.interpolation import (
     actuator_positions,
     block_centre_positions,
@@ -172,3 +173,17 @@ def test_modal_gain_equals_dense_solution(positions: np.ndarray, tau: float) -> 
     P = steady_state_covariance(A_d, H, np.diag(q * dt), R)
     gain = np.linalg.solve(H @ P @ H.T + R, H @ P).T
     np.testing.assert_allclose(est.gain, gain, atol=1e-9)
+
+
+def test_score_finds_the_lag_and_skips_missing_estimates() -> None:
+    t = np.arange(200) * 0.1
+    truth = (40.0 + np.sin(0.5 * t))[:, None, None] * np.ones((1, 2, 2))
+    late = np.roll(truth, 7, axis=0)  # the estimate shows the truth 0.7 s late
+    late[:7] = np.nan  # no estimate yet
+    stats = score(late, truth, 0.1, skip=10)
+    assert stats.lag == pytest.approx(0.7)
+    assert stats.samples == 190
+    assert stats.rms > 0.1
+    assert score(truth, truth, 0.1).rms == 0.0
+    with pytest.raises(ValueError, match="no estimate"):
+        score(np.full_like(truth, np.nan), truth, 0.1)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from es_thermal.estimator import EstimatorConfig
+from es_thermal.estimator import EstimatorConfig, TemperatureEstimator
 from es_thermal.evaluation import ErrorStats, replay, score
 from es_thermal.interpolation import block_centre_positions
 from es_thermal.kalman import KalmanTuning
@@ -70,3 +70,26 @@ def test_unmeasured_base_ramp_with_sensor_lag() -> None:
     uncompensated = errors(run, "model", TRUE, tau=0.0)
     assert model.rms < uncompensated.rms
     assert model.lag < 0.2 <= uncompensated.lag
+
+
+def test_fixed_sensor_offsets_do_not_pass_for_model_errors() -> None:
+    # Offsets no estimator can see (the filter keeps correcting towards them) must not be
+    # explained as heat-gain or time-scale errors of a model that is right.
+    size = 8
+    positions = block_centre_positions(size, size, 1)
+    power = dipole_heat(size, size, 0.01 * size * size)
+    run = simulate(
+        size, size, positions, TRUE, duration=10.0, sample_period=DT,
+        heat=lambda t: power if t >= 2.0 else 0.0 * power, base=lambda t: 42.0, noise=0.02,
+    )  # fmt: skip
+    offsets = 0.05 * np.random.default_rng(1).standard_normal(len(positions))
+    config = EstimatorConfig(
+        size, size, positions, sample_period=DT, network=TRUE,
+        tuning=KalmanTuning(sensor_noise=0.02).time_scaled(0.05),
+    )  # fmt: skip
+    est = TemperatureEstimator(config)
+    for t, heat, readings in zip(run.times, run.heat, run.readings, strict=True):
+        est.set_heat_load(heat)
+        est.update(t, readings + offsets)
+    assert est.model is not None
+    assert all(abs(b) < 0.03 for b in est.model.biases.values()), est.model.biases

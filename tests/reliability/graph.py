@@ -32,6 +32,14 @@ from es_feedforward.models import DEFAULT_V_LIMIT
 from es_msgs_py import topics
 from es_msgs_py.arrays import LayoutError, msg_to_grid
 
+#: Estimates outside this range [degC] are nonsense for a mirror (the thermal node's sensor
+#: range is -20..120 degC by default).
+PLAUSIBLE_DEGC = (-50.0, 200.0)
+
+
+def _plausible(values: np.ndarray) -> bool:
+    return bool(np.all((values >= PLAUSIBLE_DEGC[0]) & (values <= PLAUSIBLE_DEGC[1])))
+
 
 class Proc:
     """A process started by a test (output to a temporary file), signalled by its PID only."""
@@ -120,6 +128,8 @@ class Watcher:
         self.non_finite_temperatures = 0
         self.injected_non_finite_temperatures = 0  # the watcher hears its own messages too
         self.injected: dict[str, int] = {}  # messages the watcher published, per topic
+        self.implausible_temperatures = 0
+        self.injected_implausible_temperatures = 0
         self.clock = -1.0
         self.diagnostics: dict[str, DiagnosticStatus] = {}
         node = self.node
@@ -155,8 +165,11 @@ class Watcher:
     def _on_temperature(self, msg: Float64MultiArray) -> None:
         with self.lock:
             self.temperatures += 1
-            if not np.all(np.isfinite(np.frombuffer(msg.data, np.float64))):
+            values = np.frombuffer(msg.data, np.float64)
+            if not np.all(np.isfinite(values)):
                 self.non_finite_temperatures += 1
+            elif not _plausible(values):
+                self.implausible_temperatures += 1
 
     def estimator_non_finite_temperatures(self) -> int:
         """Non-finite /dm/temperature messages that the watcher did not inject itself."""
@@ -173,11 +186,20 @@ class Watcher:
 
     def publish(self, topic: str, msg: Float64MultiArray) -> None:
         """Publish ``msg`` on one of the injected topics."""
-        if topic == topics.TEMPERATURE and not np.all(np.isfinite(np.frombuffer(msg.data))):
+        if topic == topics.TEMPERATURE:
+            values = np.frombuffer(msg.data, np.float64)
             with self.lock:
-                self.injected_non_finite_temperatures += 1
+                if not np.all(np.isfinite(values)):
+                    self.injected_non_finite_temperatures += 1
+                elif not _plausible(values):
+                    self.injected_implausible_temperatures += 1
         self.publishers[topic].publish(msg)
         self.injected[topic] = self.injected.get(topic, 0) + 1
+
+    def estimator_implausible_temperatures(self) -> int:
+        """Finite /dm/temperature messages beyond PLAUSIBLE_DEGC not injected by the watcher."""
+        with self.lock:
+            return self.implausible_temperatures - self.injected_implausible_temperatures
 
     def wait_for(self, condition: Callable[[], bool], timeout: float) -> bool:
         """Poll ``condition`` (the watcher keeps spinning) until true or ``timeout`` s pass."""

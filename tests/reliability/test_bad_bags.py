@@ -103,11 +103,16 @@ def test_bad_bags_give_one_line_and_non_zero_exit(tmp_path: Path, fault_cases: F
         except Exception as err:  # anything but BagError is the failure being counted
             held, detail = False, f"{type(err).__name__}: {err}"
         fault_cases.expect(AREA, f"read_bag: {name}", held, detail)
+    # The tool reads through the same reader: one refused input of each kind is enough
+    # (each run costs an interpreter start-up with numpy, scipy and matplotlib).
+    kinds = ("missing", "empty directory", "truncated", "garbage", "not YAML", "source")
+    chosen = [next(n for n in refused if kind in n) for kind in kinds
+              if any(kind in n for n in refused)]
     tool = executable("es_feedforward", "calibrate")
     runs = {
         name: subprocess.Popen([str(tool), str(bags[name]), "-o", str(tmp_path / f"out-{i}")],
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        for i, name in enumerate([*refused, "no /dm/displacement (not measured data)"])
+        for i, name in enumerate([*chosen, "no /dm/displacement (not measured data)"])
     }
     for name, proc in runs.items():
         _, stderr = proc.communicate(timeout=120)

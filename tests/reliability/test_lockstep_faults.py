@@ -142,8 +142,9 @@ def test_nodes_killed_and_restarted_in_lockstep(tmp_path: Path, fault_cases: Fau
     fault_cases.expect(area, "every /dm/command finite, in limits, contract layout",
                        check.non_finite == check.out_of_limit == check.bad_layout == 0,
                        "; ".join(check.problems[:5]))
-    fault_cases.expect(area, "every /dm/temperature finite",
-                       watcher.estimator_non_finite_temperatures() == 0)
+    fault_cases.expect(area, "every /dm/temperature finite and within -50..200 degC",
+                       watcher.estimator_non_finite_temperatures() == 0
+                       and watcher.estimator_implausible_temperatures() == 0)
     fault_cases.assert_held()
 
 

@@ -319,4 +319,7 @@ def test_faults_into_thermal_and_feedforward_nodes(
     bad_estimates = watcher.estimator_non_finite_temperatures()
     fault_cases.expect(area, "every /dm/temperature of the thermal node finite",
                        bad_estimates == 0, f"{bad_estimates} of {watcher.temperatures}")
+    implausible = watcher.estimator_implausible_temperatures()
+    fault_cases.expect(area, "every /dm/temperature of the thermal node within -50..200 degC",
+                       implausible == 0, f"{implausible} of {watcher.temperatures} beyond")
     fault_cases.assert_held()

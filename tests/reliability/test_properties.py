@@ -2,9 +2,9 @@
 documented error.
 
 Conversions (es_msgs_py.arrays), the model library's inverses, the feedforward core in every
-mode (with every compensation effect switched on), the plant's command check, the thermal
-estimators and the bag reader are fed arbitrary shapes and values, including NaN, +-inf,
-huge, negative and out-of-range ones.
+mode (with every compensation effect switched on), the plant's command check and the thermal
+estimators are fed arbitrary shapes and values, including NaN, +-inf, huge, negative and
+out-of-range ones (bags: test_bad_bags.py).
 """
 
 from __future__ import annotations
@@ -44,7 +44,6 @@ from es_thermal.interpolation import actuator_positions
 if TYPE_CHECKING:
     from .conftest import FaultCases
 
-AREA = "cores (hypothesis)"
 EXAMPLES = 60
 # No shrinking: a failure shows its first example at once instead of minutes later.
 PROPERTY = settings(

@@ -28,8 +28,6 @@ from es_feedforward.calibration.align import CalibrationInputError
 from es_feedforward.calibration.bagio import read_measured_bags
 from es_feedforward.calibration.model import CANDIDATES
 from es_feedforward.calibration.pipeline import calibrate
-from es_feedforward.calibration.report import write_report
-from es_feedforward.calibration.schema import write_calibration_json, write_parameters_yaml
 
 EXIT_BAD_INPUT = 2
 
@@ -71,6 +69,10 @@ def run(argv: Sequence[str] | None = None) -> int:
     except MemoryError:
         print("calibrate: out of memory reading the bags", file=sys.stderr)
         return EXIT_BAD_INPUT
+    # matplotlib and the feedforward configuration are only needed once there is a result
+    from es_feedforward.calibration.report import write_report
+    from es_feedforward.calibration.schema import write_calibration_json, write_parameters_yaml
+
     notes = write_parameters_yaml(cal, args.output / "feedforward_params.yaml")
     write_calibration_json(cal, args.output / "calibration.json")
     report = write_report(cal, args.output, notes)

@@ -119,6 +119,12 @@ class TemperatureLead:
         self._last: tuple[FloatArray, float] | None = None
         self._rate: FloatArray | None = None
 
+    def retuned(self, tau_s: float, filter_s: float) -> TemperatureLead:
+        """Return a copy with new parameters and this one's state (this one is unchanged)."""
+        other = TemperatureLead(tau_s, filter_s)
+        other._last, other._rate = self._last, self._rate
+        return other
+
     def __call__(self, T: FloatArray, t: float) -> FloatArray:
         """Return the lead-corrected temperatures for a sample ``T`` taken at ``t`` [s]."""
         if self.tau_s == 0.0:
@@ -144,6 +150,12 @@ class DelayPredictor:
         self.delay_s = delay_s
         self._last: tuple[FloatArray, float] | None = None
         self._slope: FloatArray | None = None
+
+    def retuned(self, delay_s: float) -> DelayPredictor:
+        """Return a copy with a new delay and this one's state (this one is unchanged)."""
+        other = DelayPredictor(delay_s)
+        other._last, other._slope = self._last, self._slope
+        return other
 
     def __call__(self, z: FloatArray, t: float) -> FloatArray:
         """Return the predicted set points (never below 0 where ``z`` is not)."""
@@ -224,6 +236,12 @@ class HysteresisInverse:
     def active(self) -> bool:
         """Whether the operator does anything."""
         return self.weight > 0.0
+
+    def retuned(self, weight: float, threshold_v: float) -> HysteresisInverse:
+        """Return a copy with new parameters and this one's play state (this one unchanged)."""
+        other = HysteresisInverse(weight, threshold_v, self.play.shape)
+        other.play = self.play
+        return other
 
     def invert(self, v_eff: FloatArray) -> FloatArray:
         """Return the voltage that makes the operator output ``v_eff``."""

@@ -207,17 +207,28 @@ class Feedforward:
         self._reference_T = np.full(shape, config.reference_temperature)
         self._reference_laws = self._laws_compiled.at(self._reference_T)
         self._coupling = CouplingInverse(comp.coupling, shape)
-        keep = previous is not None and previous.config.shape == shape
-        if previous is not None and keep:
-            self._lead = previous._lead
-            self._delay = previous._delay
-            self._hysteresis = previous._hysteresis
+        if previous is not None and previous.config.shape == shape:
+            # Carry the states over into new objects: ``previous`` stays untouched and usable
+            # until the caller swaps this one in (a rejected reload changes nothing).
+            self._lead = previous._lead.retuned(
+                comp.temperature_lead_s, comp.temperature_lead_filter_s
+            )
+            self._delay = previous._delay.retuned(comp.delay_s)
+            self._hysteresis = previous._hysteresis.retuned(
+                comp.hysteresis_weight, comp.hysteresis_threshold_v
+            )
             self._integral = previous._integral
             self._last_voltage = previous._last_voltage
             self._last_status = previous._last_status
             self._temperature = previous._temperature
             self._temperature_time = previous._temperature_time
             self._temperature_problem = previous._temperature_problem
+            # bumpless switches: a new observer starts from the command being applied, a new
+            # hysteresis inverse from the play output nearest to it
+            if previous.config.mode is not Mode.OBSERVER:
+                self._integral = np.array(self._last_voltage)
+            if not previous._hysteresis.active:
+                self._hysteresis.play = np.array(self._last_voltage)
         else:
             self._lead = TemperatureLead(comp.temperature_lead_s, comp.temperature_lead_filter_s)
             self._delay = DelayPredictor(comp.delay_s)
@@ -232,19 +243,6 @@ class Feedforward:
             self._temperature = None
             self._temperature_time = None
             self._temperature_problem = "no temperature received yet"
-        if previous is not None and keep:
-            # bumpless switches: a new observer starts from the command being applied, a new
-            # hysteresis inverse from the play output nearest to it
-            if previous.config.mode is not Mode.OBSERVER:
-                self._integral = np.array(self._last_voltage)
-            if not previous._hysteresis.active:
-                self._hysteresis.play = np.array(self._last_voltage)
-        # new effect parameters apply from now on; their states carry over
-        self._lead.tau_s = comp.temperature_lead_s
-        self._lead.filter_s = comp.temperature_lead_filter_s
-        self._delay.delay_s = comp.delay_s
-        self._hysteresis.weight = comp.hysteresis_weight
-        self._hysteresis.threshold_v = comp.hysteresis_threshold_v
         self._laws: LawsAtTemperature | None = None
         if self._temperature is not None:
             self._laws = self._laws_compiled.at(self._temperature)

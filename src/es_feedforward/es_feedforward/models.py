@@ -136,8 +136,8 @@ class CompiledLaws:
         if self._q_curved or self._n_curved:
             return empty
         low, high = -np.inf, np.inf
-        for c0, c1, _ in (self.q, self.n):
-            c0, c1 = np.broadcast_arrays(c0, c1)
+        for law in (self.q, self.n):
+            c0, c1 = np.broadcast_arrays(law[0], law[1])
             if not (np.all(np.isfinite(c0)) and np.all(np.isfinite(c1))):
                 return empty
             if np.any((c1 == 0.0) & (c0 <= 0.0)):
@@ -225,7 +225,7 @@ class CompiledLaws:
             return self.at(T).hyperbolic_inverse(z, v_limit)
         lo, hi = ts.min(), ts.max()
         if not (
-            VALIDITY_MARGIN_BELOW_TM <= lo
+            lo >= VALIDITY_MARGIN_BELOW_TM
             and hi <= VALIDITY_SPAN_ABOVE_TM
             and self._safe_low < lo
             and hi < self._safe_high

@@ -38,6 +38,7 @@ from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
+from rclpy.qos import QoSProfile
 from rosgraph_msgs.msg import Clock as ClockMsg
 from std_msgs.msg import Float64MultiArray
 
@@ -55,6 +56,8 @@ FloatArray = npt.NDArray[np.float64]
 NODE_NAME = "plant"
 #: Longest stretch [s wall] the plant steps without returning to the executor.
 _BATCH_WALL = 0.02
+#: History depth of the /dm publishers (see the constructor).
+PUBLISHER_DEPTH = 5000
 #: Period of the wall watchdog that enforces the timeouts [s].
 _WATCHDOG_PERIOD = 0.05
 #: How often the watchdog refreshes who publishes commands and temperatures [s wall].
@@ -263,7 +266,15 @@ class PlantNode(Node):
         self.max_speed = float(values["max_speed"])  # type: ignore[arg-type]
         self._paced = False
 
-        qos = topics.DM_QOS
+        # Deeper than the contract's keep-last 10 on the publishing side: a sample whose
+        # delivery failed (a full socket on a loaded machine) can then still be resent when
+        # a slower subscriber such as a recorder asks for it (compatible with depth-10 readers).
+        qos = QoSProfile(
+            history=topics.DM_QOS.history,
+            depth=PUBLISHER_DEPTH,
+            reliability=topics.DM_QOS.reliability,
+            durability=topics.DM_QOS.durability,
+        )
         self._pub_clock = self.create_publisher(ClockMsg, topics.CLOCK, topics.CLOCK_QOS)
         self._pub_displacement = self.create_publisher(Float64MultiArray, topics.DISPLACEMENT, qos)
         self._pub_raw = self.create_publisher(Float64MultiArray, topics.TEMPERATURE_RAW, qos)
@@ -287,7 +298,6 @@ class PlantNode(Node):
 
         # Command state: the last valid command stays applied until a valid one replaces it.
         self._held = np.zeros(self.plant.shape)
-        self._fresh_command = False
         self._last_command_wall = time.monotonic()
         self.counts = {
             "commands": 0,

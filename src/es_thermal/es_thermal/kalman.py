@@ -8,8 +8,12 @@ the lagging sensor.
 
 Everything that does not depend on the data is computed once: the zero-order-hold
 discretisation (matrix exponential) and the steady-state gain (discrete algebraic Riccati
-equation solved by the structure-preserving doubling algorithm). An update is then one sparse
-prediction and one dense gain product.
+equation solved by the structure-preserving doubling algorithm). Both are computed in modal
+coordinates (2-D DCT of the grid and of a regular sensor grid), where the uniform network falls
+apart into small independent groups of states, then transformed back: about 0.1 s for a
+12 x 12 grid and 2-3 s for 32 x 32 instead of minutes for the dense equation. An update is
+then one sparse prediction and one dense gain product (about 0.1 ms at 12 x 12 and 1 ms at
+32 x 32 with a sensor per 2 x 2 actuators, single-threaded BLAS).
 """
 
 from __future__ import annotations
@@ -141,10 +145,12 @@ class ModelEstimator:
 
     - ``heat_gain``: the absorbed power heats the mirror (1 + b) times as much as the model
       says (wrong conductances, absorption or capacitances all scale the steady heating);
-    - ``time_scale``: the network responds (1 + b) times as fast (wrong time constants).
+    - ``time_scale``: the network's response to the heat load is (1 + b) times as fast
+      (wrong time constants); its sensitivity is built from the open-loop heat response, so
+      that fixed sensor offsets, which the filter keeps correcting, do not pass for it.
 
-    Cost per update: a few sparse matrix-vector products (state and two sensitivities) and
-    one dense gain product.
+    Cost per update: one sparse product with four columns (state, two sensitivities, heat
+    response) and one dense gain product.
 
     Args:
         rows, cols: actuator grid.
@@ -210,6 +216,7 @@ class ModelEstimator:
         nb = len(self.BIASES)
         self._prior_info = np.eye(nb) / tuning.bias_prior**2
         self._sens = np.zeros((layout.size, nb))  # d(state)/d(bias), posterior
+        self._heat_response = np.zeros(layout.size)  # open-loop response to the heat load
         self._info = self._prior_info.copy()
         self._info_vector = np.zeros(nb)
         self._bias = np.zeros(nb)
@@ -248,6 +255,10 @@ class ModelEstimator:
         x[lay.base] = float(np.mean(readings[valid]))
         self._state = x
         self._sens[:] = 0.0
+        # The heat-driven response alone, from a uniform start: what a faster network would
+        # speed up. (The filter's own state also relaxes its corrections, which would make
+        # fixed sensor offsets look like a time-scale error.)
+        self._heat_response[:] = 0.0
         self._info = self._prior_info.copy()
         self._info_vector[:] = 0.0
         self._bias[:] = 0.0
@@ -256,19 +267,21 @@ class ModelEstimator:
         """Advance the model ``steps`` sample periods with the heat load (N,) held."""
         x = self._require_state()
         drive = np.asarray(self._B @ heat_load)
-        # One sparse product advances the state and both sensitivities together.
-        cols = np.column_stack([x, self._sens])
+        # One sparse product advances the state, both sensitivities and the heat response.
+        cols = np.column_stack([x, self._sens, self._heat_response])
         thermal = self._thermal
         for _ in range(steps):
             nxt = np.asarray(self._A @ cols)
             nxt[:, 0] += drive
-            # Sensitivities: more heat -> more of the heat drive; faster -> more of the step
-            # (only the thermal nodes speed up; the sensor lag and the base plate do not).
+            nxt[:, 3] += drive
+            # Sensitivities: more heat -> more of the heat drive; faster -> more of the
+            # heat response's step (only the thermal nodes speed up, not the sensor lag).
             nxt[:, 1] += drive
-            nxt[thermal, 2] += nxt[thermal, 0] - cols[thermal, 0]
+            nxt[thermal, 2] += nxt[thermal, 3] - cols[thermal, 3]
             cols = nxt
         self._state = cols[:, 0].copy()
-        self._sens = cols[:, 1:].copy()
+        self._sens = cols[:, 1:3].copy()
+        self._heat_response = cols[:, 3].copy()
 
     def correct(self, readings: FloatArray, valid: BoolArray) -> FloatArray:
         """Correct the predicted state with the valid readings; return the innovations.

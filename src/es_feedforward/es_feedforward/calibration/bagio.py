@@ -9,6 +9,7 @@ order. Every problem becomes a :class:`CalibrationInputError` with one readable 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from itertools import pairwise
 from pathlib import Path
 
 import numpy as np
@@ -103,9 +104,18 @@ def read_measured_bags(paths: Sequence[str | Path]) -> MeasuredData:
     """Read and concatenate bags of one mirror (in start-time order)."""
     if not paths:
         raise CalibrationInputError("no bag given")
-    parts = sorted((read_measured_bag(p) for p in paths), key=lambda m: m.displacement_times[0])
-    if len(parts) == 1:
-        return parts[0]
+    named = sorted(
+        ((read_measured_bag(p), str(p)) for p in paths), key=lambda m: m[0].displacement_times[0]
+    )
+    if len(named) == 1:
+        return named[0][0]
+    for (a, name_a), (b, name_b) in pairwise(named):
+        if b.displacement_times[0] <= a.displacement_times[-1]:
+            raise CalibrationInputError(
+                f"bags {name_a} and {name_b} overlap in time: give bags of one mirror recorded "
+                "one after the other"
+            )
+    parts = [m for m, _ in named]
     shapes = {p.displacement.shape[1:] for p in parts}
     if len(shapes) > 1:
         raise CalibrationInputError(f"mismatched grid sizes between bags: {sorted(shapes)}")

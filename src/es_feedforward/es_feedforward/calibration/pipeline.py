@@ -32,7 +32,7 @@ from es_feedforward.calibration.search import (
 #: Actuators whose full-rate held-out residual is analysed (spectra, correlations).
 ANALYSIS_ACTUATORS: Final = 16
 #: Held-out rows analysed at full rate, at most.
-ANALYSIS_ROWS: Final = 100_000
+ANALYSIS_ROWS: Final = 50_000
 #: Ratio of held-out RMS to noise floor above which the residual counts as unexplained.
 NOISE_RATIO_LIMIT: Final = 1.2
 

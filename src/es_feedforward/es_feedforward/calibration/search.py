@@ -47,13 +47,13 @@ MAX_DELAY_PERIODS: Final = 40
 #: Hysteresis thresholds tried, as fractions of the command's range.
 THRESHOLD_FRACTIONS: Final = (0.005, 0.01, 0.02, 0.04, 0.08, 0.16, 0.3)
 #: Thresholds tried between the best coarse threshold's neighbours.
-FINE_THRESHOLDS: Final = 8
+FINE_THRESHOLDS: Final = 5
 #: Drift time constants tried, as fractions of the record's duration.
 DRIFT_TAU_FRACTIONS: Final = (0.05, 0.25, 1.0)
 #: Samples per actuator used for fits and held-out scores (capped by sample-actuator totals).
 FIT_SAMPLES: Final = 6000
 FIT_BUDGET: Final = 2_000_000
-SCORE_SAMPLES: Final = 30000
+SCORE_SAMPLES: Final = 20000
 SCORE_BUDGET: Final = 3_000_000
 
 
@@ -283,7 +283,10 @@ def _candidate_states(
                 )
             )
         best_j = int(np.argmin(costs)) + 1
-        for j in sorted({max(1, best_j - 1), best_j, min(n_max, best_j + 1)}):
+        shifts = {max(1, best_j - 1), best_j, min(n_max, best_j + 1)}
+        if costs[best_j - 1] > state.fit.total_cost:
+            shifts = {best_j}  # every shift fits worse than none: one refit to score it
+        for j in sorted(shifts):
             train, held = ws.input_pair(j * period, threshold)
             out.append(
                 fit_state(
@@ -303,6 +306,8 @@ def _candidate_states(
         glob0 = _extend_global(state, model, {"hysteresis.weight": 0.0})
         coarse = [max(f * span, 1e-6) for f in THRESHOLD_FRACTIONS]
         best = _best_threshold(ws, state, model, (local0, glob0), coarse)
+        if best.fit.total_cost > (1.0 - MIN_RELATIVE_GAIN) ** 2 * state.fit.total_cost:
+            return [best]  # no threshold helps even on training data: no need to refine
         i = coarse.index(best.threshold_v)
         lo, hi = coarse[max(i - 1, 0)], coarse[min(i + 1, len(coarse) - 1)]
         fine = [float(r) for r in np.geomspace(lo, hi, FINE_THRESHOLDS + 2)[1:-1]]
