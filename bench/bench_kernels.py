@@ -26,6 +26,7 @@ import time
 import timeit
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 
@@ -106,16 +107,14 @@ def bench_kernels(sizes: Sequence[int] = DEFAULT_SIZES, repeats: int = 5) -> lis
 
         compiled = CompiledLaws(params, shape)
         kernels: dict[str, Callable[[], object]] = {
-            "laws+inverse_hyperbolic": lambda c=compiled, T=T, z=z: c.hyperbolic_inverse(
-                z, T, DEFAULT_V_LIMIT
-            ),
+            "laws+inverse_hyperbolic": partial(compiled.hyperbolic_inverse, z, T, DEFAULT_V_LIMIT)
         }
         for mode in Mode:
             ff = Feedforward(FeedforwardConfig(shape=shape, params=params, mode=mode))
             ff.update_temperature(T, 0.0)
-            kernels[mode.value] = lambda ff=ff, z=z: ff.command(z, 0.0)
+            kernels[mode.value] = partial(ff.command, z, 0.0)
         ff = Feedforward(FeedforwardConfig(shape=shape, params=params))
-        kernels["update_temperature"] = lambda ff=ff, T=T: ff.update_temperature(T, 0.0)
+        kernels["update_temperature"] = partial(ff.update_temperature, T, 0.0)
         for name, call in kernels.items():
             seconds, sqrt_seconds = _paired(call, floor, repeats)
             rows_out.append(KernelTiming(name, size, seconds, sqrt_seconds))

@@ -41,7 +41,7 @@ import time
 import traceback
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import IO, Any
 
@@ -485,8 +485,17 @@ def section_feedforward(settings: Settings, results: Results, log_dir: Path) -> 
     """Feedforward node vs a plain relay over DDS: rate, p50/p99 latency, peak memory."""
     for shape in DDS_SHAPES:
         n = shape[0] * shape[1]
-        relay = _measure_node("relay", shape, settings, log_dir)
-        ff = _measure_node("feedforward", shape, settings, log_dir)
+        # Relay and node take turns, one process start each per repeat, so that a change of
+        # the machine's load during the section hits both alike.
+        relay, ff = DdsRun(), DdsRun()
+        one = replace(settings, repeats=1)
+        for _ in range(settings.repeats):
+            for kind, total in (("relay", relay), ("feedforward", ff)):
+                run = _measure_node(kind, shape, one, log_dir)
+                total.rate_hz += run.rate_hz
+                total.p50_s += run.p50_s
+                total.p99_s += run.p99_s
+                total.peak_mib = max(total.peak_mib, run.peak_mib)
         relay_rate = float(np.median(relay.rate_hz))
         results.records.append(Record.of("feedforward_rate", n, ff.rate_hz, "Hz",
                                           float(np.median(ff.rate_hz)) / relay_rate))
@@ -502,7 +511,8 @@ def section_feedforward(settings: Settings, results: Results, log_dir: Path) -> 
         results.records.append(Record.of("peak_rss_feedforward", n, [ff.peak_mib], "MiB"))
         results.references.append(Record.of("peak_rss_relay", n, [relay.peak_mib], "MiB"))
     results.notes.append(
-        "feedforward_rate: commands per second with "
+        "feedforward_*: relay and feedforward processes started in turns, one measurement "
+        "each per repeat; feedforward_rate: commands per second with "
         f"{RATE_WINDOW} set points in flight (ratio = feedforward / relay, same message size, "
         "same run); latency: set point published -> command received in the client, one at "
         "a time (ratio = feedforward / relay). The client is one rclpy node in the benchmark "

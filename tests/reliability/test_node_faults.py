@@ -116,6 +116,12 @@ class Injector:
         return 45.0 + 0.05 * self.rng.standard_normal(SENSORS)
 
 
+def _message(watcher: Watcher, status_name: str) -> str:
+    with watcher.lock:
+        status = watcher.diagnostics.get(status_name)
+    return "" if status is None else str(status.message)
+
+
 def _bad_grid(**change: object) -> Float64MultiArray:
     msg = grid_to_msg(np.full(SHAPE, 50 * NM))
     if "data" in change:
@@ -219,9 +225,11 @@ def test_faults_into_thermal_and_feedforward_nodes(
     fault_cases.expect(area, "stale temperature (no estimate for longer than the timeout)",
                        good is not None and held is not None and np.array_equal(good, held),
                        "the last good command held")
-    status = watcher.diagnostics.get("feedforward: temperature")
-    fault_cases.expect(area, "stale temperature diagnosed",
-                       status is not None and "stale" in status.message, repr(status))
+    # the diagnostic follows the command it explains: wait for it
+    diagnosed = watcher.wait_for(lambda: "stale" in _message(watcher, "feedforward: temperature"),
+                                 3.0)
+    fault_cases.expect(area, "stale temperature diagnosed", diagnosed,
+                       _message(watcher, "feedforward: temperature"))
 
     # --- burst of set points faster than the node processes ---------------------------------
     temperature = np.full(SHAPE, 46.0)

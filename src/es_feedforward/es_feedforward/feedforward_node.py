@@ -45,7 +45,14 @@ from es_msgs_py.arrays import LayoutError, grid_to_msg, msg_to_grid
 from es_msgs_py.diagnostics import Level, make_array, make_status
 from es_msgs_py.node_main import run_node
 from es_msgs_py.params import Check, ParameterSpec, declare_parameters
-from es_msgs_py.topics import COMMAND, DIAGNOSTICS, SETPOINT, TEMPERATURE, qos_for
+from es_msgs_py.topics import (
+    COMMAND,
+    DIAGNOSTICS,
+    DM_PUBLISHER_QOS,
+    SETPOINT,
+    TEMPERATURE,
+    qos_for,
+)
 
 NODE_NAME: Final = "feedforward"
 #: How many of the worst actuators the diagnostics name.
@@ -178,7 +185,8 @@ class FeedforwardNode(Node):
         self.add_on_set_parameters_callback(self._check_parameter_set)
         self.add_post_set_parameters_callback(self._swap_configuration)
 
-        self._command_pub = self.create_publisher(Float64MultiArray, COMMAND, qos_for(COMMAND))
+        # deep publisher history: a recorder that lags for a moment still gets every command
+        self._command_pub = self.create_publisher(Float64MultiArray, COMMAND, DM_PUBLISHER_QOS)
         self._diag_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS, qos_for(DIAGNOSTICS))
         # Temperature first: the executor serves ready subscriptions in creation order, and in
         # lockstep a step's estimate is sent before its set point, which must use it.

@@ -244,6 +244,8 @@ class CompiledLaws:
         np.arctanh(ratio, out=ratio)
         ratio /= q
         status = np.zeros(ratio.shape, np.int8)
+        if ratio.max() < v_limit:
+            return InverseResult(ratio, status)
         return limit_voltages(ratio, status, v_limit, flagged=False)
 
 

@@ -7,6 +7,8 @@ from collections.abc import Callable, Sequence
 from typing import Protocol
 
 import rclpy
+import rclpy.logging
+from rclpy._rclpy_pybind11 import RCLError
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.publisher import Publisher
@@ -57,7 +59,11 @@ def run_node(make_node: Callable[[], Node], args: Sequence[str] | None = None) -
     invalid configuration (``ValueError`` from the constructor) prints one readable line and
     returns 2.
     """
-    rclpy.init(args=list(args) if args is not None else sys.argv)
+    try:
+        rclpy.init(args=list(args) if args is not None else sys.argv)
+    except RCLError as err:  # e.g. a --params-file that does not exist or does not parse
+        print(f"error: {str(err).splitlines()[0]}", file=sys.stderr)
+        return 2
     node: Node | None = None
     counter: PublishCounter | None = None
     try:
@@ -77,8 +83,10 @@ def run_node(make_node: Callable[[], Node], args: Sequence[str] | None = None) -
             if callable(close):
                 close()
             if counter is not None:
+                # A plain logger: the node's own would try /rosout after shutdown.
+                summary = rclpy.logging.get_logger(f"{node.get_name()}.summary")
                 for line in counter.log_lines():
-                    node.get_logger().info(line)
+                    summary.info(line)
             node.destroy_node()
         rclpy.try_shutdown()
     return 0

@@ -38,6 +38,17 @@ DM_QOS: Final = QoSProfile(
     durability=DurabilityPolicy.VOLATILE,
 )
 
+#: QoS of the nodes' own /dm publishers: the contract's, with a deeper history. Reliable
+#: delivery can resend only what the publisher still holds; a subscriber that falls behind
+#: for a moment (a recorder on a loaded machine) would otherwise lose what was sent before
+#: (compatible with keep-last-10 subscribers; the history only fills while unacknowledged).
+DM_PUBLISHER_QOS: Final = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST,
+    depth=1000,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.VOLATILE,
+)
+
 #: QoS of /diagnostics, as diagnostic_updater uses it.
 DIAGNOSTICS_QOS: Final = QoSProfile(
     history=HistoryPolicy.KEEP_LAST,

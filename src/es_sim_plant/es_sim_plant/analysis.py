@@ -11,6 +11,8 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from es_msgs_py import topics
 from es_msgs_py.bag import TopicSeries, read_bag
 from es_sim_plant.invariants import (
@@ -90,7 +92,8 @@ def check_run(
     elif command is None:
         report.failures.append(f"{topics.COMMAND}: not in the bag")
     published: Counter[str] = Counter()
-    per_node = {node: published_counts_from_log(lines) for node, lines in logs.items()}
+    names = tuple(topics.TOPIC_TYPES)
+    per_node = {node: published_counts_from_log(lines, names) for node, lines in logs.items()}
     for counts in per_node.values():
         published.update(counts)
     in_bag = {topic: len(series) for topic, series in bag.items()}
@@ -113,12 +116,21 @@ def check_run(
 
 
 def analyse_run(
-    bag_path: Path, log_dir: Path, v_limit: float, period_s: float | None = None
+    bag_path: Path,
+    log_dir: Path,
+    v_limit: float,
+    *,
+    control_rate: float,
+    sensor_rate: float,
+    period_s: float | None = None,
 ) -> RunAnalysis:
     """Read a closed-loop run's bag and logs; return its metrics and invariants.
 
-    ``period_s`` is the set point's period when known (the scenario's); by default it is
-    found from the recorded set point (:func:`setpoint_period`).
+    Times come from the lockstep protocol, not from the bag's stamps (the recorder's sim
+    clock at reception lags under load): displacement i at i / ``control_rate``, estimate
+    j at the sensor step j * round(control_rate / sensor_rate). ``period_s`` is the set
+    point's period when known; by default it is found from the set point
+    (:func:`setpoint_period`).
 
     Raises:
         es_msgs_py.bag.BagError: the bag is unreadable or lacks a needed topic.
@@ -130,11 +142,14 @@ def analyse_run(
     missing = [t for t in needed if t not in bag or bag[t].values is None]
     if missing:
         raise ValueError(f"{bag_path}: no {', '.join(missing)} recorded")
-    disp, sp, temp = (bag[t] for t in needed)
-    assert disp.values is not None and sp.values is not None and temp.values is not None
-    run = align_run(disp.times, disp.values, sp.values, temp.times, temp.values)
+    disp, sp, temp = (bag[t].values for t in needed)
+    assert disp is not None and sp is not None and temp is not None
+    every = max(1, round(control_rate / sensor_rate))
+    disp_times = np.arange(len(disp)) / control_rate
+    temp_times = np.arange(len(temp)) * every / control_rate
+    run = align_run(disp_times, disp, sp, temp_times, temp)
     period = period_s or setpoint_period(run.times, run.setpoint) or STATIC_BLOCK_S
     metrics, slots = run_metrics(run, period, skip_s=period)
     invariants = check_run(bag, node_logs(log_dir), v_limit)
-    sim_s = float(disp.times[-1] - disp.times[0]) if len(disp) else 0.0
+    sim_s = float(disp_times[-1]) if len(disp_times) else 0.0
     return RunAnalysis(run, metrics, slots, period, invariants, sim_s)

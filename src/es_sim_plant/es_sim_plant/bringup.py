@@ -57,7 +57,10 @@ TEST_STAND_QUEUE_DEPTH = 200_000
 #: Speed limit of a test stand (x real time): measured here, a recorder keeps up with 250 Hz
 #: test stands at 3x (no loss), the plant alone runs near 10x; the rest is caught up after
 #: the run from the recorder's deep queue.
-TEST_STAND_SPEED = 2.0
+TEST_STAND_SPEED = 5.0
+
+#: Wall seconds between the graph showing every subscription and starting the plant.
+SETTLE_S = 1.0
 
 #: Node names (the defaults of the node executables; parameter files use them).
 PLANT, THERMAL, FEEDFORWARD, RECORDER = "plant", "thermal", "feedforward", "record"
@@ -96,19 +99,33 @@ def executable(package: str, name: str) -> Path:
 
 
 def ros_arguments(
-    node_name: str, parameters: Mapping[str, ParamValue], params_files: Sequence[Path] = ()
+    node_name: str,
+    parameters: Mapping[str, ParamValue],
+    params_files: Sequence[Path] = (),
+    namespace: str | None = None,
 ) -> list[str]:
-    """Return ``--ros-args`` for a node: its name, parameter files, then single parameters.
+    """Return ``--ros-args`` for a node: name, namespace, parameter files, then parameters.
 
     Values are written as JSON, which the ROS argument parser reads as YAML: strings stay
-    strings (quoted), lists become arrays, booleans ``true``/``false``.
+    strings (quoted), lists become arrays, booleans ``true``/``false``. A ``namespace`` puts
+    the node in ``/<namespace>`` and remaps every contract topic (absolute names, /clock
+    and /diagnostics included) below it, so that graphs run side by side in one domain.
     """
     args = ["--ros-args", "-r", f"__node:={node_name}"]
+    if namespace:
+        args += ["-r", f"__ns:=/{namespace}"]
+        for topic in topics.TOPIC_TYPES:
+            args += ["-r", f"{topic}:={scoped(topic, namespace)}"]
     for path in params_files:
         args += ["--params-file", str(path)]
     for name, value in parameters.items():
         args += ["-p", f"{name}:={json.dumps(value)}"]
     return args
+
+
+def scoped(topic: str, namespace: str | None) -> str:
+    """Return ``topic`` as a graph in ``namespace`` sees it (unchanged without one)."""
+    return f"/{namespace}{topic}" if namespace else topic
 
 
 @dataclass
@@ -128,6 +145,8 @@ class GraphConfig:
         domain_id: ROS_DOMAIN_ID of this run (``None``: inherit the environment's), so that
             runs can go in parallel without seeing each other.
         ready_timeout: wall seconds to wait for the nodes' subscriptions before the plant.
+        namespace: run the graph below ``/<namespace>`` (topics remapped; bags keep the
+            contract's topic names), so that several graphs share one ROS domain.
         wall_timeout: wall seconds after which the run is stopped as failed (``None``: none).
 
     """
@@ -144,6 +163,7 @@ class GraphConfig:
     with_controllers: bool = True
     domain_id: int | None = None
     ready_timeout: float = 30.0
+    namespace: str | None = None
     wall_timeout: float | None = None
 
 
@@ -167,7 +187,7 @@ def node_specs(config: GraphConfig) -> tuple[list[ProcessSpec], ProcessSpec]:
                         else ["--queue-depth", str(TEST_STAND_QUEUE_DEPTH)]
                     ),
                     *(RECORDED_TOPICS if config.with_controllers else TEST_STAND_TOPICS),
-                    *ros_arguments(RECORDER, sim_time),
+                    *ros_arguments(RECORDER, sim_time, namespace=config.namespace),
                 ],
                 stop_stage=1,  # after every node it records
             )
@@ -191,7 +211,10 @@ def node_specs(config: GraphConfig) -> tuple[list[ProcessSpec], ProcessSpec]:
     }
     plant = ProcessSpec(
         PLANT,
-        [str(executable("es_sim_plant", "plant_node")), *ros_arguments(PLANT, plant_params)],
+        [
+            str(executable("es_sim_plant", "plant_node")),
+            *ros_arguments(PLANT, plant_params, namespace=config.namespace),
+        ],
         primary=True,
     )
     return before, plant
@@ -248,7 +271,9 @@ def _controller_specs(config: GraphConfig) -> list[ProcessSpec]:
             THERMAL,
             [
                 str(executable("es_thermal", "thermal_node")),
-                *ros_arguments(THERMAL, {**sim_time, **thermal, **config.thermal}),
+                *ros_arguments(
+                    THERMAL, {**sim_time, **thermal, **config.thermal}, namespace=config.namespace
+                ),
             ],
         ),
         ProcessSpec(
@@ -259,6 +284,7 @@ def _controller_specs(config: GraphConfig) -> list[ProcessSpec]:
                     FEEDFORWARD,
                     {**sim_time, **feedforward, "mode": config.mode, **config.feedforward},
                     files,
+                    config.namespace,
                 ),
             ],
         ),
@@ -309,14 +335,20 @@ class Bringup:
         expected = {spec.name: SUBSCRIPTIONS[spec.name] for spec in before}
         if not self.config.with_controllers and RECORDER in expected:
             expected[RECORDER] = TEST_STAND_TOPICS
+        namespace = self.config.namespace
         problem = wait_for_subscriptions(
-            expected, self.config.ready_timeout, self.supervisor, self._interrupted,
-            self.config.domain_id,
+            {name: [scoped(t, namespace) for t in wanted] for name, wanted in expected.items()},
+            self.config.ready_timeout, self.supervisor, self._interrupted,
+            domain_id=self.config.domain_id, node_namespace=f"/{namespace}" if namespace else "/",
         )  # fmt: skip
         if problem is not None:
             outcome = self.supervisor.stop()
             outcome.reason = problem
             return outcome
+        # The graph shows endpoints before every pair of nodes has matched them (the
+        # feedforward's subscription to the thermal node's estimates, say): let that settle
+        # so that the plant's first step finds every link up.
+        time.sleep(SETTLE_S)
         self.supervisor.start(plant)
         drain = None
         if self.config.bag is not None and not self.config.with_controllers:
@@ -334,17 +366,26 @@ class Bringup:
 
         log = self.config.log_dir / f"{PLANT}.log"
         lines = log.read_text(encoding="utf-8", errors="replace").splitlines()
-        published = {
-            t: n for t, n in published_counts_from_log(lines).items() if t in topics.DM_TOPICS
-        }
-        if not wait_for_recorder(published, DRAIN_TIMEOUT_S, self.config.domain_id):
+        counts = published_counts_from_log(lines, topics.TOPIC_TYPES)
+        published = {t: n for t, n in counts.items() if t in topics.DM_TOPICS}
+        if not wait_for_recorder(
+            published, DRAIN_TIMEOUT_S, self.config.domain_id, self.config.namespace
+        ):
             self.supervisor.announce(
                 f"recorder still behind after {DRAIN_TIMEOUT_S:g} s; stopping it anyway"
             )
 
 
+def _probe_name(base: str) -> str:
+    """Return a node name unique to this process and thread (graphs may run side by side)."""
+    return f"{base}_{os.getpid()}_{threading.get_ident() % 100000}"
+
+
 def wait_for_recorder(
-    published: Mapping[str, int], timeout: float, domain_id: int | None = None
+    published: Mapping[str, int],
+    timeout: float,
+    domain_id: int | None = None,
+    namespace: str | None = None,
 ) -> bool:
     """Wait until a recorder report on /diagnostics shows ``published`` all received.
 
@@ -375,9 +416,12 @@ def wait_for_recorder(
         args=[], context=context, domain_id=domain_id,
         signal_handler_options=SignalHandlerOptions.NO,
     )  # fmt: skip
-    node = rclpy.create_node("bringup_drain", context=context)
+    node = rclpy.create_node(_probe_name("bringup_drain"), context=context)
     node.create_subscription(
-        DiagnosticArray, topics.DIAGNOSTICS, on_report, topics.qos_for(topics.DIAGNOSTICS)
+        DiagnosticArray,
+        scoped(topics.DIAGNOSTICS, namespace),
+        on_report,
+        topics.qos_for(topics.DIAGNOSTICS),
     )
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(node)
@@ -399,7 +443,9 @@ def wait_for_subscriptions(
     timeout: float,
     supervisor: Supervisor,
     interrupted: threading.Event,
+    *,
     domain_id: int | None = None,
+    node_namespace: str = "/",
 ) -> str | None:
     """Wait until every node in ``expected`` shows its subscriptions on the ROS graph.
 
@@ -416,7 +462,7 @@ def wait_for_subscriptions(
         # the bring-up's own SIGINT/SIGTERM handling stops the graph; rclpy must not
         signal_handler_options=SignalHandlerOptions.NO,
     )
-    node = rclpy.create_node("bringup_probe", context=context)
+    node = rclpy.create_node(_probe_name("bringup_probe"), context=context)
     deadline = time.monotonic() + timeout
     try:
         missing: dict[str, set[str]] = {}
@@ -426,12 +472,17 @@ def wait_for_subscriptions(
                 return failed.reason
             if interrupted.is_set():
                 return "interrupted during start-up"
-            names = set(node.get_node_names())
+            names = {n for n, ns in node.get_node_names_and_namespaces() if ns == node_namespace}
             missing = {}
             for name, wanted in expected.items():
                 have: set[str] = set()
                 if name in names:
-                    have = {t for t, _ in node.get_subscriber_names_and_types_by_node(name, "/")}
+                    have = {
+                        t
+                        for t, _ in node.get_subscriber_names_and_types_by_node(
+                            name, node_namespace
+                        )
+                    }
                 if not set(wanted) <= have:
                     missing[name] = set(wanted) - have
             if not missing:

@@ -49,7 +49,9 @@ class GoldenCase:
             duration=number("duration"),
         )
 
-    def config(self, bag: Path | None, log_dir: Path, domain_id: int | None = None) -> GraphConfig:
+    def config(
+        self, bag: Path | None, log_dir: Path, namespace: str | None = None
+    ) -> GraphConfig:
         """Return the bring-up configuration of this case."""
         return GraphConfig(
             scenario=self.scenario,
@@ -57,7 +59,7 @@ class GoldenCase:
             bag=bag,
             log_dir=log_dir,
             plant=dict(self.plant),
-            domain_id=domain_id,
+            namespace=namespace,
             wall_timeout=120.0,
         )
 
@@ -85,9 +87,11 @@ CASES: tuple[GoldenCase, ...] = (
 DEFAULT_DIR = Path("tests/golden")
 
 
-def record(case: GoldenCase, out_dir: Path, log_root: Path, domain_id: int | None = None) -> Outcome:
+def record(
+    case: GoldenCase, out_dir: Path, log_root: Path, namespace: str | None = None
+) -> Outcome:
     """Run ``case`` and record it into ``out_dir/<case.name>`` (which must not exist)."""
-    return run_graph(case.config(out_dir / case.name, log_root / case.name, domain_id))
+    return run_graph(case.config(out_dir / case.name, log_root / case.name, namespace))
 
 
 class _OneLineParser(argparse.ArgumentParser):

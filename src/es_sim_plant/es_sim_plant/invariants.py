@@ -66,12 +66,26 @@ def check_commands(
         )
 
 
-def published_counts_from_log(lines: Iterable[str]) -> dict[str, int]:
-    """Return ``{topic: count}`` from ``published <topic>: <n>`` lines (the last per topic)."""
+def contract_name(topic: str, names: Iterable[str]) -> str:
+    """Return the contract topic a (namespaced, ``/<ns>/dm/...``) topic stands for."""
+    for name in names:
+        if topic == name or topic.endswith(name):
+            return name
+    return topic
+
+
+def published_counts_from_log(
+    lines: Iterable[str], names: Iterable[str] = ()
+) -> dict[str, int]:
+    """Return ``{topic: count}`` from ``published <topic>: <n>`` lines (the last per topic).
+
+    Topics that end in one of ``names`` (a graph run below a namespace) count as that name.
+    """
+    known = tuple(names)
     counts: dict[str, int] = {}
     for line in lines:
         for topic, count in _PUBLISHED.findall(line):
-            counts[topic] = int(count)
+            counts[contract_name(topic, known)] = int(count)
     return counts
 
 

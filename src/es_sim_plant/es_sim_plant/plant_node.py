@@ -38,7 +38,6 @@ from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
-from rclpy.qos import QoSProfile
 from rosgraph_msgs.msg import Clock as ClockMsg
 from std_msgs.msg import Float64MultiArray
 
@@ -56,8 +55,6 @@ FloatArray = npt.NDArray[np.float64]
 NODE_NAME = "plant"
 #: Longest stretch [s wall] the plant steps without returning to the executor.
 _BATCH_WALL = 0.02
-#: History depth of the /dm publishers (see the constructor).
-PUBLISHER_DEPTH = 5000
 #: Period of the wall watchdog that enforces the timeouts [s].
 _WATCHDOG_PERIOD = 0.05
 #: How often the watchdog refreshes who publishes commands and temperatures [s wall].
@@ -266,15 +263,10 @@ class PlantNode(Node):
         self.max_speed = float(values["max_speed"])  # type: ignore[arg-type]
         self._paced = False
 
-        # Deeper than the contract's keep-last 10 on the publishing side: a sample whose
-        # delivery failed (a full socket on a loaded machine) can then still be resent when
-        # a slower subscriber such as a recorder asks for it (compatible with depth-10 readers).
-        qos = QoSProfile(
-            history=topics.DM_QOS.history,
-            depth=PUBLISHER_DEPTH,
-            reliability=topics.DM_QOS.reliability,
-            durability=topics.DM_QOS.durability,
-        )
+        # Graph queries take the topic names as remapped (a namespaced graph, -r rules).
+        self._command_topic = self.resolve_topic_name(topics.COMMAND)
+        self._temperature_topic = self.resolve_topic_name(topics.TEMPERATURE)
+        qos = topics.DM_PUBLISHER_QOS  # deep history: a lagging recorder loses nothing
         self._pub_clock = self.create_publisher(ClockMsg, topics.CLOCK, topics.CLOCK_QOS)
         self._pub_displacement = self.create_publisher(Float64MultiArray, topics.DISPLACEMENT, qos)
         self._pub_raw = self.create_publisher(Float64MultiArray, topics.TEMPERATURE_RAW, qos)
@@ -388,16 +380,17 @@ class PlantNode(Node):
         if any(pub.get_subscription_count() < count for pub, count in needed):
             return False
         if self._test_stand:
-            return not self.sync_temperature or self.count_publishers(topics.TEMPERATURE) > 0
-        ready = self.count_publishers(topics.COMMAND) > 0
+            temperature = self.count_publishers(self._temperature_topic)
+            return not self.sync_temperature or temperature > 0
+        ready = self.count_publishers(self._command_topic) > 0
         if self.sync_temperature:
-            ready = ready and self.count_publishers(topics.TEMPERATURE) > 0
+            ready = ready and self.count_publishers(self._temperature_topic) > 0
         return ready
 
     def _refresh_graph(self, now: float) -> None:
         self._graph_checked = now
-        self._has_command_source = self.count_publishers(topics.COMMAND) > 0
-        self._has_temperature_source = self.count_publishers(topics.TEMPERATURE) > 0
+        self._has_command_source = self.count_publishers(self._command_topic) > 0
+        self._has_temperature_source = self.count_publishers(self._temperature_topic) > 0
 
     def _watchdog(self) -> None:
         now = time.monotonic()

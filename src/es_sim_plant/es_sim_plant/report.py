@@ -238,7 +238,7 @@ def _thesis_line(name: str) -> str:
 
 
 def _thesis_table(runs: Sequence[RunResult]) -> list[str]:
-    """The thesis's two hardware results beside this run's figures for the same scenarios."""
+    """Return the thesis's two hardware results beside this run's figures."""
     grouped = by_scenario(runs)
     lines = [
         "| scenario | thesis: uncompensated -> compensated | thesis reduction "

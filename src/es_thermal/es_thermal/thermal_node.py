@@ -277,8 +277,9 @@ class ThermalNode(Node):
         self._last_arrival: float | None = None
         self._sample_clock = SampleClock(self.config.sample_period)
         self._levels: dict[str, Level] = {}
+        # deep publisher history: a recorder that lags for a moment still gets every estimate
         self._pub = self.create_publisher(
-            Float64MultiArray, topics.TEMPERATURE, topics.qos_for(topics.TEMPERATURE)
+            Float64MultiArray, topics.TEMPERATURE, topics.DM_PUBLISHER_QOS
         )
         self._pub_diag = self.create_publisher(
             DiagnosticArray, topics.DIAGNOSTICS, topics.qos_for(topics.DIAGNOSTICS)
