@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import pytest
+import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.node import Node
 from std_msgs.msg import Float64MultiArray
@@ -17,6 +18,7 @@ from support.ros import test_node as ros_node
 from es_msgs_py import topics
 from es_msgs_py.arrays import grid_to_msg, msg_to_grid, sensors_to_msg
 from es_msgs_py.diagnostics import Level, level_of
+from es_thermal.thermal_node import ThermalNode
 
 pytestmark = pytest.mark.dds
 
@@ -155,6 +157,16 @@ def test_node_estimates_faults_and_recovery(harness: tuple[Harness, NodeProcess]
     h.diagnostic("sensors", is_level(Level.OK))
     estimate_status = h.diagnostic("estimate", lambda s: True)
     assert {kv.key for kv in estimate_status.values} >= {"estimator", "update_ms_mean"}
+
+    # An absurd heat load: rejected (WARN, reason given), the last heat load held.
+    h.heat.publish(grid_to_msg(np.full(SHAPE, 1e12)))
+    status = h.diagnostic(
+        "input", lambda s: {kv.key: kv.value for kv in s.values}["rejected_heat_load"] == "2"
+    )
+    assert "max_heat_load" in {kv.key: kv.value for kv in status.values}["last_rejection"]
+    estimate = h.exchange(sensors_to_msg(readings()))
+    assert estimate is not None
+    np.testing.assert_allclose(estimate, 40.0, atol=0.05)
     assert proc.process.poll() is None  # nothing crashed the node
 
 
@@ -199,3 +211,43 @@ def test_timer_mode_publishes_at_its_rate_until_the_input_goes_stale() -> None:
             spin_until(node, lambda: False, 0.6)
             stopped = len(h.estimates) == before
         assert stopped
+
+
+def test_a_failing_update_is_reported_and_the_node_keeps_running(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Whatever the core raises stays inside the callback: ERROR, then a fresh estimate."""
+    context = rclpy.Context()
+    rclpy.init(args=["--ros-args", "-p", "rows:=2", "-p", "cols:=2"], context=context)
+    monkeypatch.setattr(rclpy.node, "get_default_context", lambda: context)
+    node = ThermalNode()
+    try:
+        node._on_heat_load(grid_to_msg(np.zeros((2, 2))))
+        node._on_raw(sensors_to_msg(np.full(4, 40.0)))
+        assert node._published == 1
+
+        def fail_update(*_: object) -> None:
+            raise np.linalg.LinAlgError("Singular matrix")
+
+        def fail_heat_load(*_: object) -> None:
+            raise RuntimeError("unexpected")
+
+        with monkeypatch.context() as patch:
+            patch.setattr(node.core, "update", fail_update)
+            patch.setattr(node.core, "set_heat_load", fail_heat_load)
+            node._on_heat_load(grid_to_msg(np.zeros((2, 2))))
+            node._on_raw(sensors_to_msg(np.full(4, 40.0)))
+        assert node._published == 1  # nothing published for the failed update
+        level, message, values = node._estimate_status()
+        assert level == Level.ERROR and "failed" in message
+        assert values["failed_updates"] == 2
+        assert "LinAlgError: Singular matrix" in str(values["last_failure"])
+        # The estimate restarts from the next readings (a filter would still be near 40).
+        node._on_raw(sensors_to_msg(np.full(4, 45.0)))
+        assert node._published == 2
+        latest = node.core.latest
+        assert latest is not None and latest.temperatures is not None
+        np.testing.assert_allclose(latest.temperatures, 45.0)
+    finally:
+        node.destroy_node()
+        rclpy.shutdown(context=context)

@@ -262,9 +262,44 @@ def scenario_parameters(
     return thermal, dict(grid)
 
 
+def namespaced_params_file(path: Path, node: str, config: GraphConfig) -> Path:
+    """Return a copy of a parameters file whose entries for ``node`` apply below the namespace.
+
+    A parameters file names the node it configures by its full name (``feedforward`` is
+    ``/feedforward``); in a namespaced graph the node is ``/<namespace>/feedforward``. The
+    copy goes into the run's log folder.
+
+    Raises:
+        ValueError: the file is no ROS 2 parameters file.
+
+    """
+    import yaml
+
+    try:
+        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except (OSError, yaml.YAMLError) as err:
+        raise ValueError(f"cannot read parameters file {path}: {err}") from None
+    if not isinstance(data, dict):
+        raise ValueError(f"{path} is not a ROS 2 parameters file")
+    renamed = {
+        (f"/{config.namespace}/{node}" if key.strip("/") == node else key): value
+        for key, value in data.items()
+    }
+    config.log_dir.mkdir(parents=True, exist_ok=True)
+    copy = config.log_dir / f"{node}_params.yaml"
+    copy.write_text(yaml.safe_dump(renamed, sort_keys=False), encoding="utf-8")
+    return copy
+
+
 def _controller_specs(config: GraphConfig) -> list[ProcessSpec]:
     sim_time: dict[str, ParamValue] = {"use_sim_time": True}
-    files = [config.feedforward_params] if config.feedforward_params is not None else []
+    files = []
+    if config.feedforward_params is not None:
+        files.append(
+            namespaced_params_file(config.feedforward_params, FEEDFORWARD, config)
+            if config.namespace
+            else config.feedforward_params
+        )
     thermal, feedforward = scenario_parameters(config.scenario, config.plant)
     return [
         ProcessSpec(

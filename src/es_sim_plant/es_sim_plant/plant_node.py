@@ -373,7 +373,8 @@ class PlantNode(Node):
             (self._pub_displacement, extra),
             (self._pub_raw, extra + thermal),
             (self._pub_heat, extra + thermal),
-            (self._pub_setpoint, extra + (controlled and self.publish_setpoints)),
+            # a test stand publishes no set points
+            (self._pub_setpoint, extra + 1 if controlled and self.publish_setpoints else 0),
         ]
         if self._pub_command is not None:
             needed.append((self._pub_command, extra))

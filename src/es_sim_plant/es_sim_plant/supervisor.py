@@ -72,11 +72,14 @@ class Outcome:
     exit_codes: dict[str, int | None]
 
 
+# Looked up once here: the child between fork and exec only calls it (no library loading).
+_PRCTL = ctypes.CDLL(None, use_errno=True).prctl if sys.platform.startswith("linux") else None
+
+
 def _die_with_parent() -> None:
     """Ask Linux to SIGTERM the child if the supervisor dies without stopping it."""
-    if sys.platform.startswith("linux"):
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
+    if _PRCTL is not None:
+        _PRCTL(_PR_SET_PDEATHSIG, int(signal.SIGTERM))
 
 
 class _Running:

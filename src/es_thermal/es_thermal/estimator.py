@@ -9,6 +9,11 @@ estimate when no sensor is valid. Estimators:
 - ``model`` (default): a steady-state Kalman filter on the thermal network driven by the
   heat load (:mod:`es_thermal.kalman`).
 
+A heat-load grid that is not credible (:func:`es_thermal.faults.heat_load_problem`: NaN/inf,
+negative, above ``faults.max_heat_load`` per cell) is rejected with a ValueError and the last
+accepted heat load is held, as if the message had not come: one corrupt message must not
+drive the model's state away from the readings.
+
 Time is given by the caller in seconds. The filters are discretised for a fixed sample
 period; a gap of several periods between messages advances them that many periods.
 """
@@ -21,7 +26,7 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
-from es_thermal.faults import FaultConfig, SensorFaultMonitor, SensorHealth
+from es_thermal.faults import FaultConfig, SensorFaultMonitor, SensorHealth, heat_load_problem
 from es_thermal.interpolation import interpolation_matrix
 from es_thermal.kalman import KalmanTuning, ModelEstimator
 from es_thermal.lowpass import DEFAULT_CUTOFF_HZ, DEFAULT_ORDER, LowpassBank
@@ -147,15 +152,26 @@ class TemperatureEstimator:
         sample (the heat load of a sample time comes before that time's readings).
 
         Raises:
-            ValueError: wrong shape or a non-finite value (the previous heat load is kept).
+            ValueError: wrong shape, or a value that is not finite, negative beyond
+                ``faults.heat_load_tolerance`` or above ``faults.max_heat_load``; the last
+                accepted heat load is kept.
 
         """
         grid = np.asarray(heat_load, dtype=float)
         if grid.shape != self.shape:
             raise ValueError(f"heat load has shape {grid.shape}, expected {self.shape}")
-        if not np.all(np.isfinite(grid)):
-            raise ValueError("heat load holds NaN or inf")
+        problem = heat_load_problem(grid, self.config.faults)
+        if problem is not None:
+            raise ValueError(problem)
         self._heat_now = grid.ravel().copy()
+
+    def restart(self) -> None:
+        """Start the estimate afresh from the next readings (after an update failed midway).
+
+        The filter state, the model-error estimates and the low-pass histories are rebuilt
+        from the next message; the heat load and the sensor fault tracking are kept.
+        """
+        self._last_update = None
 
     def update(self, now: float, readings: FloatArray) -> Estimate:
         """Check and use one message of sensor readings (S,) taken at ``now`` [s].

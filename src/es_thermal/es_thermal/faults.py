@@ -1,11 +1,12 @@
-"""Sensor fault detection: which readings the estimators may use.
+"""Input fault detection: which readings the estimators may use, which heat loads they accept.
 
 A sensor is excluded while its reading is not finite, outside the physical range, or stuck
 (it stayed inside a narrow band for too long: a live sensor always shows some noise). The
 stream as a whole is stale when no message came for too long (:class:`StaleWatch`); then no
-sensor is valid. Everything is vectorised over the sensors; time is passed in by the caller
-(seconds, any epoch), so the logic runs the same on ROS time, sim time, wall time or in a
-test.
+sensor is valid. A heat-load grid is rejected as a whole when any cell is not finite, negative
+beyond a rounding tolerance or above a physical maximum (:func:`heat_load_problem`).
+Everything is vectorised; time is passed in by the caller (seconds, any epoch), so the logic
+runs the same on ROS time, sim time, wall time or in a test.
 """
 
 from __future__ import annotations
@@ -31,6 +32,12 @@ class FaultConfig:
             Set it below the sensor noise (a live sensor leaves the band within a few
             samples) and above its quantisation step only if the noise is below one step.
         stale_timeout: no message for this long makes every sensor stale [s].
+        max_heat_load: largest credible absorbed power in one actuator cell [W]. The default
+            (10 W) is far above any real load (the simulator's exposure puts 2 W on a whole
+            12 x 12 mirror; 10 mW per cell already heats an actuator by ~3 degC), yet low
+            enough that a few samples of it cannot wreck the model estimator's state.
+        heat_load_tolerance: negative loads down to minus this are accepted as rounding of a
+            computed power map [W].
 
     """
 
@@ -39,12 +46,20 @@ class FaultConfig:
     stuck_time: float = 10.0
     stuck_band: float = 1e-9
     stale_timeout: float = 2.0
+    max_heat_load: float = 10.0
+    heat_load_tolerance: float = 1e-6
 
     def __post_init__(self) -> None:
         if not self.valid_min < self.valid_max:
             raise ValueError(f"valid_min {self.valid_min} must be below valid_max {self.valid_max}")
         if self.stuck_time <= 0.0 or self.stuck_band < 0.0 or self.stale_timeout <= 0.0:
             raise ValueError("stuck_time and stale_timeout must be > 0, stuck_band >= 0")
+        if not (np.isfinite(self.max_heat_load) and self.max_heat_load > 0.0):
+            raise ValueError(f"max_heat_load must be finite and > 0, got {self.max_heat_load}")
+        if not (np.isfinite(self.heat_load_tolerance) and self.heat_load_tolerance >= 0.0):
+            raise ValueError(
+                f"heat_load_tolerance must be finite and >= 0, got {self.heat_load_tolerance}"
+            )
 
 
 @dataclass(frozen=True)
@@ -113,6 +128,28 @@ class SensorFaultMonitor:
             out_of_range=finite & ~in_range,
             stuck=stuck,
         )
+
+
+def heat_load_problem(heat_load: FloatArray, config: FaultConfig) -> str | None:
+    """Return why a heat-load grid [W per cell] is not credible, or None when it is.
+
+    The grid is judged as a whole: one impossible cell means the message is corrupt.
+    """
+    values = np.asarray(heat_load, dtype=float)
+    finite = np.isfinite(values)
+    if not np.all(finite):
+        return f"heat load holds NaN or inf in {int(np.count_nonzero(~finite))} cell(s)"
+    if values.size == 0:
+        return None
+    lowest, highest = float(np.min(values)), float(np.max(values))
+    if lowest < -config.heat_load_tolerance:
+        return f"heat load {lowest:.4g} W in a cell is negative"
+    if highest > config.max_heat_load:
+        return (
+            f"heat load {highest:.4g} W in a cell is above max_heat_load "
+            f"{config.max_heat_load:g} W"
+        )
+    return None
 
 
 class StaleWatch:

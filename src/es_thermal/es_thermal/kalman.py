@@ -35,6 +35,10 @@ BoolArray = npt.NDArray[np.bool_]
 #: Entries of the discretised transition matrix below this fraction of its largest entry are
 #: dropped: heat spreads only a few cells per sample, so the matrix is nearly banded.
 SPARSITY_THRESHOLD = 1e-13
+#: Innovations and sensitivities enter the model-error fit clipped to +- this [degC, degC per
+#: unit relative error]: far beyond any real temperature error, so only a wrecked state or an
+#: absurd input reaches it, and one such sample cannot overflow the fit.
+BIAS_FIT_LIMIT: Final = 1e3
 
 
 @dataclass(frozen=True)
@@ -264,8 +268,15 @@ class ModelEstimator:
         self._bias[:] = 0.0
 
     def predict(self, heat_load: FloatArray, steps: int = 1) -> None:
-        """Advance the model ``steps`` sample periods with the heat load (N,) held."""
+        """Advance the model ``steps`` sample periods with the heat load (N,) held.
+
+        Raises:
+            ValueError: the heat load holds NaN or inf (the state is left as it was).
+
+        """
         x = self._require_state()
+        if not np.all(np.isfinite(heat_load)):
+            raise ValueError("heat load holds NaN or inf")
         drive = np.asarray(self._B @ heat_load)
         # One sparse product advances the state, both sensitivities and the heat response.
         cols = np.column_stack([x, self._sens, self._heat_response])
@@ -297,14 +308,31 @@ class ModelEstimator:
         update = self.gain @ np.column_stack([innovation, -regressor])
         self._state = x + update[:, 0]
         self._sens = self._sens + update[:, 1:]
-        # Exponentially forgotten least squares, pulled towards the prior (zero bias).
+        self._fit_biases(
+            np.clip(innovation, -BIAS_FIT_LIMIT, BIAS_FIT_LIMIT),
+            np.clip(regressor, -BIAS_FIT_LIMIT, BIAS_FIT_LIMIT),
+        )
+        return innovation
+
+    def _fit_biases(self, innovation: FloatArray, regressor: FloatArray) -> None:
+        """Update the model-error estimates by least squares pulled towards zero bias.
+
+        Old data are forgotten exponentially (``adaptation_time``). A step whose fit is not
+        finite or singular (only after an absurd input) is skipped: the previous fit and
+        estimates are kept.
+        """
         forget = np.exp(-self.sample_period / self.tuning.adaptation_time)
         weighted = regressor * self._innovation_weight[:, None]
-        self._info = forget * self._info + (1 - forget) * self._prior_info + regressor.T @ weighted
-        self._info_vector = forget * self._info_vector + weighted.T @ innovation
-        bias = np.linalg.solve(self._info, self._info_vector)
+        info = forget * self._info + (1 - forget) * self._prior_info + regressor.T @ weighted
+        info_vector = forget * self._info_vector + weighted.T @ innovation
+        try:
+            bias = np.linalg.solve(info, info_vector)
+        except np.linalg.LinAlgError:
+            return
+        if not np.all(np.isfinite(bias)):
+            return
+        self._info, self._info_vector = info, info_vector
         self._bias = np.clip(bias, -self.tuning.bias_limit, self.tuning.bias_limit)
-        return innovation
 
     def _require_state(self) -> FloatArray:
         if self._state is None:

@@ -10,10 +10,15 @@ timer instead. The estimate comes from :class:`es_thermal.estimator.TemperatureE
 ``lowpass`` = the thesis's 0.1 Hz low-pass plus spatial interpolation).
 
 Bad input never reaches the feedforward: a raw or heat-load message of the wrong layout or
-size is rejected (log line, WARN diagnostic); NaN/inf, out-of-range and stuck sensors are
+size is rejected (log line, WARN diagnostic), and so is a heat load with NaN/inf, a negative
+cell (beyond ``fault.heat_load_tolerance``) or a cell above ``fault.max_heat_load``: the last
+accepted heat load is held; NaN/inf, out-of-range and stuck sensors are
 excluded and the estimate continues from the others (WARN); with no valid sensor, or no raw
 message for ``fault.stale_timeout`` wall seconds, the node publishes no estimate (ERROR), so
-the feedforward holds, and it resumes by itself when valid readings return.
+the feedforward holds, and it resumes by itself when valid readings return. Should an update
+fail all the same (a bug, not bad input), the callback logs it, reports ERROR, publishes
+nothing for that message and restarts the estimate from the next readings: the node keeps
+running.
 
 Sensor positions: ``sensor_positions`` = flat [r0, c0, r1, c1, ...] (fractional row/col
 allowed); empty = ``sensor_pitch`` (1: one sensor on every actuator, sensor i on actuator i;
@@ -60,7 +65,8 @@ from es_thermal.network import NetworkParams
 NODE_NAME = "thermal"
 #: Measured sample intervals this far off the configured ``sample_rate`` give a WARN.
 _RATE_TOLERANCE = 0.25
-#: A rejected message keeps the input diagnostic at WARN this long [wall s].
+#: A rejected message keeps the input diagnostic at WARN (a failed update the estimate
+#: diagnostic at ERROR) this long [wall s].
 _REJECTION_HOLD = 5.0
 #: Updates the estimate diagnostic's timing and rate figures cover.
 _WINDOW = 200
@@ -192,6 +198,16 @@ SPECS: tuple[ParameterSpec, ...] = (
         "No raw message for this long (wall s) stops the estimates (ERROR).", 1e-3, 1e4,
         read_only=True,
     ),
+    ParameterSpec(
+        "fault.max_heat_load", _FAULTS.max_heat_load,
+        "A /dm/heat_load with a cell above this is rejected (last heat load held), W per cell.",
+        1e-6, 1e6, read_only=True,
+    ),
+    ParameterSpec(
+        "fault.heat_load_tolerance", _FAULTS.heat_load_tolerance,
+        "Negative heat loads down to minus this pass as rounding; lower ones are rejected, W.",
+        0.0, 1e3, read_only=True,
+    ),
 )
 
 
@@ -234,6 +250,8 @@ def config_from_parameters(values: dict[str, object]) -> EstimatorConfig:
         stuck_time=num("fault.stuck_time"),
         stuck_band=num("fault.stuck_band"),
         stale_timeout=num("fault.stale_timeout"),
+        max_heat_load=num("fault.max_heat_load"),
+        heat_load_tolerance=num("fault.heat_load_tolerance"),
     )
     return EstimatorConfig(
         rows=rows,
@@ -271,6 +289,9 @@ class ThermalNode(Node):
         self._last_rejection = ""
         self._last_rejection_wall = -np.inf
         self._published = 0
+        self._failures = 0  # updates that raised (since start)
+        self._last_failure = ""
+        self._last_failure_wall = -np.inf
         # Recent update costs and sample intervals, for the estimate diagnostic.
         self._update_seconds: deque[float] = deque(maxlen=_WINDOW)
         self._intervals: deque[float] = deque(maxlen=_WINDOW)
@@ -320,11 +341,27 @@ class ThermalNode(Node):
         )
         self._publish_if_level_changed()
 
+    def _fail(self, what: str, err: Exception) -> None:
+        """Count and report an exception from the core; the estimate restarts afresh."""
+        self._failures += 1
+        self._last_failure_wall = self._wall_now()
+        self._last_failure = f"{what}: {type(err).__name__}: {err}"
+        self.get_logger().error(
+            f"{what} failed, estimate restarts from the next readings: "
+            f"{type(err).__name__}: {err}",
+            throttle_duration_sec=5.0,
+        )
+        self.core.restart()
+        self._publish_diagnostics()  # rare: report the ERROR at once
+
     def _on_heat_load(self, msg: Float64MultiArray) -> None:
         try:
             self.core.set_heat_load(msg_to_grid(msg, self.core.shape))
         except (LayoutError, ValueError) as err:
             self._reject("heat_load", str(err))
+            return
+        except Exception as err:  # the node must outlive any failure of the core
+            self._fail("heat load", err)
             return
         self._heat_watch.feed(self._wall_now())
 
@@ -340,7 +377,11 @@ class ThermalNode(Node):
             self._intervals.append(now - self._last_arrival)
         self._last_arrival = now
         started = time.perf_counter()
-        estimate = self.core.update(self._sample_clock.stamp(now), readings)
+        try:
+            estimate = self.core.update(self._sample_clock.stamp(now), readings)
+        except Exception as err:  # the node must outlive any failure of the core
+            self._fail("update", err)
+            return
         self._update_seconds.append(time.perf_counter() - started)
         if estimate.temperatures is not None and not self._timer_mode:
             self._publish(estimate.temperatures)
@@ -404,7 +445,13 @@ class ThermalNode(Node):
         return Level.OK, "inputs ok", kv
 
     def _estimate_status(self) -> tuple[Level, str, dict[str, object]]:
-        kv: dict[str, object] = {"estimator": self.config.kind, "published": self._published}
+        kv: dict[str, object] = {
+            "estimator": self.config.kind,
+            "published": self._published,
+            "failed_updates": self._failures,
+        }
+        if self._last_failure:
+            kv["last_failure"] = self._last_failure
         if self._update_seconds:
             kv["update_ms_mean"] = 1e3 * float(np.mean(self._update_seconds))
             kv["update_ms_median"] = 1e3 * float(np.median(self._update_seconds))
@@ -418,6 +465,8 @@ class ThermalNode(Node):
             kv["min_degc"] = float(np.min(latest.temperatures))
             kv["max_degc"] = float(np.max(latest.temperatures))
         level, message = Level.OK, "estimating"
+        if self._wall_now() - self._last_failure_wall < _REJECTION_HOLD:
+            return Level.ERROR, "an update failed: estimate restarted from the readings", kv
         if self._intervals:
             interval = float(np.median(self._intervals))
             kv["sample_interval_s"] = interval
