@@ -11,6 +11,9 @@ import numpy as np
 import pytest
 
 from es_feedforward.calibrate import EXIT_BAD_INPUT, run
+from es_feedforward.calibration.align import CalibrationInputError, MeasuredData
+from es_feedforward.calibration.bagio import read_measured_bags
+from es_feedforward.calibration.pipeline import calibrate
 from es_msgs_py.bag import write_array_bag
 
 from . import calibration_bags
@@ -140,8 +143,174 @@ def test_consecutive_bags_are_joined(series, tmp_path: Path) -> None:
 
 
 def test_overlapping_bags_are_refused(series, tmp_path: Path, capsys) -> None:
+    bags = []
+    for i, shift in enumerate((0.0, 5.0)):
+        bag = tmp_path / f"bag{i}"
+        write_array_bag(bag, {k: (t + shift, v) for k, (t, v) in series.items()})
+        bags.append(str(bag))
+    _fails_with(bags, tmp_path / "out", capsys, "overlap in time")
+
+
+def test_bag_given_twice(series, tmp_path: Path, capsys) -> None:
     bag = tmp_path / "bag"
     write_array_bag(bag, series)
-    assert run([str(bag), str(bag), "-o", str(tmp_path / "out")]) == EXIT_BAD_INPUT
+    _fails_with([str(bag), f"{tmp_path}/./bag"], tmp_path / "out", capsys, "given twice")
+
+
+def _fails_with(
+    bags: list[str], out: Path, capsys: pytest.CaptureFixture[str], *words: str
+) -> None:
+    assert run([*bags, "-o", str(out)]) == EXIT_BAD_INPUT
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "overlap in time" in err
+    assert err.count("\n") == 1 and "Traceback" not in err
+    for word in words:
+        assert word in err
+
+
+def _calibrate(bag: Path, out: Path) -> dict:
+    assert run([str(bag), "-o", str(out), "-q"]) == 0
+    return json.loads((out / "calibration.json").read_text())
+
+
+def _lagging_stamps(t: np.ndarray, per_stamp: int) -> np.ndarray:
+    """Stamps of a recorder that sees the clock only every ``per_stamp`` messages."""
+    return np.repeat(t[::per_stamp], per_stamp)[: t.size]
+
+
+def test_mostly_repeated_stamps_with_one_displacement_per_command_pair_by_order(
+    series, tmp_path: Path
+) -> None:
+    """80 % repeated stamps (the lagging recorder): paired by order, fit down to the noise."""
+    bag = tmp_path / "bag"
+    write_array_bag(bag, {k: (_lagging_stamps(t, 5), v) for k, (t, v) in series.items()})
+    doc = _calibrate(bag, tmp_path / "out")
+    data = doc["data"]
+    assert "paired by message order" in data["repeated_stamps"]
+    assert data["samples"] == series["/dm/displacement"][0].size
+    assert "temperature stamps repeated" in data["repeated_stamps"]
+    assert sum(data["dropped"].values()) == 0
+    assert doc["heldout_rms_after_m"] < 1.2 * doc["noise_floor_m"]
+
+
+def test_repeated_stamps_with_unequal_counts_drop_and_count_ambiguous_samples(
+    series, tmp_path: Path
+) -> None:
+    t, z = series["/dm/displacement"]
+    stamps = t.copy()
+    stamps[1::5] = stamps[::5][: stamps[1::5].size]  # pairs (5j, 5j+1) share a stamp
+    tc, cmd = series["/dm/command"]
+    bag = tmp_path / "bag"
+    write_array_bag(
+        bag, {**series, "/dm/displacement": (stamps, z), "/dm/command": (tc[:-1], cmd[:-1])}
+    )
+    doc = _calibrate(bag, tmp_path / "out")
+    ambiguous = 2 * stamps[1::5].size
+    assert doc["data"]["dropped"]["displacement with ambiguous repeated stamp"] == ambiguous
+    assert doc["data"]["samples"] == t.size - ambiguous
+    assert "dropped" in doc["data"]["repeated_stamps"]
+    assert doc["heldout_rms_after_m"] < 1.2 * doc["noise_floor_m"]
+
+
+def test_too_little_unambiguous_data_is_one_line(series, tmp_path: Path, capsys) -> None:
+    bag = tmp_path / "bag"
+    lagging = {k: (_lagging_stamps(t, 5), v) for k, (t, v) in series.items()}
+    tc, cmd = lagging["/dm/command"]
+    write_array_bag(bag, {**lagging, "/dm/command": (tc[:-7], cmd[:-7])})
+    _fails(bag, tmp_path / "out", capsys, "too little usable data", "ambiguous")
+
+
+@pytest.mark.parametrize("topic", ["/dm/command", "/dm/displacement", "/dm/temperature/raw"])
+def test_all_stamps_equal(series, tmp_path: Path, capsys, topic: str) -> None:
+    """One stamp for a whole topic; commands also one fewer, so they cannot pair by order."""
+    bag = tmp_path / "bag"
+    data = {k: (t[:-1], v[:-1]) if k == "/dm/command" else (t, v) for k, (t, v) in series.items()}
+    t, v = data[topic]
+    data[topic] = (np.full_like(t, t[0]), v)
+    write_array_bag(bag, data)
+    _fails(bag, tmp_path / "out", capsys)
+
+
+def test_empty_temperature_topic_counts_as_absent(series, tmp_path: Path) -> None:
+    bag = tmp_path / "bag"
+    write_array_bag(bag, {**series, "/dm/temperature": (np.zeros(0), np.zeros((0, 1, 1)))})
+    measured = read_measured_bags([bag])
+    assert measured.temperature_source == "/dm/temperature/raw"
+    np.testing.assert_array_equal(
+        measured.temperature[:, 0, 0], series["/dm/temperature/raw"][1][:, 0]
+    )
+
+
+def test_no_temperature_data(series, tmp_path: Path, capsys) -> None:
+    bag = tmp_path / "bag"
+    write_array_bag(
+        bag,
+        {
+            **series,
+            "/dm/temperature": (np.zeros(0), np.zeros((0, 1, 1))),
+            "/dm/temperature/raw": (np.zeros(0), np.zeros((0, 1))),
+        },
+    )
+    err = _fails(bag, tmp_path / "out", capsys, "missing", "/dm/temperature/raw")
+    assert "empty: /dm/temperature, /dm/temperature/raw" in err
+
+
+@pytest.mark.parametrize("topic", ["/dm/command", "/dm/displacement"])
+def test_topic_without_messages(series, tmp_path: Path, capsys, topic: str) -> None:
+    bag = tmp_path / "bag"
+    write_array_bag(bag, {**series, topic: (np.zeros(0), np.zeros((0, 1, 1)))})
+    _fails(bag, tmp_path / "out", capsys, "missing", topic)
+
+
+@pytest.mark.parametrize("topic", [None, "/dm/command", "/dm/displacement", "/dm/temperature/raw"])
+def test_single_message(series, tmp_path: Path, capsys, topic: str | None) -> None:
+    bag = tmp_path / "bag"
+    write_array_bag(
+        bag, {k: (t[:1], v[:1]) if topic in (None, k) else (t, v) for k, (t, v) in series.items()}
+    )
+    _fails(bag, tmp_path / "out", capsys, "too short")
+
+
+def test_stamps_going_backwards_are_read_in_stamp_order(series, tmp_path: Path) -> None:
+    """A recorder writing out of order: messages are put back in stamp order."""
+    bag = tmp_path / "bag"
+    shuffled = {}
+    for i, (k, (t, v)) in enumerate(series.items()):
+        order = np.random.default_rng(i).permutation(t.size)
+        shuffled[k] = (t[order], v[order])
+    write_array_bag(bag, shuffled)
+    measured = read_measured_bags([bag])
+    np.testing.assert_allclose(measured.displacement_times, series["/dm/displacement"][0])
+    np.testing.assert_array_equal(measured.displacement, series["/dm/displacement"][1])
+    np.testing.assert_array_equal(measured.command, series["/dm/command"][1])
+
+
+def test_backwards_stamps_in_measured_data_are_one_line(series) -> None:
+    measured = MeasuredData(
+        command_times=series["/dm/command"][0][::-1],
+        command=series["/dm/command"][1],
+        displacement_times=series["/dm/displacement"][0],
+        displacement=series["/dm/displacement"][1],
+        temperature_times=series["/dm/temperature/raw"][0],
+        temperature=series["/dm/temperature/raw"][1][:, :, None],
+    )
+    with pytest.raises(CalibrationInputError, match="backwards") as err:
+        calibrate(measured)
+    assert "\n" not in str(err.value)
+
+
+def test_mismatched_grid_sizes_between_bags(tmp_path: Path, capsys) -> None:
+    small, wide = _series(400), _series(400, grid=(1, 2))
+    bags = []
+    for i, (data, shift) in enumerate(((small, 0.0), (wide, 10.0))):
+        bag = tmp_path / f"bag{i}"
+        write_array_bag(bag, {k: (t + shift, v) for k, (t, v) in data.items()})
+        bags.append(str(bag))
+    _fails_with(bags, tmp_path / "out", capsys, "mismatched grid sizes")
+
+
+def test_output_directory_that_cannot_be_created(series, tmp_path: Path, capsys) -> None:
+    bag = tmp_path / "bag"
+    write_array_bag(bag, series)
+    blocker = tmp_path / "file"
+    blocker.write_text("not a directory")
+    _fails(bag, blocker / "out", capsys, "cannot create output directory")

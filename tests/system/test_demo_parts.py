@@ -9,7 +9,7 @@ import numpy as np
 from es_msgs_py.bag import read_bag, write_array_bag
 from es_msgs_py.topics import COMMAND, DISPLACEMENT, HEAT_LOAD, TEMPERATURE_RAW
 from es_sim_plant.demo import _hardware_signature, characterisation_scenario, daq_clock_copy
-from es_sim_plant.scenario import load_scenario
+from es_sim_plant.scenario import load_scenario, resolve_scenario
 
 
 def test_characterisation_measures_the_hardware_of_its_scenario(tmp_path: Path) -> None:
@@ -25,12 +25,55 @@ def test_characterisation_measures_the_hardware_of_its_scenario(tmp_path: Path) 
     assert load_scenario(str(with_effect)).effects.enabled_names() == ["delay"]
 
 
+def _thesis_ac_copy(tmp_path: Path, name: str, **changes: object) -> str:
+    import yaml
+
+    data = yaml.safe_load(Path(str(resolve_scenario("thesis_ac"))).read_text())
+    data.update(changes, name=name)
+    path = tmp_path / f"{name}.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return str(path)
+
+
 def test_seed_tells_hardware_apart_only_with_spread(tmp_path: Path) -> None:
     ac = _hardware_signature(characterisation_scenario("thesis_ac", tmp_path))
     dc_ac = _hardware_signature(characterisation_scenario("thesis_dc_ac", tmp_path))
     mirror = _hardware_signature(characterisation_scenario("dm_exposure", tmp_path))
-    assert ac == dc_ac  # same actuator, no spread: the seeds draw only noise
+    assert ac == dc_ac  # the thesis's one sample: same seed, spread, sensor and lag
     assert mirror != ac
+    other_sample = _thesis_ac_copy(tmp_path, "other_sample", seed=12)
+    assert _hardware_signature(characterisation_scenario(other_sample, tmp_path)) != ac
+    no_spread = {"spread": {}}
+    ideal_11 = _thesis_ac_copy(tmp_path, "ideal_11", actuators=no_spread)
+    ideal_12 = _thesis_ac_copy(tmp_path, "ideal_12", actuators=no_spread, seed=12)
+    assert _hardware_signature(
+        characterisation_scenario(ideal_11, tmp_path)
+    ) == _hardware_signature(characterisation_scenario(ideal_12, tmp_path))  # seeds draw noise
+
+
+def test_thesis_scenarios_run_the_default_simulator() -> None:
+    for name in ("thesis_ac", "thesis_dc_ac"):
+        sc = load_scenario(name)
+        assert sc.actuators.spread and sc.sensors.noise_sd > 0
+        assert sc.effects.sensor_lag.enabled
+        # a lag of seconds, physical, scaled with the scenario like its thermal constants
+        assert load_scenario(name, 1.0).effects.sensor_lag.tau_s >= 1.0
+        assert sc.effects.sensor_lag.tau_s == sc.time_scale * load_scenario(
+            name, 1.0
+        ).effects.sensor_lag.tau_s
+
+
+def test_thermal_node_undoes_the_known_sensor_lag_once() -> None:
+    from es_sim_plant.bringup import scenario_parameters
+
+    thermal, feedforward = scenario_parameters("thesis_ac", {})
+    assert thermal["sensor_lag_tau"] == load_scenario("thesis_ac", 1.0).effects.sensor_lag.tau_s
+    assert feedforward["compensation.temperature_lead_s"] == 0.0  # not a second time
+    thermal, feedforward = scenario_parameters("thesis_ac", {"effects.sensor_lag": False})
+    assert "sensor_lag_tau" not in thermal
+    assert "compensation.temperature_lead_s" not in feedforward
+    thermal, _ = scenario_parameters("dm_exposure", {})
+    assert "sensor_lag_tau" not in thermal  # its scenario has no lag
 
 
 def test_sample_clock_copy_restamps_by_index(tmp_path: Path) -> None:

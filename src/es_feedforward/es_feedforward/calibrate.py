@@ -12,9 +12,24 @@ Usage: ``ros2 run es_feedforward calibrate BAG [BAG ...] -o OUTDIR`` (console sc
 - ``feedforward_params.yaml``: the ROS 2 parameters of the ``feedforward`` node (per-actuator
   ``law.*`` maps and the ``compensation.*`` of the accepted effects).
 
-The tool is told nothing about how the data were made. Bad input (missing topics, mismatched
-grids, too short, corrupt) ends with one line on stderr and exit status 2; NaN samples are
-dropped and counted in the report. Needs no rclpy.
+The tool is told nothing about how the data were made. Bad input (missing or empty topics,
+a single message, mismatched grids, too short, all-NaN, corrupt, a bag given twice, bags
+overlapping in time) ends with one line on stderr and exit status 2, as does an output
+directory that cannot be created or written; NaN samples are dropped and counted in the
+report. A topic without messages counts as absent (an empty /dm/temperature falls back to
+/dm/temperature/raw).
+
+Time stamps are the bag's receive stamps. Messages are used in stamp order, messages sharing
+a stamp in recording order (so a recorder writing slightly out of order is corrected; a clock
+that jumps back mid-recording cannot be told from that, record such runs as separate bags).
+Repeated stamps (a recorder lagging under sim time): a run of equal temperature stamps is
+spread evenly up to the next stamp; when /dm/command and /dm/displacement have as many
+messages each (lock-step), they are paired by message order (displacement i answers command
+i) on a rebuilt time base; otherwise every displacement sample with an ambiguous pairing (its
+stamp shared with another displacement, or its command in effect one of several commands
+sharing a stamp) is dropped and counted, and if fewer than 200 usable samples remain
+the tool stops with one line and exit status 2. Report and calibration.json say which rule
+was applied. Needs no rclpy.
 """
 
 from __future__ import annotations
@@ -24,18 +39,27 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from es_feedforward.calibration.align import CalibrationInputError
+from es_feedforward.calibration.align import MIN_SAMPLES, CalibrationInputError
 from es_feedforward.calibration.bagio import read_measured_bags
 from es_feedforward.calibration.model import CANDIDATES
 from es_feedforward.calibration.pipeline import calibrate
 
 EXIT_BAD_INPUT = 2
+EXIT_INTERNAL_ERROR = 1
 
 
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="calibrate",
         description="Calibrate the electrostrictive actuator model from measured-data bags.",
+        epilog=(
+            "Messages are used in stamp order (equal stamps in recording order); empty topics "
+            "count as absent. Repeated stamps: runs of equal stamps are spread up to the next "
+            "stamp; command and displacement with equal message counts are paired by order, "
+            "otherwise ambiguous displacement samples are dropped and counted (exit 2 if "
+            f"fewer than {MIN_SAMPLES} usable samples remain). Bad input: one line on "
+            "stderr, exit 2."
+        ),
     )
     parser.add_argument("bags", nargs="+", type=Path, help="rosbag2 directories (MCAP or sqlite3)")
     parser.add_argument("-o", "--output", required=True, type=Path, help="output directory")
@@ -60,22 +84,36 @@ def run(argv: Sequence[str] | None = None) -> int:
         )
         return EXIT_BAD_INPUT
     try:
+        args.output.mkdir(parents=True, exist_ok=True)  # fail before a long calibration
+    except OSError as err:
+        print(
+            f"calibrate: cannot create output directory {args.output}: {err.strerror or err}",
+            file=sys.stderr,
+        )
+        return EXIT_BAD_INPUT
+    try:
         measured = read_measured_bags(args.bags)
         cal = calibrate(measured, candidates)
-        args.output.mkdir(parents=True, exist_ok=True)
+        # matplotlib and the feedforward configuration are only needed once there is a result
+        from es_feedforward.calibration.report import write_report
+        from es_feedforward.calibration.schema import (
+            write_calibration_json,
+            write_parameters_yaml,
+        )
+
+        notes = write_parameters_yaml(cal, args.output / "feedforward_params.yaml")
+        write_calibration_json(cal, args.output / "calibration.json")
+        report = write_report(cal, args.output, notes)
     except (CalibrationInputError, OSError) as err:
         print(f"calibrate: {err}".splitlines()[0], file=sys.stderr)
         return EXIT_BAD_INPUT
     except MemoryError:
         print("calibrate: out of memory reading the bags", file=sys.stderr)
         return EXIT_BAD_INPUT
-    # matplotlib and the feedforward configuration are only needed once there is a result
-    from es_feedforward.calibration.report import write_report
-    from es_feedforward.calibration.schema import write_calibration_json, write_parameters_yaml
-
-    notes = write_parameters_yaml(cal, args.output / "feedforward_params.yaml")
-    write_calibration_json(cal, args.output / "calibration.json")
-    report = write_report(cal, args.output, notes)
+    except Exception as err:  # last resort: a user sees one line, never a traceback
+        message = f"calibrate: internal error ({type(err).__name__}: {err}"
+        print(f"{message.splitlines()[0]}); please report it with the bag", file=sys.stderr)
+        return EXIT_INTERNAL_ERROR
     if not args.quiet:
         found = ", ".join(f"{e.name}" for e in cal.effects) or "none"
         print(

@@ -226,11 +226,14 @@ def scenario_parameters(
     """Return the thermal and feedforward parameters that describe the plant's mirror.
 
     Read from the scenario with the plant's own overrides (``rows``, ``cols``,
-    ``time_scale``, ``sensor_rate``), so that the three nodes agree on the grid, the sensors
-    and the time scale. The thermal node gets what the mirror's design tells: the thermal
-    network (physical values; it applies ``time_scale`` itself as the plant does), the
-    sensor positions, rate and noise level. Nothing the calibration is meant to find (the
-    actuator laws, effects) is passed.
+    ``time_scale``, ``sensor_rate``, ``effects.sensor_lag``), so that the three nodes agree
+    on the grid, the sensors and the time scale. The thermal node gets what the mirror's
+    design tells: the thermal network (physical values; it applies ``time_scale`` itself as
+    the plant does), the sensor positions, rate, noise level and lag (``sensor_lag_tau``,
+    physical: a property of the sensor as mounted). Its estimate is then of the actuator,
+    not of the lagging sensor, so the feedforward gets ``compensation.temperature_lead_s``
+    0: the lag is undone once, whatever lead a calibration on raw sensor data wrote.
+    Nothing else the calibration is meant to find (the actuator laws, effects) is passed.
 
     Raises:
         ValueError: the scenario cannot be loaded.
@@ -257,9 +260,13 @@ def scenario_parameters(
         "model.sensor_noise": max(scaled.sensors.noise_sd, 1e-6),
         **{f"thermal.{k}": float(v) for k, v in asdict(physical.thermal).items()},
     }
+    feedforward: dict[str, ParamValue] = dict(grid)
+    if plant.get("effects.sensor_lag", physical.effects.sensor_lag.enabled) is True:
+        thermal["sensor_lag_tau"] = physical.effects.sensor_lag.tau_s
+        feedforward["compensation.temperature_lead_s"] = 0.0
     if scaled.sensors.positions is not None:
         thermal["sensor_positions"] = [float(v) for p in scaled.sensors.positions for v in p]
-    return thermal, dict(grid)
+    return thermal, feedforward
 
 
 def namespaced_params_file(path: Path, node: str, config: GraphConfig) -> Path:

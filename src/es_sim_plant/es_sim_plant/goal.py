@@ -37,6 +37,9 @@ def offline_metrics(
 
     """
     plant = Plant(scenario)
+    # the true actuator temperature has no sensor lag to undo (as in the bring-up, where the
+    # thermal node undoes it)
+    config = replace(config, compensation=replace(config.compensation, temperature_lead_s=0.0))
     if true_params:
         config = replace(config, params=plant.true_params)
     core = Feedforward(config)

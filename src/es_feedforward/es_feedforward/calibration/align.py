@@ -14,7 +14,7 @@ held out), so that the held-out score tests interpolation across the run, not ex
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Final
 
 import numpy as np
@@ -22,6 +22,7 @@ import numpy.typing as npt
 from scipy.signal import savgol_filter
 
 from es_feedforward.calibration.model import BoolArray, FloatArray
+from es_feedforward.calibration.stamps import repeated, spread_repeated
 
 IndexArray = npt.NDArray[np.intp]
 
@@ -31,6 +32,8 @@ MIN_SAMPLES: Final = 200
 MIN_DURATION_S: Final = 2.0
 #: Window of the temperature-rate estimate [s] (the thermal disturbance is slower than 0.1 Hz).
 RATE_WINDOW_S: Final = 2.0
+#: Key of :attr:`AlignedData.dropped` for samples with ambiguous stamps (see stamps.py).
+AMBIGUOUS: Final = "displacement with ambiguous repeated stamp"
 #: Number of interleaved blocks for long records, and the shortest block [s].
 MAX_BLOCKS: Final = 16
 MIN_BLOCK_S: Final = 1.0
@@ -78,6 +81,7 @@ class AlignedData:
         train: (N,) True for training samples; ``block_edges`` the block boundaries [s].
         dropped: counts of dropped values by reason.
         include_same_stamp: whether a command stamped exactly at a sample is already in effect.
+        repeated_stamps: how repeated stamps were resolved ("" when none repeat).
 
     """
 
@@ -97,6 +101,7 @@ class AlignedData:
     temperature_source: str
     dropped: dict[str, int] = field(default_factory=dict)
     include_same_stamp: bool = True
+    repeated_stamps: str = ""
 
     @property
     def command_finite_all(self) -> bool:
@@ -198,6 +203,73 @@ def _check_series(name: str, times: FloatArray, values: FloatArray, grid: tuple[
         raise CalibrationInputError(f"{name}: time stamps go backwards")
 
 
+def _resolve_repeated_stamps(data: MeasuredData) -> tuple[MeasuredData, dict[str, int], str]:
+    """Apply the rules of stamps.py to ``data`` (each series sorted by time).
+
+    Returns the data to align, counts of dropped samples, and a one-line account
+    of what was done ("" when no stamp repeats).
+    """
+    counts: dict[str, int] = {}
+    notes: list[str] = []
+    out = data
+    n_temp = int(repeated(data.temperature_times).sum())
+    if n_temp:
+        if n_temp == data.temperature_times.size - 1:
+            raise CalibrationInputError(
+                f"temperature: all {data.temperature_times.size} messages share one time stamp"
+            )
+        out = replace(out, temperature_times=spread_repeated(data.temperature_times))
+        notes.append(
+            f"{n_temp} of {data.temperature_times.size} temperature stamps repeated, spread up "
+            "to the next stamp"
+        )
+    cmd_rep = repeated(data.command_times)
+    disp_rep = repeated(data.displacement_times)
+    n_cmd, n_disp = int(cmd_rep.sum()), int(disp_rep.sum())
+    if n_cmd == 0 and n_disp == 0:
+        return out, counts, "; ".join(notes)
+    share = (
+        f"repeated stamps: {n_cmd} of {cmd_rep.size} commands, "
+        f"{n_disp} of {disp_rep.size} displacements"
+    )
+    if data.command_times.size == data.displacement_times.size:
+        if n_disp == disp_rep.size - 1:
+            raise CalibrationInputError(
+                f"displacement: all {disp_rep.size} messages share one time stamp"
+            )
+        t = spread_repeated(data.displacement_times)
+        previous = np.concatenate([[2.0 * t[0] - t[1]], t[:-1]])
+        out = replace(out, displacement_times=t, command_times=0.5 * (previous + t))
+        notes.append(f"{share}; paired by message order (displacement i answers command i)")
+        return out, counts, "; ".join(notes)
+    # time-based pairing: a displacement is ambiguous when its stamp repeats among the
+    # displacements, or when the command in effect (either same-stamp convention) is one of
+    # a run of commands sharing a stamp (their true times lie anywhere up to the next stamp)
+    disp_times = data.displacement_times
+    shared = disp_rep.copy()
+    shared[:-1] |= disp_rep[1:]
+    run_start = np.flatnonzero(~cmd_rep)
+    run_size = np.diff(np.append(run_start, cmd_rep.size))[np.cumsum(~cmd_rep) - 1]
+    ambiguous = shared
+    for side in ("left", "right"):
+        in_effect = np.searchsorted(data.command_times, disp_times, side=side) - 1
+        ambiguous |= (in_effect >= 0) & (run_size[np.maximum(in_effect, 0)] > 1)
+    counts[AMBIGUOUS] = int(ambiguous.sum())
+    keep = ~ambiguous
+    if keep.sum() < MIN_SAMPLES:
+        raise CalibrationInputError(
+            f"too little usable data: {counts[AMBIGUOUS]} of {keep.size} displacement samples "
+            f"have an ambiguous repeated stamp and {data.command_times.size} commands cannot be "
+            f"paired by order with {keep.size} displacements (need {MIN_SAMPLES} usable samples)"
+        )
+    out = replace(out, displacement_times=disp_times[keep], displacement=data.displacement[keep])
+    notes.append(
+        f"{share}; counts differ, so paired by time and {counts[AMBIGUOUS]} ambiguous "
+        "displacement samples dropped"
+    )
+    return out, counts, "; ".join(notes)
+
+
 def align(data: MeasuredData, n_blocks: int | None = None) -> AlignedData:
     """Align ``data`` on the displacement stamps and split it; raise CalibrationInputError."""
     grid = tuple(int(s) for s in data.displacement.shape[1:])
@@ -207,8 +279,8 @@ def align(data: MeasuredData, n_blocks: int | None = None) -> AlignedData:
     _check_series("displacement", data.displacement_times, data.displacement, rows_cols)
     _check_series("command", data.command_times, data.command, rows_cols)
     _check_series("temperature", data.temperature_times, data.temperature, rows_cols)
+    data, dropped, stamp_note = _resolve_repeated_stamps(data)
     A = rows_cols[0] * rows_cols[1]
-    dropped: dict[str, int] = {}
 
     # samples before the first command have no known input: drop them
     # stamps are sorted: the kept samples are a suffix (a view, no copy of a large record)
@@ -240,9 +312,7 @@ def align(data: MeasuredData, n_blocks: int | None = None) -> AlignedData:
     dropped["temperature NaN"] = int((~np.isfinite(temp)).sum())
     temp = _fill_nan_columns(temp_times, temp)
     # uniform resampling of the temperature for its derivative
-    t_period = float(np.median(np.diff(temp_times)))
-    if t_period <= 0:
-        raise CalibrationInputError("temperature: repeated time stamps only")
+    t_period = float(np.median(np.diff(temp_times)))  # > 0: repeated stamps were spread
     n_uniform = int(np.floor((temp_times[-1] - temp_times[0]) / t_period)) + 1
     uniform = temp_times[0] + t_period * np.arange(max(n_uniform, 2))
     pos = np.clip(np.searchsorted(temp_times, uniform, side="right") - 1, 0, len(temp_times) - 2)
@@ -283,6 +353,7 @@ def align(data: MeasuredData, n_blocks: int | None = None) -> AlignedData:
         block_edges=edges,
         temperature_source=data.temperature_source,
         dropped=dropped,
+        repeated_stamps=stamp_note,
     )
     if valid.sum(axis=0).min() < MIN_SAMPLES:
         worst = int(np.argmin(valid.sum(axis=0)))

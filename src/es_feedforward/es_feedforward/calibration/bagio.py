@@ -55,7 +55,11 @@ def _grid_temperature(series: TopicSeries, grid: tuple[int, int], path: Path) ->
 
 
 def read_measured_bag(path: str | Path) -> MeasuredData:
-    """Read one measured-data bag; raise CalibrationInputError with one line on any problem."""
+    """Read one measured-data bag; raise CalibrationInputError with one line on any problem.
+
+    A topic without messages counts as absent: an empty /dm/temperature falls back to
+    /dm/temperature/raw.
+    """
     bag = Path(path)
     needed = [COMMAND, DISPLACEMENT]
     listed = _listed_topics(bag)
@@ -63,17 +67,20 @@ def read_measured_bag(path: str | Path) -> MeasuredData:
         if listed is None:
             series = read_bag(bag)
         else:
-            temperature = [t for t in (TEMPERATURE, TEMPERATURE_RAW) if t in listed][:1]
-            series = read_bag(bag, [t for t in needed if t in listed] + temperature)
+            wanted = [t for t in (*needed, TEMPERATURE, TEMPERATURE_RAW) if t in listed]
+            series = read_bag(bag, wanted)
     except BagError as err:
         raise CalibrationInputError(str(err)) from None
+    empty = sorted(t for t, s in series.items() if len(s) == 0)
+    series = {t: s for t, s in series.items() if len(s) > 0}
     missing = [t for t in needed if t not in series]
     temp_topic = next((t for t in (TEMPERATURE, TEMPERATURE_RAW) if t in series), None)
     if missing or temp_topic is None:
         need = [*missing] + ([] if temp_topic else [f"{TEMPERATURE} or {TEMPERATURE_RAW}"])
         raise CalibrationInputError(
-            f"{bag}: bag without the needed topics: missing {', '.join(need)} "
-            f"(has: {', '.join(sorted(series)) or 'nothing'})"
+            f"{bag}: bag without data on the needed topics: missing {', '.join(need)} "
+            f"(with messages: {', '.join(sorted(series)) or 'none'}; "
+            f"empty: {', '.join(empty) or 'none'})"
         )
     for topic in needed:
         values = series[topic].values
@@ -104,6 +111,12 @@ def read_measured_bags(paths: Sequence[str | Path]) -> MeasuredData:
     """Read and concatenate bags of one mirror (in start-time order)."""
     if not paths:
         raise CalibrationInputError("no bag given")
+    seen: dict[Path, str] = {}
+    for p in paths:
+        key = Path(p).resolve()
+        if key in seen:
+            raise CalibrationInputError(f"bag {p} given twice (also as {seen[key]})")
+        seen[key] = str(p)
     named = sorted(
         ((read_measured_bag(p), str(p)) for p in paths), key=lambda m: m[0].displacement_times[0]
     )

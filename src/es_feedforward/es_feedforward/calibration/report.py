@@ -180,6 +180,7 @@ def write_report(cal: Calibration, out: Path, notes: list[str]) -> Path:
         f"- {a.block_edges.size - 1} interleaved blocks of {a.block_edges[1]:.2f} s: "
         f"{int(a.train.sum())} training and {int((~a.train).sum())} held-out samples",
         "- dropped values: " + (", ".join(f"{k}: {v}" for k, v in a.dropped.items()) or "none"),
+        *([f"- {a.repeated_stamps}"] if a.repeated_stamps else []),
         "",
         "## b. Law fit (hyperbolic, M and k "
         + ("quadratic" if len(cal.final.model.local_names) == 6 else "linear")

@@ -8,7 +8,8 @@ residual's autocorrelation)::
       "grid": {"rows": R, "cols": C},
       "data": {"start_time_s", "duration_s", "sample_rate_hz", "command_period_s",
                "temperature_topic", "samples", "training_samples", "heldout_samples",
-               "blocks", "command_in_effect_at_same_stamp", "dropped": {reason: count}},
+               "blocks", "command_in_effect_at_same_stamp", "dropped": {reason: count},
+               "repeated_stamps": how repeated stamps were resolved, "" if none},
       "law": {"L", "Tm" (fixed), "m1", "m2", "m3", "k1", "k2", "k3": row-major lists of R*C,
               "uncertainty": {same names: lists of R*C 1-sigma values}},
       "effects": [{"name": canonical name, "parameters": {...}, "uncertainties": {...},
@@ -134,6 +135,7 @@ def calibration_document(cal: Calibration) -> dict[str, Any]:
             "blocks": int(a.block_edges.size - 1),
             "command_in_effect_at_same_stamp": a.include_same_stamp,
             "dropped": a.dropped,
+            "repeated_stamps": a.repeated_stamps,
         },
         "law": law,
         "effects": [
