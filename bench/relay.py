@@ -31,7 +31,7 @@ class Relay(Node):
 
 def main() -> int:
     """Run the relay until SIGINT/SIGTERM."""
-    return run_node(Relay, sys.argv, executor="single")
+    return run_node(Relay, sys.argv)
 
 
 if __name__ == "__main__":

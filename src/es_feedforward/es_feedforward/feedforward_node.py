@@ -187,6 +187,10 @@ class FeedforwardNode(Node):
 
         # deep publisher history: a recorder that lags for a moment still gets every command
         self._command_pub = self.create_publisher(Float64MultiArray, COMMAND, DM_PUBLISHER_QOS)
+        self._command_msg = grid_to_msg(np.zeros(config.shape))
+        self._command_grid = np.frombuffer(self._command_msg.data, np.float64).reshape(
+            config.shape
+        )
         self._diag_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS, qos_for(DIAGNOSTICS))
         # Temperature first: the executor serves ready subscriptions in creation order, and in
         # lockstep a step's estimate is sent before its set point, which must use it.
@@ -244,7 +248,10 @@ class FeedforwardNode(Node):
         self._publish_diagnostics_on_change(now)
 
     def _publish_command(self, voltage: np.ndarray) -> None:
-        self._command_pub.publish(grid_to_msg(voltage))
+        # publish() serialises synchronously, so one message (layout fixed by the read-only
+        # rows/cols) is refilled in place instead of building a new one per set point.
+        self._command_grid[...] = voltage
+        self._command_pub.publish(self._command_msg)
         self._counts["commands"] += 1
 
     def _reject(self, topic: str, reason: str) -> None:

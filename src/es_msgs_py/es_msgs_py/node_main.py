@@ -2,29 +2,16 @@
 
 from __future__ import annotations
 
-import os
 import sys
 from collections.abc import Callable, Sequence
-from typing import Final, Protocol
+from typing import Protocol
 
 import rclpy
 import rclpy.logging
 from rclpy._rclpy_pybind11 import RCLError
-from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
-from rclpy.experimental import EventsExecutor
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.publisher import Publisher
-
-#: Environment variable choosing the executor of :func:`run_node`: ``events`` (default) or
-#: ``single``.
-EXECUTOR_ENV: Final = "ES_DM_EXECUTOR"
-#: Executor factories by name. ``events``: rclpy's experimental C++ EventsExecutor, which
-#: does not rebuild a wait set in Python on every spin (about twice the message rate of
-#: ``single`` for 32 kB grids here); ``single``: rclpy's SingleThreadedExecutor.
-EXECUTORS: Final[dict[str, Callable[[], Executor]]] = {
-    "events": EventsExecutor,
-    "single": SingleThreadedExecutor,
-}
 
 
 class PublishCounter:
@@ -63,15 +50,8 @@ class Closable(Protocol):
         """Flush and release everything; called once, after spinning stopped."""
 
 
-def run_node(
-    make_node: Callable[[], Node],
-    args: Sequence[str] | None = None,
-    executor: str | None = None,
-) -> int:
+def run_node(make_node: Callable[[], Node], args: Sequence[str] | None = None) -> int:
     """Create the node with ``make_node``, spin it until shutdown and return an exit code.
-
-    ``executor`` names one of :data:`EXECUTORS`; ``None`` takes ``$ES_DM_EXECUTOR``, else
-    ``events``. An unknown name prints one line and returns 2.
 
     SIGINT and SIGTERM end the spin cleanly (rclpy's signal handlers shut the context down);
     the node's ``close()`` runs if it has one, then the node logs how many messages it
@@ -79,12 +59,6 @@ def run_node(
     invalid configuration (``ValueError`` from the constructor) prints one readable line and
     returns 2.
     """
-    name = executor if executor is not None else os.environ.get(EXECUTOR_ENV, "events")
-    make_executor = EXECUTORS.get(name)
-    if make_executor is None:
-        print(f"error: unknown executor {name!r} (${EXECUTOR_ENV}): choose one of "
-              f"{', '.join(EXECUTORS)}", file=sys.stderr)
-        return 2
     try:
         rclpy.init(args=list(args) if args is not None else sys.argv)
     except RCLError as err:  # e.g. a --params-file that does not exist or does not parse
@@ -95,9 +69,9 @@ def run_node(
     try:
         node = make_node()
         counter = PublishCounter(node)
-        spinner = make_executor()
-        spinner.add_node(node)
-        spinner.spin()
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except ValueError as err:
