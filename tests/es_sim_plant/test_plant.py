@@ -20,7 +20,8 @@ def test_shipped_scenarios_load(name: str) -> None:
     scenario = load_scenario(name)
     plant = Plant(scenario)
     assert plant.steps == round(scenario.duration * scenario.control_rate)
-    assert scenario.effects.enabled_names() == []
+    # the default simulator's sensor lag at most; every other effect is a calibration topic
+    assert set(scenario.effects.enabled_names()) <= {"sensor_lag"}
 
 
 def test_thesis_scenarios_keep_the_thesis_ranges() -> None:

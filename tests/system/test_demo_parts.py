@@ -43,7 +43,7 @@ def test_seed_tells_hardware_apart_only_with_spread(tmp_path: Path) -> None:
     assert mirror != ac
     other_sample = _thesis_ac_copy(tmp_path, "other_sample", seed=12)
     assert _hardware_signature(characterisation_scenario(other_sample, tmp_path)) != ac
-    no_spread = {"spread": {}}
+    no_spread: dict[str, dict[str, float]] = {"spread": {}}
     ideal_11 = _thesis_ac_copy(tmp_path, "ideal_11", actuators=no_spread)
     ideal_12 = _thesis_ac_copy(tmp_path, "ideal_12", actuators=no_spread, seed=12)
     assert _hardware_signature(

@@ -10,11 +10,16 @@ temperature instead of the thermal node's estimate:
 
 Compared with the closed-loop run, the difference is what the temperature estimate (sensor
 noise, lag, the thermal model) adds.
+
+The thesis measured each temperature level of section 4-1 only once the stage had reached
+equilibrium; :func:`settled_metrics` gives a run's figures over the periods clear of a
+base-temperature step's transient, beside the strict figure over every period.
 """
 
 from __future__ import annotations
 
 from dataclasses import replace
+from itertools import pairwise
 
 import numpy as np
 
@@ -22,6 +27,10 @@ from es_feedforward.feedforward import Feedforward, FeedforwardConfig
 from es_sim_plant.metrics import AlignedRun, RunMetrics, run_metrics
 from es_sim_plant.plant import Observation, Plant, simulate
 from es_sim_plant.scenario import Scenario
+
+#: A step's transient lasts this many times the sum of the network's and the sensor's time
+#: constants (e^-5 < 1 %: settled).
+SETTLE_TIME_CONSTANTS = 5.0
 
 
 def offline_metrics(
@@ -59,3 +68,75 @@ def offline_metrics(
         grid_shape=scenario.shape,
     )
     return run_metrics(run, period_s, skip_s=period_s)[0]
+
+
+def step_times(scenario: Scenario) -> list[float]:
+    """Return the times at which the base temperature jumps (none for a linear profile), s."""
+    base = scenario.base
+    if base.interpolation != "step":
+        return []
+    points = list(zip(base.times, base.temperatures, strict=True))
+    return [t for (_, before), (t, after) in pairwise(points) if after != before]
+
+
+def settle_time(scenario: Scenario) -> float:
+    """Return how long a base step's transient lasts in the scenario, s (simulation time).
+
+    :data:`SETTLE_TIME_CONSTANTS` times the sum of the face-sheet (C_f / G_fa), actuator
+    (C_a / G_ab) and, when on, sensor-lag time constants, all as the scenario scales them.
+    """
+    p = scenario.thermal
+    lag = scenario.effects.sensor_lag
+    total = p.face_capacitance / p.face_to_actuator + p.actuator_capacitance / p.actuator_to_base
+    return SETTLE_TIME_CONSTANTS * (total + (lag.tau_s if lag.enabled else 0.0))
+
+
+def settled_metrics(
+    run: AlignedRun, period_s: float, scenario: Scenario, skip_s: float
+) -> RunMetrics | None:
+    """Return the run's figures over the periods clear of every base step's transient.
+
+    Whole periods (counted as :func:`es_sim_plant.metrics.period_slots` counts them, from
+    ``skip_s``) that overlap [t_step, t_step + :func:`settle_time`) are left out; ``None``
+    when the scenario has no step (nothing to leave out) or nothing is left.
+    """
+    steps = step_times(scenario)
+    if not steps or run.times.size < 2:
+        return None
+    dt = float(np.median(np.diff(run.times)))
+    samples = round(period_s / dt)
+    start = int(np.searchsorted(run.times, run.times[0] + skip_s))
+    count = (run.times.size - start) // samples
+    settle = settle_time(scenario)
+    first = run.times[start + samples * np.arange(count)] - dt  # each period's start time
+    last = first + samples * dt
+    hit = np.zeros(count, dtype=bool)
+    for t in steps:
+        hit |= (first < t + settle) & (last > t)
+    keep = np.flatnonzero(~hit)
+    if keep.size == 0:
+        return None
+    index = (start + samples * keep[:, None] + np.arange(samples)[None, :]).reshape(-1)
+    settled = AlignedRun(
+        times=run.times[0] + dt * np.arange(index.size),
+        setpoint=run.setpoint[index],
+        output=run.output[index],
+        temperature=run.temperature[index],
+        grid_shape=run.grid_shape,
+    )
+    return run_metrics(settled, period_s)[0]
+
+
+def estimate_error(run: AlignedRun, scenario: Scenario) -> float:
+    """Return the largest |temperature in force - true actuator temperature| of a run, degC.
+
+    The truth comes from the plant core run offline with no voltage (the thermal network
+    does not depend on the commands unless ``self_heating`` is on), sampled at the run's
+    displacement times as :class:`AlignedRun` pairs them.
+    """
+    plant = Plant(scenario)
+    truth = simulate(plant, commands=np.zeros(plant.shape)[None].repeat(plant.steps, axis=0))
+    times = truth.time + plant.dt
+    index = np.clip(np.searchsorted(times, run.times - 0.5 * plant.dt), 0, times.size - 1)
+    true_temperature = truth.actuator_temperature.reshape(times.size, -1)[index]
+    return float(np.max(np.abs(run.temperature - true_temperature)))

@@ -8,8 +8,9 @@ feedforward node and the plant (lockstep, exits when its scenario ends); when th
 the launch shuts down, which sends SIGINT to the others so the recorder closes its bag.
 Unlike the bring-up, launch does not wait for the other nodes' subscriptions before starting
 the plant (the plant's lockstep start-up waits for its peers and, with start_subscribers 1,
-for the recorder), and it does not derive the thermal node's sensor and thermal-network
-parameters from the scenario: give the grid as rows/cols (the bring-up does all of that).
+for the recorder), and it does not derive the thermal node's sensor (positions, noise, the
+known lag ``sensor_lag_tau``), time-scale and thermal-network parameters from the scenario:
+give the grid as rows/cols (the bring-up does all of that).
 """
 
 from launch import LaunchDescription
