@@ -614,8 +614,8 @@ class Demo:
             "",
             "Why thesis_ac is the harder of the two: it steps the "
             "base temperature by 2 degC at once. The actuator follows within its time "
-            "constant, the lagging sensor later, and the thermal node's estimate (10 Hz "
-            "samples, a base plate it models as drifting slowly) is off most until the first "
+            "constant, the lagging sensor later, and the thermal node's estimate (a base "
+            "plate it models as drifting slowly) is off most until the first "
             "samples after each step (largest estimate errors below); at ~3 %/degC on up to "
             "100 nm each 0.1 degC of error is up to 0.3 nm while it lasts, and the thesis's "
             "variation "
