@@ -17,19 +17,13 @@ from typing import Any, Final
 import numpy as np
 import numpy.typing as npt
 
+from es_feedforward.calibration.model import CANDIDATES
+
 FloatArray = npt.NDArray[np.float64]
 
-#: Canonical effect names, in the order of docs/architecture.md.
-EFFECT_NAMES: Final = (
-    "sensor_lag",
-    "delay",
-    "hysteresis",
-    "coupling",
-    "thermal_expansion",
-    "drift",
-    "temperature_curvature",
-    "self_heating",
-)
+#: Canonical effect names, in the order of docs/architecture.md: the calibration tool's
+#: candidates plus self-heating, which only the plant has.
+EFFECT_NAMES: Final = (*CANDIDATES, "self_heating")
 
 #: Hysteresis weight a = a0 exp(-(T_a - Tm - HYSTERESIS_ONSET) / HYSTERESIS_DECAY): grows below.
 HYSTERESIS_ONSET: Final = 2.0
