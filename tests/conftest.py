@@ -8,6 +8,7 @@ Node processes started by tests inherit this environment.
 from __future__ import annotations
 
 import os
+import subprocess
 
 # Domains 1..200: fast-DDS ports for larger IDs overflow the valid port range.
 os.environ["ROS_DOMAIN_ID"] = str(1 + os.getpid() % 200)
@@ -19,3 +20,13 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).parent))  # makes tests/support importable as `support`
+
+
+def pytest_sessionstart(session: object) -> None:
+    """Clean Fast DDS shared-memory files left by dead processes (`fastdds shm clean`).
+
+    Tests SIGKILL nodes on purpose; the tool removes only files whose owner is gone.
+    """
+    tool = Path(sys.prefix) / "bin" / "fastdds"
+    if tool.exists():
+        subprocess.run([str(tool), "shm", "clean"], capture_output=True, timeout=60, check=False)

