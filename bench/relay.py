@@ -1,11 +1,12 @@
 """The benchmark's floor for a node over DDS: a plain rclpy relay /dm/setpoint -> /dm/command.
 
 It republishes every received message unchanged (no conversion, no computation), with the
-contract QoS and the same single-threaded executor the es_dm nodes use, so the feedforward
-node's rate and latency can be compared with what rclpy itself costs for the same message
-size on the same machine. Run as its own process (``bench/run.py`` starts it):
+contract QoS and rclpy's default SingleThreadedExecutor, so the feedforward node's rate and
+latency can be compared with what plain rclpy costs for the same message size on the same
+machine. ``-p executor:=events`` runs it on the EventsExecutor the feedforward node uses (a
+second reference). Run as its own process (``bench/run.py`` starts it):
 
-    .venv/bin/python bench/relay.py [--ros-args ...]
+    .venv/bin/python bench/relay.py [--ros-args -p executor:=events ...]
 """
 
 from __future__ import annotations
@@ -15,7 +16,8 @@ import sys
 from rclpy.node import Node
 from std_msgs.msg import Float64MultiArray
 
-from es_msgs_py.node_main import run_node
+from es_msgs_py.node_main import EXECUTOR_PARAMETER, EXECUTORS, run_node
+from es_msgs_py.params import ParameterSpec, declare_parameters
 from es_msgs_py.topics import COMMAND, SETPOINT, qos_for
 
 
@@ -24,6 +26,8 @@ class Relay(Node):
 
     def __init__(self) -> None:
         super().__init__("relay")
+        declare_parameters(self, [ParameterSpec(EXECUTOR_PARAMETER, EXECUTORS[0], "Executor.",
+                                                choices=EXECUTORS, read_only=True)])
         self._publisher = self.create_publisher(Float64MultiArray, COMMAND, qos_for(COMMAND))
         self.create_subscription(Float64MultiArray, SETPOINT, self._publisher.publish,
                                  qos_for(SETPOINT))

@@ -19,7 +19,7 @@ the names of issue 9 (``ratio`` null where there is no floor or relay); ``refere
 the floors and the relay in the same format. A section that fails is reported in
 ``failures`` and in bench.md, the others still run; the exit code is then 1.
 
-DDS runs use ROS_DOMAIN_ID from the environment (default 1 + pid % 200) and localhost
+DDS runs use ROS_DOMAIN_ID from the environment (default 1 + pid % 101) and localhost
 discovery only. Nothing here is asserted: targets are compared in the notes.
 """
 
@@ -46,7 +46,7 @@ from pathlib import Path
 from typing import IO, Any
 
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-os.environ.setdefault("ROS_DOMAIN_ID", str(1 + os.getpid() % 200))
+os.environ.setdefault("ROS_DOMAIN_ID", str(1 + os.getpid() % 101))
 os.environ.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
 os.environ.setdefault("PYTHONUNBUFFERED", "1")
 
@@ -440,9 +440,10 @@ class DdsRun:
 def _measure_node(kind: str, shape: tuple[int, int], settings: Settings, log_dir: Path,
                   profile_to: Path | None = None) -> DdsRun:
     rows, cols = shape
-    if kind == "relay":
+    if kind in ("relay", "relay_events"):
+        executor = "events" if kind == "relay_events" else "single_threaded"
         command = [sys.executable, str(BENCH_DIR / "relay.py"), "--ros-args", "-r",
-                   "__node:=relay"]
+                   "__node:=relay", "-p", f"executor:={executor}"]
     else:
         args = ["--ros-args", "-p", f"rows:={rows}", "-p", f"cols:={cols}",
                 "-p", "temperature_timeout:=0.0"]
@@ -487,10 +488,13 @@ def section_feedforward(settings: Settings, results: Results, log_dir: Path) -> 
         n = shape[0] * shape[1]
         # Relay and node take turns, one process start each per repeat, so that a change of
         # the machine's load during the section hits both alike.
-        relay, ff = DdsRun(), DdsRun()
+        relay, ff, relay_events = DdsRun(), DdsRun(), DdsRun()
+        kinds = [("relay", relay), ("feedforward", ff)]
+        if shape == DDS_SHAPES[-1]:  # what the relay costs on the feedforward's executor
+            kinds.append(("relay_events", relay_events))
         one = replace(settings, repeats=1)
         for _ in range(settings.repeats):
-            for kind, total in (("relay", relay), ("feedforward", ff)):
+            for kind, total in kinds:
                 run = _measure_node(kind, shape, one, log_dir)
                 total.rate_hz += run.rate_hz
                 total.p50_s += run.p50_s
@@ -508,6 +512,9 @@ def section_feedforward(settings: Settings, results: Results, log_dir: Path) -> 
             results.references.append(Record.of(f"relay_latency_{label}", n,
                                                 [v * 1e3 for v in relay_values], "ms"))
         results.references.append(Record.of("relay_rate", n, relay.rate_hz, "Hz"))
+        if relay_events.rate_hz:
+            results.references.append(Record.of("relay_events_rate", n, relay_events.rate_hz,
+                                                "Hz"))
         results.records.append(Record.of("peak_rss_feedforward", n, [ff.peak_mib], "MiB"))
         results.references.append(Record.of("peak_rss_relay", n, [relay.peak_mib], "MiB"))
     results.notes.append(
@@ -515,8 +522,10 @@ def section_feedforward(settings: Settings, results: Results, log_dir: Path) -> 
         "each per repeat; feedforward_rate: commands per second with "
         f"{RATE_WINDOW} set points in flight (ratio = feedforward / relay, same message size, "
         "same run); latency: set point published -> command received in the client, one at "
-        "a time (ratio = feedforward / relay). The client is one rclpy node in the benchmark "
-        "process; its own cost is in both figures alike."
+        "a time (ratio = feedforward / relay). The relay runs on rclpy's default "
+        "SingleThreadedExecutor, the feedforward node on the EventsExecutor (its default); "
+        "relay_events_rate is the relay on the EventsExecutor too. The client is one rclpy "
+        "node in the benchmark process; its own cost is in all figures alike."
     )
     if settings.profile:
         _profile_feedforward(results, log_dir)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import signal
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -226,3 +227,37 @@ def test_node_rejects_an_invalid_parameters_file_with_one_line(tmp_path: Path) -
     lines = [line for line in proc.output().splitlines() if line.strip()]
     assert lines[-1].startswith("error: ") and "law.m2" in lines[-1]
     assert "Traceback" not in proc.output()
+
+
+@pytest.mark.parametrize(
+    ("executor", "sig"),
+    [("events", signal.SIGTERM), ("events", signal.SIGINT), ("single_threaded", signal.SIGTERM)],
+)
+def test_node_serves_and_stops_cleanly_on_either_executor(
+    params_file: Path, executor: str, sig: int
+) -> None:
+    args = ["--ros-args", "--params-file", str(params_file), "-p", f"executor:={executor}"]
+    with (
+        node_process("es_feedforward", "feedforward_node", args) as proc,
+        ros_node("ff_test") as node,
+    ):
+        h = Harness(node)
+        h.wait_connected()
+        h.send_temperature(TEMPERATURE)
+        z = np.full(SHAPE, 40.0 * NM)
+        for _ in range(3):
+            command = h.exchange(grid_to_msg(z))
+        np.testing.assert_allclose(
+            hyperbolic_forward(command, TEMPERATURE, PARAMS), z, atol=1e-5 * NM
+        )
+        code = proc.stop(sig)
+    assert code == 0, proc.output()
+    # the clean-shutdown path ran: it logs what was published
+    assert "published /dm/command: 3" in proc.output(), proc.output()
+
+
+def test_node_rejects_an_unknown_executor_with_one_line() -> None:
+    proc = NodeProcess("es_feedforward", "feedforward_node", ["--ros-args", "-p", "executor:=fast"])
+    assert proc.process.wait(20) == 2
+    lines = [line for line in proc.output().splitlines() if line.strip()]
+    assert lines[-1].startswith("error: ") and "executor" in lines[-1], proc.output()

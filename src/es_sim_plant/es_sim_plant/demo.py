@@ -359,7 +359,9 @@ def _domain() -> int:
     given = os.environ.get("ROS_DOMAIN_ID")
     if given:
         return int(given)
-    return 1 + os.getpid() % 200  # Fast DDS ports overflow above ~230
+    # 1..101: higher domains put DDS ports into Linux's ephemeral range (32768+), where
+    # another socket can hold a port a participant needs (ROS 2 docs, About Domain ID)
+    return 1 + os.getpid() % 101
 
 
 class Demo:
