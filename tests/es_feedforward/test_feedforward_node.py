@@ -243,17 +243,22 @@ def test_node_serves_and_stops_cleanly_on_either_executor(
     ):
         h = Harness(node)
         h.wait_connected()
-        h.send_temperature(TEMPERATURE)
         z = np.full(SHAPE, 40.0 * NM)
-        for _ in range(3):
+        exchanges = 0
+        # the first estimate can be lost while the node's reader still matches the writer;
+        # until one arrives the node holds 0 V
+        command = np.zeros(SHAPE)
+        while exchanges < 20 and not command.any():
+            h.send_temperature(TEMPERATURE)
             command = h.exchange(grid_to_msg(z))
+            exchanges += 1
         np.testing.assert_allclose(
             hyperbolic_forward(command, TEMPERATURE, PARAMS), z, atol=1e-5 * NM
         )
         code = proc.stop(sig)
     assert code == 0, proc.output()
     # the clean-shutdown path ran: it logs what was published
-    assert "published /dm/command: 3" in proc.output(), proc.output()
+    assert f"published /dm/command: {exchanges}" in proc.output(), proc.output()
 
 
 def test_node_rejects_an_unknown_executor_with_one_line() -> None:
