@@ -78,18 +78,25 @@ def executor_kind(node: Node) -> str:
 def spin(node: Node, kind: str = EXECUTORS[0], context: Context | None = None) -> None:
     """Spin ``node`` with the executor ``kind`` (one of :data:`EXECUTORS`) until shutdown.
 
-    Raises ``KeyboardInterrupt`` or ``ExternalShutdownException`` like ``rclpy.spin``.
+    ``events`` falls back to the single-threaded executor, with a warning, on an rclpy
+    without the EventsExecutor. Raises ``KeyboardInterrupt`` or ``ExternalShutdownException``
+    like ``rclpy.spin``.
     """
     context = context or node.context
     executor: Executor
     if kind == "events":
-        from rclpy.experimental import EventsExecutor
-
-        executor = EventsExecutor(context=context)
-        executor.add_node(node)
-        while context.ok():
-            executor.spin_once(timeout_sec=EVENTS_SPIN_SLICE)
-        return
+        try:
+            from rclpy.experimental import EventsExecutor
+        except ImportError:  # rclpy before 7.1.4 (Jazzy before April 2025)
+            node.get_logger().warning(
+                "this rclpy has no EventsExecutor (7.1.4 or later has): spinning single-threaded"
+            )
+        else:
+            executor = EventsExecutor(context=context)
+            executor.add_node(node)
+            while context.ok():
+                executor.spin_once(timeout_sec=EVENTS_SPIN_SLICE)
+            return
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(node)
     executor.spin()

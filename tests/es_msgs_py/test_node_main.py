@@ -1,0 +1,71 @@
+"""Executor choice of es_msgs_py.node_main: the parameter, both executors, the fallback."""
+
+from __future__ import annotations
+
+import contextlib
+
+import pytest
+import rclpy
+import rclpy.experimental
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from support.ros import test_node as ros_node
+
+from es_msgs_py.node_main import EXECUTOR_PARAMETER, EXECUTORS, executor_kind, spin
+from es_msgs_py.params import ParameterSpec, declare_parameters
+
+pytestmark = pytest.mark.dds
+
+
+def _spin_until_a_timer_shuts_down(node: Node, kind: str) -> int:
+    """Spin ``node`` on ``kind``; a 20 ms timer counts and shuts the context down at 3."""
+    fired = 0
+
+    def tick() -> None:
+        nonlocal fired
+        fired += 1
+        if fired == 3:
+            node.context.try_shutdown()
+
+    node.create_timer(0.02, tick)
+    with contextlib.suppress(ExternalShutdownException):
+        spin(node, kind)
+    return fired
+
+
+def test_a_node_without_the_parameter_gets_the_single_threaded_executor() -> None:
+    with ros_node("plain") as node:
+        assert executor_kind(node) == "single_threaded"
+
+
+def test_the_parameter_names_the_executor() -> None:
+    with ros_node("chooser") as node:
+        spec = ParameterSpec(EXECUTOR_PARAMETER, "events", "Executor.", choices=EXECUTORS)
+        declare_parameters(node, [spec])
+        assert executor_kind(node) == "events"
+
+
+@pytest.mark.parametrize("kind", EXECUTORS)
+def test_each_executor_runs_timers_and_returns_when_the_context_shuts_down(kind: str) -> None:
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    node = rclpy.create_node(f"spin_{kind}", context=context)
+    try:
+        assert _spin_until_a_timer_shuts_down(node, kind) == 3
+    finally:
+        node.destroy_node()
+        context.try_shutdown()
+
+
+def test_events_falls_back_to_single_threaded_without_the_events_executor(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.delattr(rclpy.experimental, "EventsExecutor")
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    node = rclpy.create_node("fallback", context=context)
+    try:
+        assert _spin_until_a_timer_shuts_down(node, "events") == 3
+    finally:
+        node.destroy_node()
+        context.try_shutdown()
