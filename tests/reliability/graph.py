@@ -115,10 +115,20 @@ class CommandCheck:
         self.last = grid
 
 
+#: The /dm topics a controlled lockstep plant publishes (what ``start_subscribers`` counts).
+PLANT_OUTPUTS = (topics.DISPLACEMENT, topics.SETPOINT, topics.TEMPERATURE_RAW, topics.HEAT_LOAD)
+
+
 class Watcher:
     """Test node in a background thread: watches the graph and injects messages."""
 
-    def __init__(self, shape: tuple[int, int]) -> None:
+    def __init__(self, shape: tuple[int, int], plant_peer: bool = False) -> None:
+        """Start the watcher; ``plant_peer`` also subscribes to the plant's /dm outputs.
+
+        With ``plant_peer`` a plant started with ``start_subscribers`` counting the watcher
+        steps only once the watcher has matched it (those messages are ignored): otherwise a
+        short lockstep run can end before discovery between the two completes.
+        """
         self.context = rclpy.Context()
         rclpy.init(context=self.context)
         self.node = rclpy.create_node("reliability_watcher", context=self.context)
@@ -141,6 +151,10 @@ class Watcher:
                                  topics.qos_for(topics.CLOCK))
         node.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, self._on_diagnostics,
                                  topics.qos_for(topics.DIAGNOSTICS))
+        if plant_peer:
+            for topic in PLANT_OUTPUTS:
+                node.create_subscription(Float64MultiArray, topic, lambda _msg: None,
+                                         topics.qos_for(topic))
         self.publishers = {
             topic: node.create_publisher(Float64MultiArray, topic, topics.qos_for(topic))
             for topic in (topics.SETPOINT, topics.TEMPERATURE, topics.TEMPERATURE_RAW,

@@ -24,7 +24,7 @@ from es_msgs_py.arrays import grid_to_msg
 from es_msgs_py.bag import read_bag
 from es_sim_plant.bringup import GraphConfig, node_specs
 
-from .graph import Proc, Watcher
+from .graph import PLANT_OUTPUTS, Proc, Watcher
 
 if TYPE_CHECKING:
     from .conftest import FaultCases
@@ -35,8 +35,6 @@ SHAPE = (3, 3)
 DURATION = 6.0  # sim seconds at 100 Hz control, 10 Hz sensors
 KILL_FEEDFORWARD_AT = 1.0
 KILL_THERMAL_AT = 3.0
-#: Plant topics compared with the bag (the plant logs its published counts at exit).
-PLANT_TOPICS = (topics.DISPLACEMENT, topics.SETPOINT, topics.TEMPERATURE_RAW, topics.HEAT_LOAD)
 
 
 def _kill_and_restart(
@@ -65,11 +63,12 @@ def test_nodes_killed_and_restarted_in_lockstep(tmp_path: Path, fault_cases: Fau
     config = GraphConfig(
         scenario="dm_exposure",
         bag=bag,
+        # start_subscribers 2: the recorder and the watcher must match before step 0
         plant={"rows": 3, "cols": 3, "duration": DURATION, "command_timeout": 0.1,
-               "sync_timeout": 0.1},
+               "sync_timeout": 0.1, "start_subscribers": 2},
     )
     before, plant_spec = node_specs(config)
-    watcher = Watcher(SHAPE)
+    watcher = Watcher(SHAPE, plant_peer=True)
     procs = {spec.name: Proc(spec.name, spec.command) for spec in before}
     try:
         node = watcher.node
@@ -128,8 +127,9 @@ def test_nodes_killed_and_restarted_in_lockstep(tmp_path: Path, fault_cases: Fau
                 fault_cases.crashed()
         procs["record"].stop()
 
-        counts = read_bag(bag, PLANT_TOPICS)
-        for topic in PLANT_TOPICS:
+        # the plant logs its published counts at exit; the bag must hold every message
+        counts = read_bag(bag, PLANT_OUTPUTS)
+        for topic in PLANT_OUTPUTS:
             published = procs["plant"].published(topic)
             recorded = len(counts[topic]) - watcher.injected.get(topic, 0)
             lost = (published or 0) - recorded
