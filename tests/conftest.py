@@ -10,10 +10,9 @@ from __future__ import annotations
 import os
 import subprocess
 
-# Domains 1..101: the DDS ports of higher ones fall into Linux's ephemeral range (32768+),
-# where any socket of the machine can hold a port a participant needs; discovery then fails
-# now and then (ROS 2 docs, "About Domain ID").
-os.environ["ROS_DOMAIN_ID"] = str(1 + os.getpid() % 101)
+from es_msgs_py.topics import process_domain_id
+
+os.environ["ROS_DOMAIN_ID"] = str(process_domain_id())
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 os.environ.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
 os.environ.setdefault("PYTHONUNBUFFERED", "1")

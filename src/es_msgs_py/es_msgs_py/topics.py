@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib
+import os
 from typing import Final
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -15,6 +16,20 @@ COMMAND: Final = "/dm/command"
 DISPLACEMENT: Final = "/dm/displacement"
 DIAGNOSTICS: Final = "/diagnostics"
 CLOCK: Final = "/clock"
+
+#: Highest ROS domain whose DDS ports (for the first 50 participants of a host) stay below
+#: Linux's ephemeral range (32768+): in that range any socket of the machine can hold a port
+#: a participant needs, and discovery then fails now and then (ROS 2 docs, "About Domain ID").
+MAX_SAFE_DOMAIN_ID: Final = 101
+
+
+def process_domain_id(pid: int | None = None) -> int:
+    """Return a ROS domain in 1..MAX_SAFE_DOMAIN_ID picked from ``pid`` (default: this one).
+
+    Tests, benchmarks and the demo isolate their traffic with it.
+    """
+    return 1 + (os.getpid() if pid is None else pid) % MAX_SAFE_DOMAIN_ID
+
 
 #: Every /dm topic of the contract, in data-flow order.
 DM_TOPICS: Final = (HEAT_LOAD, TEMPERATURE_RAW, TEMPERATURE, SETPOINT, COMMAND, DISPLACEMENT)

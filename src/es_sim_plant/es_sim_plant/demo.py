@@ -39,6 +39,7 @@ from typing import Any, NoReturn
 import numpy as np
 import yaml
 
+from es_msgs_py.topics import process_domain_id
 from es_sim_plant.analysis import RunAnalysis, analyse_run
 from es_sim_plant.bringup import Bringup, GraphConfig, ParamValue, executable
 from es_sim_plant.report import ReportInputs, RunResult, write_report
@@ -359,9 +360,7 @@ def _domain() -> int:
     given = os.environ.get("ROS_DOMAIN_ID")
     if given:
         return int(given)
-    # 1..101: higher domains put DDS ports into Linux's ephemeral range (32768+), where
-    # another socket can hold a port a participant needs (ROS 2 docs, About Domain ID)
-    return 1 + os.getpid() % 101
+    return process_domain_id()
 
 
 class Demo:
