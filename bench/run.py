@@ -465,6 +465,15 @@ class DdsRun:
     paced_rate_hz: list[float] = field(default_factory=list)
     peak_mib: float = 0.0
 
+    def add(self, other: DdsRun) -> None:
+        """Append the figures of ``other`` (another repeat); keep the larger peak memory."""
+        self.rate_hz += other.rate_hz
+        self.p50_s += other.p50_s
+        self.p99_s += other.p99_s
+        self.paced_p99_s += other.paced_p99_s
+        self.paced_rate_hz += other.paced_rate_hz
+        self.peak_mib = max(self.peak_mib, other.peak_mib)
+
 
 def _measure_node(kind: str, shape: tuple[int, int], settings: Settings, log_dir: Path,
                   profile_to: Path | None = None) -> DdsRun:
@@ -527,13 +536,7 @@ def section_feedforward(settings: Settings, results: Results, log_dir: Path) -> 
         one = replace(settings, repeats=1)
         for _ in range(settings.repeats):
             for kind, total in kinds:
-                run = _measure_node(kind, shape, one, log_dir)
-                total.rate_hz += run.rate_hz
-                total.p50_s += run.p50_s
-                total.p99_s += run.p99_s
-                total.paced_p99_s += run.paced_p99_s
-                total.paced_rate_hz += run.paced_rate_hz
-                total.peak_mib = max(total.peak_mib, run.peak_mib)
+                total.add(_measure_node(kind, shape, one, log_dir))
         relay_rate = float(np.median(relay.rate_hz))
         results.records.append(Record.of("feedforward_rate", n, ff.rate_hz, "Hz",
                                           float(np.median(ff.rate_hz)) / relay_rate))
