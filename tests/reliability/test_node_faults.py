@@ -145,10 +145,12 @@ def test_faults_into_thermal_and_feedforward_nodes(
     # shows every endpoint before each pair of them has matched, so the first estimates may not
     # reach the feedforward yet (it then holds 0 V): retry for a while.
     first = None
+    estimated = False
     deadline = time.monotonic() + 20.0
     while not (first is not None and np.all(first > 0.0)) and time.monotonic() < deadline:
-        inject.raw(inject.readings(), heat=np.zeros(SHAPE))
+        estimated = inject.raw(inject.readings(), heat=np.zeros(SHAPE))
         first = inject.good_setpoint()
+    assert estimated
     assert first is not None and np.all(first > 0.0), (
         procs["feedforward"].output()[-800:], procs["thermal"].output()[-800:],
         watcher.diagnostics)
