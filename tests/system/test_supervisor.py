@@ -8,15 +8,21 @@ from pathlib import Path
 
 from es_sim_plant.supervisor import EXIT_INTERRUPTED, ProcessSpec, StopTimeouts, Supervisor
 
-# A stand-in node: prints, then waits; on SIGINT appends "<name> stopped" to a journal file.
+# A stand-in node: prints, then waits; on SIGINT appends "<name> stopped" to a journal file
+# (a "slow" one first notes "<name> interrupted" and takes 0.3 s to stop).
 NODE = r"""
 import signal, sys, time
 name, journal, behaviour = sys.argv[1], sys.argv[2], sys.argv[3]
+def note(line):
+    with open(journal, "a") as f:
+        f.write(f"{name} {line}\n")
 def on_int(*_):
     if behaviour == "ignore_sigint":
         return
-    with open(journal, "a") as f:
-        f.write(f"{name} stopped\n")
+    if behaviour == "slow":
+        note("interrupted")
+        time.sleep(0.3)
+    note("stopped")
     sys.exit(0)
 signal.signal(signal.SIGINT, on_int)
 print(f"{name} up", flush=True)
@@ -51,6 +57,23 @@ def test_primary_finishing_stops_the_others_recorder_last(tmp_path: Path) -> Non
     assert journal.read_text().splitlines() == ["thermal stopped", "recorder stopped"]
     assert (tmp_path / "logs" / "thermal.log").read_text() == "thermal up\n"
     assert any("plant finished" in m for m in messages)
+
+
+def test_processes_are_stopped_one_at_a_time_last_started_first(tmp_path: Path) -> None:
+    # one process's teardown must not overlap the next one's (see StopTimeouts.settle)
+    journal = tmp_path / "journal"
+    sup = Supervisor(tmp_path / "logs", timeouts=FAST, announce=lambda _m: None)
+    sup.start(spec("recorder", journal, "slow"))
+    sup.start(spec("thermal", journal, "slow"))
+    sup.start(spec("feedforward", journal, "slow"))
+    sup.start(spec("plant", journal, "exit0", primary=True))
+    outcome = sup.run(wall_timeout=20)
+    assert outcome.exit_code == 0, outcome.reason
+    assert journal.read_text().splitlines() == [
+        f"{name} {event}"
+        for name in ("feedforward", "thermal", "recorder")
+        for event in ("interrupted", "stopped")
+    ]
 
 
 def test_a_node_dying_stops_the_rest_with_a_clear_reason(tmp_path: Path) -> None:

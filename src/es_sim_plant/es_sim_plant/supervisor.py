@@ -4,8 +4,9 @@ A small stand-in for what ``ros2 launch`` does for a node graph (there is no lau
 each process gets its own log file (optionally echoed with a ``[name]`` prefix), a process that
 dies while it is still needed stops the group with a clear message, and the group ends when its
 primary process (the plant, which ends its scenario) exits. Stopping is by PID only: SIGINT,
-then SIGTERM, then SIGKILL after timeouts, in stages (:attr:`ProcessSpec.stop_stage`), so that
-a recorder is stopped last and closes its bag after everything it records has gone quiet.
+then SIGTERM, then SIGKILL after timeouts, one process at a time and in stages
+(:attr:`ProcessSpec.stop_stage`), so that a recorder is stopped last and closes its bag after
+everything it records has gone quiet.
 
 No rclpy here: the supervisor knows commands and exit codes, nothing about ROS.
 """
@@ -43,8 +44,8 @@ class ProcessSpec:
         primary: its exit ends the run (exit 0 = success); at least one process is primary.
         clean_exit_codes: exit codes accepted when the supervisor stops the process
             (SIGINT-handling nodes exit 0; a process killed by a signal shows ``-signum``).
-        stop_stage: processes are stopped stage by stage, lowest first, all of a stage at
-            once; a recorder gets a later stage than the nodes it records.
+        stop_stage: processes are stopped stage by stage, lowest first, and within a stage
+            the last started first; a recorder gets a later stage than the nodes it records.
 
     """
 
@@ -57,10 +58,16 @@ class ProcessSpec:
 
 @dataclass(frozen=True)
 class StopTimeouts:
-    """Seconds to wait after SIGINT and after SIGTERM before escalating."""
+    """Seconds to wait after SIGINT and after SIGTERM before escalating, and before each stop.
+
+    ``settle`` passes before each process is signalled, so that the previous one's departure
+    has reached the others first: a ROS 2 node on Fast DDS 2.14 can hang for good in its
+    participant teardown while it is handling another participant's goodbye.
+    """
 
     after_sigint: float = 10.0
     after_sigterm: float = 5.0
+    settle: float = 0.3
 
 
 @dataclass
@@ -249,49 +256,43 @@ class Supervisor:
         return self._outcome(EXIT_FAILURE, reason)
 
     def _stop_all(self) -> list[str]:
-        """Stop every running process, stage by stage; return the names stopped uncleanly.
+        """Stop every running process, one at a time; return the names stopped uncleanly.
 
-        Stages run from the lowest ``stop_stage`` up; within a stage every process gets each
-        signal at once (SIGINT, then SIGTERM, then SIGKILL for those still running after the
-        timeouts), so a stage takes as long as its slowest process, not their sum.
+        Stages run from the lowest ``stop_stage`` up, and within a stage the last started
+        process is stopped first. Each stop waits :attr:`StopTimeouts.settle`, then escalates
+        SIGINT -> SIGTERM -> SIGKILL, and ends before the next process is signalled.
         """
         unclean: list[str] = []
-        for stage in sorted({r.spec.stop_stage for r in self._running}):
-            group = [r for r in self._running if r.spec.stop_stage == stage]
-            escalated = self._stop_group([r for r in group if r.popen.poll() is None])
-            for running in group:
-                code = running.popen.returncode
-                if running in escalated or code not in running.spec.clean_exit_codes:
-                    self._announce(f"{running.spec.name} did not stop cleanly (exit code {code})")
-                    unclean.append(running.spec.name)
-                running.finish_log()
+        # sorted() is stable: reversed start order survives within a stage
+        for running in sorted(reversed(self._running), key=lambda r: r.spec.stop_stage):
+            escalated = False
+            if running.popen.poll() is None:
+                time.sleep(self._timeouts.settle)
+                escalated = self._stop_one(running)
+            code = running.popen.returncode
+            if escalated or code not in running.spec.clean_exit_codes:
+                self._announce(f"{running.spec.name} did not stop cleanly (exit code {code})")
+                unclean.append(running.spec.name)
+            running.finish_log()
         return unclean
 
-    def _stop_group(self, group: list[_Running]) -> set[_Running]:
-        """Escalate SIGINT -> SIGTERM -> SIGKILL on these PIDs; return those that needed more."""
+    def _stop_one(self, running: _Running) -> bool:
+        """Escalate SIGINT -> SIGTERM -> SIGKILL on its PID; return whether it needed more."""
         steps = (
             (signal.SIGINT, self._timeouts.after_sigint),
             (signal.SIGTERM, self._timeouts.after_sigterm),
             (signal.SIGKILL, 5.0),
         )
-        escalated: set[_Running] = set()
-        alive = list(group)
         for index, (sig, timeout) in enumerate(steps):
-            if not alive:
-                break
             if index:
-                escalated.update(alive)
-                names = ", ".join(r.spec.name for r in alive)
-                self._announce(f"{names} still running; sending {sig.name}")
-            for running in alive:
-                with contextlib.suppress(ProcessLookupError):
-                    os.kill(running.popen.pid, sig)
-            deadline = time.monotonic() + timeout
-            for running in alive:
-                with contextlib.suppress(subprocess.TimeoutExpired):
-                    running.popen.wait(max(0.0, deadline - time.monotonic()))
-            alive = [r for r in alive if r.popen.poll() is None]
-        return escalated
+                self._announce(f"{running.spec.name} still running; sending {sig.name}")
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(running.popen.pid, sig)
+            with contextlib.suppress(subprocess.TimeoutExpired):
+                running.popen.wait(timeout)
+            if running.popen.poll() is not None:
+                return index > 0
+        return True
 
     def _outcome(self, code: int, reason: str) -> Outcome:
         return Outcome(
