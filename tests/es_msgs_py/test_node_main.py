@@ -1,8 +1,11 @@
-"""Executor choice of es_msgs_py.node_main: the parameter, both executors, the fallback."""
+"""es_msgs_py.node_main: the executor choice (parameter, both executors, fallback) and the
+bounded teardown."""
 
 from __future__ import annotations
 
 import contextlib
+import subprocess
+import sys
 
 import pytest
 import rclpy
@@ -69,3 +72,34 @@ def test_events_falls_back_to_single_threaded_without_the_events_executor(
     finally:
         node.destroy_node()
         context.try_shutdown()
+
+
+# A node whose teardown never returns, as a Fast DDS participant teardown can hang.
+HANGING_TEARDOWN = r"""
+import sys, time
+from rclpy.node import Node
+from es_msgs_py.node_main import run_node
+
+class HangsInTeardown(Node):
+    def __init__(self):
+        super().__init__("hangs_in_teardown")
+        self.create_timer(0.05, self.context.try_shutdown)
+
+    def destroy_node(self):
+        time.sleep(60)
+
+sys.exit(run_node(HangsInTeardown, [], teardown_limit=0.5))
+"""
+
+
+def test_a_hanging_teardown_ends_the_process_with_exit_1_and_its_stack() -> None:
+    done = subprocess.run(
+        [sys.executable, "-c", HANGING_TEARDOWN],
+        capture_output=True,
+        text=True,
+        timeout=30,  # far below the 60 s the teardown would hang
+        check=False,
+    )
+    assert done.returncode == 1, done.stderr
+    assert "Timeout (0:00:00.500000)!" in done.stderr
+    assert "in destroy_node" in done.stderr

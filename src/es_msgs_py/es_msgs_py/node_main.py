@@ -2,10 +2,16 @@
 
 A node picks its executor with a read-only ``executor`` parameter (see :data:`EXECUTORS`);
 nodes without it get rclpy's ``SingleThreadedExecutor``.
+
+The DDS teardown at the end is bounded (:data:`TEARDOWN_LIMIT`): Fast DDS 2.14 can hang for
+good while it destroys a participant that is handling another participant's goodbye at that
+moment (several nodes stopped at once). The node's own work is finished and flushed by then;
+instead of waiting for a SIGKILL, the process prints where it hung and exits 1.
 """
 
 from __future__ import annotations
 
+import faulthandler
 import sys
 from collections.abc import Callable, Sequence
 from typing import Final, Protocol
@@ -27,6 +33,9 @@ EXECUTORS: Final = ("single_threaded", "events")
 #: Longest time [s] the events executor spins without returning to Python: its own ``spin()``
 #: ignores SIGINT/SIGTERM (rclpy 7.1), so it is spun in slices and the context is checked.
 EVENTS_SPIN_SLICE: Final = 0.1
+#: Longest time [s] the DDS teardown (destroying the node, shutting rclpy down) may take
+#: before the process gives up on it: normally well under a second.
+TEARDOWN_LIMIT: Final = 5.0
 
 
 class PublishCounter:
@@ -102,7 +111,11 @@ def spin(node: Node, kind: str = EXECUTORS[0], context: Context | None = None) -
     executor.spin()
 
 
-def run_node(make_node: Callable[[], Node], args: Sequence[str] | None = None) -> int:
+def run_node(
+    make_node: Callable[[], Node],
+    args: Sequence[str] | None = None,
+    teardown_limit: float = TEARDOWN_LIMIT,
+) -> int:
     """Create the node with ``make_node``, spin it until shutdown and return an exit code.
 
     SIGINT and SIGTERM end the spin cleanly (rclpy's signal handlers shut the context down);
@@ -110,7 +123,8 @@ def run_node(make_node: Callable[[], Node], args: Sequence[str] | None = None) -
     the node's ``close()`` runs if it has one, then the node logs how many messages it
     published per topic (``published <topic>: <count>``, see :class:`PublishCounter`). An
     invalid configuration (``ValueError`` from the constructor) prints one readable line and
-    returns 2.
+    returns 2. A DDS teardown that takes longer than ``teardown_limit`` seconds ends the
+    process with exit code 1 and the Python stack it hung in on stderr.
     """
     try:
         rclpy.init(args=list(args) if args is not None else sys.argv)
@@ -138,6 +152,12 @@ def run_node(make_node: Callable[[], Node], args: Sequence[str] | None = None) -
                 summary = rclpy.logging.get_logger(f"{node.get_name()}.summary")
                 for line in counter.log_lines():
                     summary.info(line)
-            node.destroy_node()
-        rclpy.try_shutdown()
+        # A C-level watchdog: a hung teardown holds the GIL, so no Python thread could act.
+        faulthandler.dump_traceback_later(teardown_limit, exit=True)
+        try:
+            if node is not None:
+                node.destroy_node()
+            rclpy.try_shutdown()
+        finally:
+            faulthandler.cancel_dump_traceback_later()
     return 0
