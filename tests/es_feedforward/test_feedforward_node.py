@@ -46,7 +46,7 @@ class Harness:
 
     def __post_init__(self) -> None:
         node = self.node
-        node.create_subscription(
+        self.command_sub = node.create_subscription(
             Float64MultiArray,
             COMMAND,
             lambda msg: self.commands.append(msg_to_grid(msg, SHAPE)),
@@ -70,7 +70,8 @@ class Harness:
             lambda: (
                 self.setpoint.get_subscription_count() > 0
                 and self.temperature.get_subscription_count() > 0
-                and self.node.count_publishers(COMMAND) > 0
+                # matched, not merely on the graph: a command sent before is lost
+                and self.command_sub.get_publisher_count() > 0
             ),
             20.0,
         )

@@ -37,7 +37,7 @@ class Harness:
 
     def __post_init__(self) -> None:
         node = self.node
-        node.create_subscription(
+        self.estimate_sub = node.create_subscription(
             Float64MultiArray,
             topics.TEMPERATURE,
             lambda msg: self.estimates.append(msg_to_grid(msg, SHAPE)),
@@ -64,7 +64,8 @@ class Harness:
             lambda: (
                 self.raw.get_subscription_count() > 0
                 and self.heat.get_subscription_count() > 0
-                and self.node.count_publishers(topics.TEMPERATURE) > 0
+                # matched, not merely on the graph: an estimate sent before is lost
+                and self.estimate_sub.get_publisher_count() > 0
             ),
             30.0,
         )
