@@ -770,11 +770,10 @@ def check_targets(results: Results) -> list[str]:
                 lines.append(f"{'met' if ok else 'MISSED'}: {label}: {kernel.name} "
                              f"{kernel.ratio or 0.0:.1f}x")
             continue
-        found = by_key.get((name, n))
-        if found is None:
+        record = by_key.get((name, n))
+        if record is None:
             lines.append(f"not measured: {label}")
             continue
-        record = found
         if name == "calibrate_time" and results.calibrate_durations.get(n) != 300.0:
             seconds = results.calibrate_durations.get(n, 0.0)
             lines.append(f"not measured at 5 min: {label} (with {seconds:g} s of data: "
