@@ -31,6 +31,7 @@ from es_sim_plant.metrics import (
     run_metrics,
     setpoint_period,
 )
+from es_sim_plant.plant import sensor_every
 
 #: Block length used instead of a period when the set point has no AC component, s.
 STATIC_BLOCK_S = 1.0
@@ -128,7 +129,7 @@ def analyse_run(
 
     Times come from the lockstep protocol, not from the bag's stamps (the recorder's sim
     clock at reception lags under load): displacement i at i / ``control_rate``, estimate
-    j at the sensor step j * round(control_rate / sensor_rate). ``period_s`` is the set
+    j at the sensor step j * sensor_every(control_rate, sensor_rate). ``period_s`` is the set
     point's period when known; by default it is found from the set point
     (:func:`setpoint_period`).
 
@@ -144,7 +145,7 @@ def analyse_run(
         raise ValueError(f"{bag_path}: no {', '.join(missing)} recorded")
     disp, sp, temp = (bag[t].values for t in needed)
     assert disp is not None and sp is not None and temp is not None
-    every = max(1, round(control_rate / sensor_rate))
+    every = sensor_every(control_rate, sensor_rate)
     disp_times = np.arange(len(disp)) / control_rate
     temp_times = np.arange(len(temp)) * every / control_rate
     run = align_run(disp_times, disp, sp, temp_times, temp)

@@ -42,6 +42,7 @@ import yaml
 from es_msgs_py.topics import process_domain_id
 from es_sim_plant.analysis import RunAnalysis, analyse_run
 from es_sim_plant.bringup import Bringup, GraphConfig, ParamValue, executable
+from es_sim_plant.plant import sensor_every
 from es_sim_plant.report import ReportInputs, RunResult, write_report
 from es_sim_plant.scenario import Scenario, load_scenario, resolve_scenario
 
@@ -240,7 +241,7 @@ def daq_clock_copy(bag: Path, out: Path, scenario: str) -> Path:
     from es_msgs_py.topics import COMMAND, DISPLACEMENT, HEAT_LOAD, TEMPERATURE_RAW
 
     sc = load_scenario(scenario)
-    every = max(1, round(sc.control_rate / sc.sensor_rate))
+    every = sensor_every(sc.control_rate, sc.sensor_rate)
     data = read_bag(bag, [COMMAND, DISPLACEMENT, HEAT_LOAD, TEMPERATURE_RAW])
     series = {}
     steps = {COMMAND: 1, DISPLACEMENT: 1, HEAT_LOAD: every, TEMPERATURE_RAW: every}

@@ -8,7 +8,7 @@ time series (see docs/architecture.md, "Plant core API").
 
 Timing convention (the same in the node): step k covers [t_k, t_k+1), t_k = k / control_rate.
 At t_k the plant offers the set point r(t_k), the sensor sample (every
-``round(control_rate / sensor_rate)`` steps, starting at k = 0) and the heat load of the
+:func:`sensor_every` steps, starting at k = 0) and the heat load of the
 coming step; the command u_k is held over the step; the displacement at the end of the step,
 z(t_k+1), is the response to u_k at the temperatures of t_k+1.
 """
@@ -29,6 +29,13 @@ from es_sim_plant.sensors import SensorArray
 from es_sim_plant.thermal import ThermalNetwork
 
 FloatArray = npt.NDArray[np.float64]
+
+
+
+def sensor_every(control_rate: float, sensor_rate: float) -> int:
+    """Return after how many control steps the plant takes a sensor sample (at least 1)."""
+    return max(1, round(control_rate / sensor_rate))
+
 
 #: Seed streams, one per random consumer, so switching one on leaves the others unchanged.
 _STREAMS = ("spread", "sensor_offsets", "sensor_noise", "displacement_noise", "excitation")
@@ -53,7 +60,7 @@ class Plant:
         #: Number of control steps of the whole scenario.
         self.steps = max(1, round(scenario.duration * scenario.control_rate))
         #: A sensor sample is taken every ``sensor_every`` steps (k = 0, n, 2n, ...).
-        self.sensor_every = max(1, round(scenario.control_rate / scenario.sensor_rate))
+        self.sensor_every = sensor_every(scenario.control_rate, scenario.sensor_rate)
         rngs = dict(
             zip(
                 _STREAMS,
