@@ -22,7 +22,7 @@ import numpy.typing as npt
 from scipy.signal import savgol_filter
 
 from es_feedforward.calibration.model import BoolArray, FloatArray
-from es_feedforward.calibration.stamps import repeated, spread_repeated
+from es_feedforward.calibration.stamps import repeated, run_lengths, spread_repeated
 
 IndexArray = npt.NDArray[np.intp]
 
@@ -248,8 +248,7 @@ def _resolve_repeated_stamps(data: MeasuredData) -> tuple[MeasuredData, dict[str
     disp_times = data.displacement_times
     shared = disp_rep.copy()
     shared[:-1] |= disp_rep[1:]
-    run_start = np.flatnonzero(~cmd_rep)
-    run_size = np.diff(np.append(run_start, cmd_rep.size))[np.cumsum(~cmd_rep) - 1]
+    run_size = run_lengths(data.command_times)
     ambiguous = shared
     for side in ("left", "right"):
         in_effect = np.searchsorted(data.command_times, disp_times, side=side) - 1

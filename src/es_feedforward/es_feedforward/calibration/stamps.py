@@ -22,6 +22,7 @@ bag reader sorts stably). Then:
 from __future__ import annotations
 
 import numpy as np
+import numpy.typing as npt
 
 from es_feedforward.calibration.model import BoolArray, FloatArray
 
@@ -33,14 +34,25 @@ def repeated(times: FloatArray) -> BoolArray:
     return out
 
 
+def _runs(times: FloatArray) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.intp]]:
+    """Return the first index of every run of equal stamps, and each message's run number."""
+    first = ~repeated(times)
+    return np.flatnonzero(first), np.cumsum(first) - 1
+
+
+def run_lengths(times: FloatArray) -> npt.NDArray[np.intp]:
+    """Return, per message, how many messages share its stamp (times sorted)."""
+    starts, run_of = _runs(times)
+    return np.diff(np.append(starts, times.size))[run_of]
+
+
 def spread_repeated(times: FloatArray) -> FloatArray:
     """Return strictly increasing times: each run of equal stamps spread up to the next stamp.
 
     The last run is spread at the mean message period of the rest of the record.
     Needs at least two distinct stamps.
     """
-    starts = np.flatnonzero(~repeated(times))
-    run_of = np.cumsum(~repeated(times)) - 1
+    starts, run_of = _runs(times)
     ends = np.append(starts[1:], times.size)
     next_stamp = np.append(times[starts[1:]], np.nan)
     last_period = (times[starts[-1]] - times[0]) / starts[-1]
