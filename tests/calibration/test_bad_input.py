@@ -40,13 +40,31 @@ def series() -> dict[str, tuple[np.ndarray, np.ndarray]]:
 
 
 def _fails(bag: Path, out: Path, capsys: pytest.CaptureFixture[str], *words: str) -> str:
-    assert run([str(bag), "-o", str(out)]) == EXIT_BAD_INPUT
+    return _fails_with([str(bag)], out, capsys, *words)
+
+
+def _fails_with(
+    bags: list[str], out: Path, capsys: pytest.CaptureFixture[str], *words: str
+) -> str:
+    assert run([*bags, "-o", str(out)]) == EXIT_BAD_INPUT
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "Traceback" not in err
     for word in words:
         assert word in err
     assert not (out / "calibration.json").exists()
     return err
+
+
+def _shifted_bags(
+    tmp_path: Path, parts: list[tuple[dict[str, tuple[np.ndarray, np.ndarray]], float]]
+) -> list[str]:
+    """Write each series, its stamps shifted by the given seconds, as bag0, bag1, ..."""
+    bags = []
+    for i, (data, shift) in enumerate(parts):
+        bag = tmp_path / f"bag{i}"
+        write_array_bag(bag, {k: (t + shift, v) for k, (t, v) in data.items()})
+        bags.append(str(bag))
+    return bags
 
 
 def test_bag_without_needed_topics(series, tmp_path: Path, capsys) -> None:
@@ -143,11 +161,7 @@ def test_consecutive_bags_are_joined(series, tmp_path: Path) -> None:
 
 
 def test_overlapping_bags_are_refused(series, tmp_path: Path, capsys) -> None:
-    bags = []
-    for i, shift in enumerate((0.0, 5.0)):
-        bag = tmp_path / f"bag{i}"
-        write_array_bag(bag, {k: (t + shift, v) for k, (t, v) in series.items()})
-        bags.append(str(bag))
+    bags = _shifted_bags(tmp_path, [(series, 0.0), (series, 5.0)])
     _fails_with(bags, tmp_path / "out", capsys, "overlap in time")
 
 
@@ -155,16 +169,6 @@ def test_bag_given_twice(series, tmp_path: Path, capsys) -> None:
     bag = tmp_path / "bag"
     write_array_bag(bag, series)
     _fails_with([str(bag), f"{tmp_path}/./bag"], tmp_path / "out", capsys, "given twice")
-
-
-def _fails_with(
-    bags: list[str], out: Path, capsys: pytest.CaptureFixture[str], *words: str
-) -> None:
-    assert run([*bags, "-o", str(out)]) == EXIT_BAD_INPUT
-    err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "Traceback" not in err
-    for word in words:
-        assert word in err
 
 
 def _calibrate(bag: Path, out: Path) -> dict:
@@ -300,11 +304,7 @@ def test_backwards_stamps_in_measured_data_are_one_line(series) -> None:
 
 def test_mismatched_grid_sizes_between_bags(tmp_path: Path, capsys) -> None:
     small, wide = _series(400), _series(400, grid=(1, 2))
-    bags = []
-    for i, (data, shift) in enumerate(((small, 0.0), (wide, 10.0))):
-        bag = tmp_path / f"bag{i}"
-        write_array_bag(bag, {k: (t + shift, v) for k, (t, v) in data.items()})
-        bags.append(str(bag))
+    bags = _shifted_bags(tmp_path, [(small, 0.0), (wide, 10.0)])
     _fails_with(bags, tmp_path / "out", capsys, "mismatched grid sizes")
 
 
