@@ -439,19 +439,22 @@ def wait_for_recorder(
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.signals import SignalHandlerOptions
 
-    state: dict[str, object] = {"done": False, "counts": None, "changed": time.monotonic()}
+    done = False
+    last_counts: list[str] | None = None
+    changed = time.monotonic()
 
     def on_report(msg: DiagnosticArray) -> None:
+        nonlocal done, last_counts, changed
         for status in msg.status:
             if not status.name.startswith(f"{RECORDER}:"):
                 continue
             received = {kv.key: kv.value for kv in status.values}
             counts = [received.get(f"{t} received", "") for t in published]
-            if counts != state["counts"]:
-                state["counts"], state["changed"] = counts, time.monotonic()
+            if counts != last_counts:
+                last_counts, changed = counts, time.monotonic()
             wanted = published.values()
             if all(c.isdigit() and int(c) >= n for c, n in zip(counts, wanted, strict=True)):
-                state["done"] = True
+                done = True
 
     context = rclpy.Context()
     rclpy.init(
@@ -469,15 +472,15 @@ def wait_for_recorder(
     executor.add_node(node)
     deadline = time.monotonic() + timeout
     try:
-        while not state["done"] and time.monotonic() < deadline:
-            if time.monotonic() - float(state["changed"]) > DRAIN_IDLE_S:  # type: ignore[arg-type]
+        while not done and time.monotonic() < deadline:
+            if time.monotonic() - changed > DRAIN_IDLE_S:
                 break
             executor.spin_once(timeout_sec=0.1)
     finally:
         executor.shutdown()
         node.destroy_node()
         rclpy.shutdown(context=context)
-    return bool(state["done"])
+    return done
 
 
 def wait_for_subscriptions(
