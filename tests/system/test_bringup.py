@@ -1,4 +1,5 @@
-"""The bring-up as users start it (installed launcher): a failing node, bad arguments."""
+"""The bring-up as users start it (installed launcher): a failing node, bad arguments; the
+test stand's recorder drain."""
 
 from __future__ import annotations
 
@@ -7,6 +8,8 @@ import sys
 from pathlib import Path
 
 import pytest
+
+from es_sim_plant.bringup import stand_published_counts
 
 LAUNCHER = Path(sys.prefix) / "lib" / "es_sim_plant" / "bringup"
 
@@ -40,3 +43,23 @@ def test_bad_arguments_give_one_line_and_exit_2(tmp_path: Path) -> None:
     result = run("--scenario", "thesis_ac", "--plant-param", "duration=3")
     assert result.returncode == 2
     assert "NAME:=VALUE" in result.stderr
+
+
+def test_a_test_stand_waits_only_for_the_topics_its_recorder_records() -> None:
+    # the plant logs every publisher, set points (none on a test stand) included; the
+    # recorder reports no count for a topic it does not record, so the drain must skip them
+    log = [
+        "[INFO] [1.0] [plant.summary]: published /clock: 5001",
+        "[INFO] [1.0] [plant.summary]: published /diagnostics: 7",
+        "[INFO] [1.0] [plant.summary]: published /dm/command: 5000",
+        "[INFO] [1.0] [plant.summary]: published /dm/displacement: 5001",
+        "[INFO] [1.0] [plant.summary]: published /dm/heat_load: 200",
+        "[INFO] [1.0] [plant.summary]: published /dm/setpoint: 0",
+        "[INFO] [1.0] [plant.summary]: published /run0/dm/temperature/raw: 200",
+    ]
+    assert stand_published_counts(log) == {
+        "/dm/command": 5000,
+        "/dm/displacement": 5001,
+        "/dm/heat_load": 200,
+        "/dm/temperature/raw": 200,
+    }
