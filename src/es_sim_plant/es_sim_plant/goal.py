@@ -24,7 +24,7 @@ from itertools import pairwise
 import numpy as np
 
 from es_feedforward.feedforward import Feedforward, FeedforwardConfig
-from es_sim_plant.metrics import AlignedRun, RunMetrics, run_metrics
+from es_sim_plant.metrics import AlignedRun, RunMetrics, run_metrics, whole_periods
 from es_sim_plant.plant import Observation, Plant, simulate
 from es_sim_plant.scenario import Scenario
 
@@ -96,17 +96,14 @@ def settled_metrics(
 ) -> RunMetrics | None:
     """Return the run's figures over the periods clear of every base step's transient.
 
-    Whole periods (counted as :func:`es_sim_plant.metrics.period_slots` counts them, from
-    ``skip_s``) that overlap [t_step, t_step + :func:`settle_time`) are left out; ``None``
-    when the scenario has no step (nothing to leave out) or nothing is left.
+    Whole periods (:func:`es_sim_plant.metrics.whole_periods`, as the variation counts
+    them, from ``skip_s``) that overlap [t_step, t_step + :func:`settle_time`) are left out;
+    ``None`` when the scenario has no step (nothing to leave out) or nothing is left.
     """
     steps = step_times(scenario)
     if not steps or run.times.size < 2:
         return None
-    dt = float(np.median(np.diff(run.times)))
-    samples = round(period_s / dt)
-    start = int(np.searchsorted(run.times, run.times[0] + skip_s))
-    count = (run.times.size - start) // samples
+    dt, samples, start, count = whole_periods(run, period_s, skip_s)
     settle = settle_time(scenario)
     first = run.times[start + samples * np.arange(count)] - dt  # each period's start time
     last = first + samples * dt

@@ -16,6 +16,7 @@ period from it. Per actuator; the run's figure is the largest over actuators.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 import numpy.typing as npt
@@ -166,6 +167,27 @@ def setpoint_period(times: FloatArray, setpoint: FloatArray) -> float | None:
     return round(1.0 / (freqs[peak] * dt)) * dt
 
 
+class WholePeriods(NamedTuple):
+    """Where a run's whole set-point periods lie.
+
+    ``periods`` periods of ``samples`` samples each from index ``start``, ``dt`` [s] apart.
+    """
+
+    dt: float
+    samples: int
+    start: int
+    periods: int
+
+
+def whole_periods(run: AlignedRun, period_s: float, skip_s: float = 0.0) -> WholePeriods:
+    """Return the whole periods of ``period_s`` in ``run`` after ``skip_s`` (maybe none)."""
+    dt = float(np.median(np.diff(run.times))) if run.times.size > 1 else period_s
+    samples = round(period_s / dt)
+    start = int(np.searchsorted(run.times, run.times[0] + skip_s))
+    count = (run.times.size - start) // samples if samples > 0 else 0
+    return WholePeriods(dt, samples, start, count)
+
+
 def period_slots(
     run: AlignedRun,
     period_s: float,
@@ -186,10 +208,7 @@ def period_slots(
     """
     if not (period_s > 0 and slot_width > 0):
         raise ValueError(f"period ({period_s}) and slot width ({slot_width}) must be > 0")
-    dt = float(np.median(np.diff(run.times))) if run.times.size > 1 else period_s
-    samples = round(period_s / dt)
-    start = int(np.searchsorted(run.times, run.times[0] + skip_s))
-    count = (run.times.size - start) // samples if samples > 0 else 0
+    dt, samples, start, count = whole_periods(run, period_s, skip_s)
     if count < 1:
         raise ValueError(f"run shorter than one {period_s:g} s period after {skip_s:g} s")
     stop = start + count * samples
