@@ -6,7 +6,9 @@ coincide, as in a lock-step simulation, whether "before" includes the same stamp
 from the data, see search.py). The temperature, usually slower, is linearly interpolated onto
 the displacement stamps; its derivative is a Savitzky-Golay slope over ``RATE_WINDOW_S`` on a
 uniform resampling of the temperature. Nothing is extrapolated: samples before the first
-command are dropped. NaN values are dropped per actuator and counted, never propagated.
+command are dropped. NaN values are dropped per actuator and counted, never propagated. Gaps
+in any topic are found and the samples they would need are removed and counted (gaps.py):
+nothing is interpolated across a gap.
 
 Training and held-out data are interleaved time blocks (even blocks train, odd blocks are
 held out), so that the held-out score tests interpolation across the run, not extrapolation.
@@ -21,10 +23,17 @@ import numpy as np
 import numpy.typing as npt
 from scipy.signal import savgol_filter
 
+from es_feedforward.calibration.gaps import GAP_FACTOR, Gap, exclude, find_gaps
 from es_feedforward.calibration.model import BoolArray, FloatArray
 from es_feedforward.calibration.stamps import repeated, run_lengths, spread_repeated
 
 IndexArray = npt.NDArray[np.intp]
+
+# The contract's topic names (es_msgs_py.topics imports rclpy; this tool must not need it).
+COMMAND: Final = "/dm/command"
+DISPLACEMENT: Final = "/dm/displacement"
+TEMPERATURE: Final = "/dm/temperature"
+TEMPERATURE_RAW: Final = "/dm/temperature/raw"
 
 #: Fewest usable displacement samples (after dropping NaN) for a calibration.
 MIN_SAMPLES: Final = 200
@@ -34,6 +43,11 @@ MIN_DURATION_S: Final = 2.0
 RATE_WINDOW_S: Final = 2.0
 #: Key of :attr:`AlignedData.dropped` for samples with ambiguous stamps (see stamps.py).
 AMBIGUOUS: Final = "displacement with ambiguous repeated stamp"
+#: Keys of :attr:`AlignedData.dropped` for samples that gaps take out, by role (gaps.py).
+GAP_DROPS: Final = {
+    "temperature": "displacement needing temperature from a gap",
+    "command": "displacement in or after a command hole",
+}
 #: Number of interleaved blocks for long records, and the shortest block [s].
 MAX_BLOCKS: Final = 16
 MIN_BLOCK_S: Final = 1.0
@@ -61,7 +75,7 @@ class MeasuredData:
     displacement: FloatArray
     temperature_times: FloatArray
     temperature: FloatArray
-    temperature_source: str = "/dm/temperature"
+    temperature_source: str = TEMPERATURE
 
 
 @dataclass
@@ -82,6 +96,7 @@ class AlignedData:
         dropped: counts of dropped values by reason.
         include_same_stamp: whether a command stamped exactly at a sample is already in effect.
         repeated_stamps: how repeated stamps were resolved ("" when none repeat).
+        gaps: gaps found in any topic, in time order, with the samples each excluded.
 
     """
 
@@ -102,6 +117,7 @@ class AlignedData:
     dropped: dict[str, int] = field(default_factory=dict)
     include_same_stamp: bool = True
     repeated_stamps: str = ""
+    gaps: list[Gap] = field(default_factory=list)
 
     @property
     def command_finite_all(self) -> bool:
@@ -151,6 +167,14 @@ class AlignedData:
         tol = self.stamp_tolerance
         when = self.t[rows] - delay_s + (tol if self.include_same_stamp else -tol)
         return np.searchsorted(self.command_times, when, side="right") - 1
+
+    def linked(self, rows: IndexArray) -> BoolArray:
+        """Return (len(rows) - 1,): whether consecutive ``rows`` are neighbours in time.
+
+        Neighbours are consecutive samples with no gap (removed samples) between them.
+        """
+        step = np.diff(self.t[rows])
+        return np.asarray((np.diff(rows) == 1) & (step < GAP_FACTOR / self.sample_rate))
 
     def interpolation(self, rows: IndexArray) -> tuple[IndexArray, FloatArray]:
         """Return (lower index, weight of the upper) of the temperature at samples ``rows``."""
@@ -214,10 +238,6 @@ def _resolve_repeated_stamps(data: MeasuredData) -> tuple[MeasuredData, dict[str
     out = data
     n_temp = int(repeated(data.temperature_times).sum())
     if n_temp:
-        if n_temp == data.temperature_times.size - 1:
-            raise CalibrationInputError(
-                f"temperature: all {data.temperature_times.size} messages share one time stamp"
-            )
         out = replace(out, temperature_times=spread_repeated(data.temperature_times))
         notes.append(
             f"{n_temp} of {data.temperature_times.size} temperature stamps repeated, spread up "
@@ -233,10 +253,6 @@ def _resolve_repeated_stamps(data: MeasuredData) -> tuple[MeasuredData, dict[str
         f"{n_disp} of {disp_rep.size} displacements"
     )
     if data.command_times.size == data.displacement_times.size:
-        if n_disp == disp_rep.size - 1:
-            raise CalibrationInputError(
-                f"displacement: all {disp_rep.size} messages share one time stamp"
-            )
         t = spread_repeated(data.displacement_times)
         previous = np.concatenate([[2.0 * t[0] - t[1]], t[:-1]])
         out = replace(out, displacement_times=t, command_times=0.5 * (previous + t))
@@ -269,15 +285,36 @@ def _resolve_repeated_stamps(data: MeasuredData) -> tuple[MeasuredData, dict[str
     return out, counts, "; ".join(notes)
 
 
+def _rate_window(period: float) -> int:
+    """Return the Savitzky-Golay window [samples] of the temperature rate at ``period`` [s]."""
+    return max(round(RATE_WINDOW_S / period) | 1, 5)
+
+
+def _all_gaps(data: MeasuredData) -> list[Gap]:
+    """Return the gaps of every topic of ``data`` (stamps sorted), in time order."""
+    gaps = [
+        *find_gaps(COMMAND, "command", data.command_times),
+        *find_gaps(DISPLACEMENT, "displacement", data.displacement_times),
+        *find_gaps(data.temperature_source, "temperature", data.temperature_times),
+    ]
+    return sorted(gaps, key=lambda g: g.start_s)
+
+
 def align(data: MeasuredData, n_blocks: int | None = None) -> AlignedData:
     """Align ``data`` on the displacement stamps and split it; raise CalibrationInputError."""
     grid = tuple(int(s) for s in data.displacement.shape[1:])
     if len(grid) != 2:
         raise CalibrationInputError(f"displacement: expected a grid, got shape {grid}")
     rows_cols = (grid[0], grid[1])
-    _check_series("displacement", data.displacement_times, data.displacement, rows_cols)
-    _check_series("command", data.command_times, data.command, rows_cols)
-    _check_series("temperature", data.temperature_times, data.temperature, rows_cols)
+    for name, times, values in (
+        ("displacement", data.displacement_times, data.displacement),
+        ("command", data.command_times, data.command),
+        ("temperature", data.temperature_times, data.temperature),
+    ):
+        _check_series(name, times, values, rows_cols)
+        if times[-1] == times[0]:
+            raise CalibrationInputError(f"{name}: all {times.size} messages share one time stamp")
+    gaps = _all_gaps(data)
     data, dropped, stamp_note = _resolve_repeated_stamps(data)
     A = rows_cols[0] * rows_cols[1]
 
@@ -286,13 +323,19 @@ def align(data: MeasuredData, n_blocks: int | None = None) -> AlignedData:
     first = int(np.searchsorted(data.displacement_times, data.command_times[0], side="right"))
     dropped["displacement before first command"] = first
     t_abs = data.displacement_times[first:]
+    z = data.displacement[first:].reshape(-1, A)
+    if gaps:
+        # samples that would need data from a gap go (gaps.py); this copies the kept rows
+        t_period = float(np.median(np.diff(data.temperature_times)))
+        out, counts, gaps = exclude(t_abs, gaps, (_rate_window(t_period) // 2) * t_period)
+        dropped.update({GAP_DROPS[role]: n for role, n in counts.items()})
+        t_abs, z = t_abs[~out], z[~out]
     if t_abs.size < MIN_SAMPLES:
         raise CalibrationInputError(
             f"too short to fit: {t_abs.size} displacement samples after the first command "
             f"(need {MIN_SAMPLES})"
         )
     start = float(t_abs[0])
-    z = data.displacement[first:].reshape(-1, A)
     z_finite = np.isfinite(z)
     dropped["displacement NaN"] = int((~z_finite).sum())
 
@@ -317,7 +360,7 @@ def align(data: MeasuredData, n_blocks: int | None = None) -> AlignedData:
     pos = np.clip(np.searchsorted(temp_times, uniform, side="right") - 1, 0, len(temp_times) - 2)
     w = np.clip((uniform - temp_times[pos]) / np.maximum(np.diff(temp_times)[pos], 1e-12), 0, 1)
     temp_u = temp[pos] * (1.0 - w[:, None]) + temp[pos + 1] * w[:, None]
-    window = max(round(RATE_WINDOW_S / t_period) | 1, 5)
+    window = _rate_window(t_period)
     if window <= temp_u.shape[0]:
         rate = savgol_filter(temp_u, window, 2, deriv=1, delta=t_period, axis=0)
     else:
@@ -353,6 +396,7 @@ def align(data: MeasuredData, n_blocks: int | None = None) -> AlignedData:
         temperature_source=data.temperature_source,
         dropped=dropped,
         repeated_stamps=stamp_note,
+        gaps=gaps,
     )
     if valid.sum(axis=0).min() < MIN_SAMPLES:
         worst = int(np.argmin(valid.sum(axis=0)))

@@ -15,14 +15,15 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from es_feedforward.calibration.align import CalibrationInputError, MeasuredData
+from es_feedforward.calibration.align import (
+    COMMAND,
+    DISPLACEMENT,
+    TEMPERATURE,
+    TEMPERATURE_RAW,
+    CalibrationInputError,
+    MeasuredData,
+)
 from es_msgs_py.bag import BagError, TopicSeries, read_bag
-
-# The contract's topic names (es_msgs_py.topics imports rclpy; this tool must not need it).
-COMMAND = "/dm/command"
-DISPLACEMENT = "/dm/displacement"
-TEMPERATURE = "/dm/temperature"
-TEMPERATURE_RAW = "/dm/temperature/raw"
 
 
 def _listed_topics(path: Path) -> set[str] | None:

@@ -28,6 +28,7 @@ from es_feedforward.calibration.search import (
     screen_block,
     search_effects,
 )
+from es_feedforward.calibration.unexplained import Drive, describe, drive, drive_gain
 
 #: Actuators whose full-rate held-out residual is analysed (spectra, correlations).
 ANALYSIS_ACTUATORS: Final = 16
@@ -82,7 +83,7 @@ class _Analysis:
         rows = np.flatnonzero(~aligned.train)[:ANALYSIS_ROWS]
         self.ws.score_rows = rows
         self.rows = rows
-        self.contiguous = np.diff(rows) == 1
+        self.contiguous = aligned.linked(rows)
 
     def residual(self, state: ModelState) -> FloatArray:
         threshold = state.threshold_v if state.model.has("hysteresis") else None
@@ -102,6 +103,13 @@ class _Analysis:
             "dT/dt": ("degC/s", a.temperature_rate_at(rows, act)),
             "time": ("s", np.broadcast_to(a.t[rows], V.shape)),
         }
+
+    def drive(self, voltage: FloatArray) -> Drive:
+        """Return the drive's tones and gain on the analysed rows (``voltage`` (A, n))."""
+        a = self.ws.aligned
+        z = a.displacement[np.ix_(self.rows, self.ws.actuators[self.keep])].T
+        tones = drive(voltage, self.contiguous, a.sample_rate)
+        return replace(tones, gain_m_per_v=drive_gain(voltage, z))
 
     def analyse(self, state: ModelState) -> tuple[ResidualStructure, FloatArray]:
         resid = self.residual(state)
@@ -138,33 +146,6 @@ def _uncertainties(state: ModelState, name: str, command_period: float) -> dict[
             "k3": float(np.median(np.sqrt(np.maximum(cov[:, 5, 5], 0)))),
         }
     return {}
-
-
-def _unexplained(after: ResidualStructure, final_rms: float) -> list[str]:
-    """Describe the structure the final model leaves, in words."""
-    notes = []
-    floor = after.noise_floor
-    if np.isfinite(floor) and floor > 0 and final_rms > NOISE_RATIO_LIMIT * floor:
-        notes.append(
-            f"held-out RMS {final_rms:.3g} m is {final_rms / floor:.2f} x the noise floor "
-            f"{floor:.3g} m: part of the residual is not explained by any candidate"
-        )
-    for freq, amp in after.lines:
-        notes.append(f"spectral line at {freq:.3g} Hz, {amp:.3g} m rms, explained by no candidate")
-    for dep in after.dependences:
-        if abs(dep.correlation) > 3 * dep.correlation_bound and dep.explained_fraction > 0.02:
-            notes.append(
-                f"residual correlates with {dep.name} (r = {dep.correlation:+.3f}, 95 % bound "
-                f"{dep.correlation_bound:.3f}; {100 * dep.explained_fraction:.1f} % of the "
-                "variance follows it)"
-            )
-    significant = np.abs(after.autocorrelation[1:]) > after.autocorrelation_bound
-    if after.tau_int > 2.0 and significant.mean() > 0.2:
-        notes.append(
-            f"residual is autocorrelated (integrated time {after.tau_int:.1f} samples): "
-            "slow structure remains"
-        )
-    return notes
 
 
 def calibrate(measured: MeasuredData, candidates: tuple[str, ...] = CANDIDATES) -> Calibration:
@@ -237,7 +218,9 @@ def calibrate(measured: MeasuredData, candidates: tuple[str, ...] = CANDIDATES) 
         analysis_before=(aligned.t[analysis.rows], resid_before),
         analysis_after=(aligned.t[analysis.rows], resid_after),
         analysis_inputs=inputs,
-        unexplained=_unexplained(after, final.heldout_rms),
+        unexplained=describe(
+            after, final.heldout_rms, NOISE_RATIO_LIMIT, analysis.drive(inputs["V"])
+        ),
         timings_s=timings,
     )
 

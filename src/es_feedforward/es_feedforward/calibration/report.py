@@ -10,6 +10,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
+from es_feedforward.calibration.align import AlignedData
+from es_feedforward.calibration.gaps import COMMAND_SETTLING_S, GAP_FACTOR
 from es_feedforward.calibration.pipeline import NOISE_RATIO_LIMIT, Calibration
 from es_feedforward.calibration.residual import ResidualStructure
 from es_feedforward.calibration.schema import law_uncertainty
@@ -130,6 +132,28 @@ def _structure_lines(s: ResidualStructure) -> list[str]:
     return lines
 
 
+def _gap_lines(a: AlignedData) -> list[str]:
+    """Return the report's lines on gaps in the measured topics (rules: gaps.py)."""
+    if not a.gaps:
+        return [f"- no gap (no interval > {GAP_FACTOR:g} x a topic's median period)"]
+    lines = [
+        f"- {len(a.gaps)} gap(s), intervals > {GAP_FACTOR:g} x the topic's median period; the "
+        "samples that would need data from a gap are left out of fit and scoring (a command "
+        f"hole also takes {COMMAND_SETTLING_S:g} s after it, a temperature gap the half-window "
+        "of dT/dt on each side):",
+        "",
+        "| topic | start (bag time) [s] | start (since first sample) [s] | length [s] | "
+        "missing messages | excluded samples |",
+        "|---|---|---|---|---|---|",
+    ]
+    lines += [
+        f"| `{g.topic}` | {g.start_s:.3f} | {g.start_s - a.start_time:.3f} | "
+        f"{g.duration_s:.3f} | {g.missing_samples} | {g.excluded_samples} |"
+        for g in a.gaps
+    ]
+    return [*lines, ""]
+
+
 def _law_table(cal: Calibration) -> list[str]:
     local = cal.final.fit.local
     sig = law_uncertainty(cal)
@@ -173,7 +197,8 @@ def write_report(cal: Calibration, out: Path, notes: list[str]) -> Path:
         f"- grid {a.grid[0]} x {a.grid[1]}, {a.t.size} displacement samples over "
         f"{a.t[-1]:.1f} s ({a.sample_rate:.4g} Hz), command period {a.command_period:.4g} s, "
         f"temperature from `{a.temperature_source}` (resampled at "
-        f"{1.0 / np.median(np.diff(a.temperature_times)):.4g} Hz, linearly interpolated)",
+        f"{1.0 / np.median(np.diff(a.temperature_times)):.4g} Hz, linearly interpolated "
+        "between messages, never across a gap)",
         "- command in effect at a sample: the last one stamped "
         + ("at or before" if a.include_same_stamp else "strictly before")
         + " it (decided from the data)",
@@ -181,6 +206,7 @@ def write_report(cal: Calibration, out: Path, notes: list[str]) -> Path:
         f"{int(a.train.sum())} training and {int((~a.train).sum())} held-out samples",
         "- dropped values: " + (", ".join(f"{k}: {v}" for k, v in a.dropped.items()) or "none"),
         *([f"- {a.repeated_stamps}"] if a.repeated_stamps else []),
+        *_gap_lines(a),
         "",
         "## b. Law fit (hyperbolic, M and k "
         + ("quadratic" if len(cal.final.model.local_names) == 6 else "linear")

@@ -28,7 +28,17 @@ LINE_FALSE_ALARM: Final = 0.01
 
 @dataclass
 class Dependence:
-    """Binned mean residual against one input, with 95 % bounds and a flatness test."""
+    """Binned mean residual against one input, with 95 % bounds and a flatness test.
+
+    Attributes:
+        name, unit: the input and its unit.
+        centers, mean, bound: bin centres [unit], mean residual per bin and its 95 % bound [m].
+        correlation: Pearson coefficient of residual and input; ``correlation_bound`` its 95 %
+            bound for an independent residual (effective sample count).
+        explained_fraction: share of the residual variance the binned means follow.
+        slope: least-squares slope of the residual on the input [m per unit].
+
+    """
 
     name: str
     unit: str
@@ -38,6 +48,7 @@ class Dependence:
     correlation: float
     correlation_bound: float
     explained_fraction: float
+    slope: float
 
 
 @dataclass
@@ -54,7 +65,7 @@ class ResidualStructure:
     autocorrelation_bound: float
     frequencies: FloatArray
     psd: FloatArray
-    lines: list[tuple[float, float]]  # (frequency [Hz], amplitude rms [m])
+    lines: list[tuple[float, float]]  # (frequency [Hz], rms [m]); a sine's amplitude is sqrt 2 x
     dependences: list[Dependence] = field(default_factory=list)
 
 
@@ -137,7 +148,12 @@ def spectrum(
 def spectral_lines(
     frequencies: FloatArray, psd: FloatArray, segments: int, variance: float
 ) -> list[tuple[float, float]]:
-    """Return (frequency, rms amplitude) of peaks standing out of the local spectral level."""
+    """Return (frequency, rms) of peaks standing out of the local spectral level.
+
+    The frequency [Hz] is the power-weighted centre of the peak's bins above the local level
+    (finer than the bin spacing); the rms [m] is the square root of that excess power. A line
+    must carry ``LINE_POWER_FRACTION`` of ``variance``; the ten strongest are returned.
+    """
     if segments < 1 or psd.size < 8:
         return []
     df = float(frequencies[1] - frequencies[0])
@@ -153,9 +169,11 @@ def spectral_lines(
         if i == 0 or psd[i] <= threshold * background[i]:
             continue
         lo, hi = max(i - 2, 0), min(i + 3, psd.size)
-        power = float(np.sum(psd[lo:hi] - background[lo:hi]) * df)
+        excess = np.maximum(psd[lo:hi] - background[lo:hi], 0.0)
+        power = float(np.sum(excess) * df)
         if power >= LINE_POWER_FRACTION * variance:
-            lines.append((float(frequencies[i]), float(np.sqrt(power))))
+            centre = float(np.sum(frequencies[lo:hi] * excess) / np.sum(excess))
+            lines.append((centre, float(np.sqrt(power))))
     return sorted(lines, key=lambda x: -x[1])[:10]
 
 
@@ -169,7 +187,7 @@ def dependence(
     edges = np.unique(np.quantile(x, np.linspace(0, 1, N_BINS + 1)))
     if edges.size < 3:
         zeros = np.zeros(1)
-        return Dependence(name, unit, zeros, zeros, zeros, 0.0, 1.0, 0.0)
+        return Dependence(name, unit, zeros, zeros, zeros, 0.0, 1.0, 0.0, 0.0)
     which = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, edges.size - 2)
     counts = np.bincount(which, minlength=edges.size - 1).astype(np.float64)
     sums = np.bincount(which, r, minlength=edges.size - 1)
@@ -183,10 +201,10 @@ def dependence(
     rc = r - r.mean()
     denom = float(np.sqrt(np.sum(xc * xc) * np.sum(rc * rc)))
     corr = float(np.sum(xc * rc) / denom) if denom > 0 else 0.0
+    slope = float(np.sum(xc * rc) / max(float(np.sum(xc * xc)), 1e-300))
     explained = float(np.sum(counts * (mean - r.mean()) ** 2) / max(np.sum(rc * rc), 1e-300))
-    return Dependence(
-        name, unit, centers, mean, bound, corr, 1.96 / np.sqrt(max(n_effective, 1.0)), explained
-    )
+    corr_bound = 1.96 / np.sqrt(max(n_effective, 1.0))
+    return Dependence(name, unit, centers, mean, bound, corr, corr_bound, explained, slope)
 
 
 def analyse(

@@ -9,7 +9,9 @@ residual's autocorrelation)::
       "data": {"start_time_s", "duration_s", "sample_rate_hz", "command_period_s",
                "temperature_topic", "samples", "training_samples", "heldout_samples",
                "blocks", "command_in_effect_at_same_stamp", "dropped": {reason: count},
-               "repeated_stamps": how repeated stamps were resolved, "" if none},
+               "repeated_stamps": how repeated stamps were resolved, "" if none,
+               "gaps": [{"topic", "start_s" (bag time of the last message before the gap),
+                         "duration_s", "missing_samples", "excluded_samples"}]},
       "law": {"L", "Tm" (fixed), "m1", "m2", "m3", "k1", "k2", "k3": row-major lists of R*C,
               "uncertainty": {same names: lists of R*C 1-sigma values}},
       "effects": [{"name": canonical name, "parameters": {...}, "uncertainties": {...},
@@ -136,6 +138,7 @@ def calibration_document(cal: Calibration) -> dict[str, Any]:
             "command_in_effect_at_same_stamp": a.include_same_stamp,
             "dropped": a.dropped,
             "repeated_stamps": a.repeated_stamps,
+            "gaps": [g.as_dict() for g in a.gaps],
         },
         "law": law,
         "effects": [
