@@ -334,6 +334,7 @@ def align(data: MeasuredData, n_blocks: int | None = None) -> AlignedData:
         raise CalibrationInputError(
             f"too short to fit: {t_abs.size} displacement samples after the first command "
             f"(need {MIN_SAMPLES})"
+            + "".join(f"; {n} removed: {key}" for key, n in dropped.items() if n)
         )
     start = float(t_abs[0])
     z_finite = np.isfinite(z)
