@@ -177,3 +177,26 @@ def test_gaps_leaving_too_little_data_are_one_line(
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "Traceback" not in err
     assert "too short to fit" in err and GAP_DROPS["temperature"] in err
+
+
+def test_topics_starting_late_or_ending_early_have_gaps_at_the_ends(
+    law_run: lb.LawRun, tmp_path: Path
+) -> None:
+    series = lb.cut(law_run.topics, "/dm/temperature", 0.0, 5.0)
+    series = lb.cut(series, "/dm/temperature", 87.0, 100.0)
+    series = lb.cut(series, "/dm/command", 88.0, 100.0)
+    aligned = align(read_measured_bags([lb.write(series, tmp_path / "bag")]))
+    t_disp = series["/dm/displacement"][0]
+    gaps = {(g.topic, round(g.start_s, 3)): g for g in aligned.gaps}
+    lead = gaps[("/dm/temperature", round(float(t_disp[0]), 3))]
+    assert lead.duration_s == pytest.approx(5.0 - t_disp[0], abs=1e-6)
+    assert lead.missing_samples == 49  # messages due at 0.1 .. 4.9 s
+    tail = gaps[("/dm/temperature", 86.9)]
+    assert tail.duration_s == pytest.approx(t_disp[-1] - 86.9, abs=1e-6)
+    command_tail = gaps[("/dm/command", 87.996)]
+    assert command_tail.missing_samples == 500  # due at 88.000 .. 89.996 s
+    t = aligned.t + aligned.start_time
+    assert t[0] >= 5.0 + RATE_HALF_WINDOW_S and t[-1] <= 86.9 - RATE_HALF_WINDOW_S
+    assert aligned.dropped[GAP_DROPS["temperature"]] == int(
+        ((t_disp <= 5.0 + RATE_HALF_WINDOW_S) | (t_disp >= 86.9 - RATE_HALF_WINDOW_S)).sum()
+    )

@@ -292,10 +292,11 @@ def _rate_window(period: float) -> int:
 
 def _all_gaps(data: MeasuredData) -> list[Gap]:
     """Return the gaps of every topic of ``data`` (stamps sorted), in time order."""
+    record = (float(data.displacement_times[0]), float(data.displacement_times[-1]))
     gaps = [
-        *find_gaps(COMMAND, "command", data.command_times),
+        *find_gaps(COMMAND, "command", data.command_times, record),
         *find_gaps(DISPLACEMENT, "displacement", data.displacement_times),
-        *find_gaps(data.temperature_source, "temperature", data.temperature_times),
+        *find_gaps(data.temperature_source, "temperature", data.temperature_times, record),
     ]
     return sorted(gaps, key=lambda g: g.start_s)
 

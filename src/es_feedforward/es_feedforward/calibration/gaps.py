@@ -21,6 +21,9 @@ samples that would need them:
   again (a characterisation profile does so within a second: its slowest tone is >= 1 Hz).
 - displacement gap: there are no samples to remove; the gap is reported.
 
+A topic that starts later or ends earlier than the displacement record by more than
+``GAP_FACTOR`` periods has a gap at that end, with the same rules (the samples before the
+first command are dropped anyway; a late first command still takes its settling margin).
 Gap times are on the bag's time base [s].
 """
 
@@ -99,10 +102,23 @@ def _spread(times: FloatArray) -> FloatArray:
     return spread_repeated(times) if repeated(times).any() else times
 
 
-def find_gaps(topic: str, role: str, times: FloatArray) -> list[Gap]:
+def _missing(periods: float, edge: bool) -> int:
+    """Return the messages missing in a gap of ``periods`` median periods.
+
+    Inside the record a gap between two messages lacks round(periods) - 1 of them; at an end
+    of the record the messages due within it number floor(periods).
+    """
+    return max(int(np.floor(periods + 1e-6)) if edge else round(periods) - 1, 1)
+
+
+def find_gaps(
+    topic: str, role: str, times: FloatArray, record: tuple[float, float] | None = None
+) -> list[Gap]:
     """Return the gaps of ``topic`` whose sorted message stamps are ``times`` [s].
 
-    Needs at least two distinct stamps.
+    ``record`` is the span [s] of the displacement record: a topic that starts later or ends
+    earlier than it by more than ``GAP_FACTOR`` periods has a gap at that end too (a leading
+    gap starts at the record's start). Needs at least two distinct stamps.
 
     Raises:
         ValueError: ``role`` is not one of ``ROLES``.
@@ -111,15 +127,19 @@ def find_gaps(topic: str, role: str, times: FloatArray) -> list[Gap]:
     if role not in ROLES:
         raise ValueError(f"unknown role {role!r} of topic {topic} (expected one of {ROLES})")
     spread = _spread(times)
-    steps = np.diff(spread)
-    period = float(np.median(steps))
+    period = float(np.median(np.diff(spread)))
+    starts, steps, edge = spread[:-1], np.diff(spread), np.zeros(spread.size - 1, dtype=bool)
+    if record is not None:
+        starts = np.concatenate([[record[0]], starts, [spread[-1]]])
+        steps = np.concatenate([[spread[0] - record[0]], steps, [record[1] - spread[-1]]])
+        edge = np.concatenate([[True], edge, [True]])
     return [
         Gap(
             topic=topic,
             role=role,
-            start_s=float(spread[i]),
+            start_s=float(starts[i]),
             duration_s=float(steps[i]),
-            missing_samples=max(round(float(steps[i]) / period) - 1, 1),
+            missing_samples=_missing(float(steps[i]) / period, bool(edge[i])),
             period_s=period,
         )
         for i in np.flatnonzero(steps > GAP_FACTOR * period)
