@@ -8,7 +8,9 @@ Sections (``--only``): ``kernels`` (bench_kernels.py), ``convert`` (bench_conver
 ``feedforward`` (the feedforward node over DDS against a plain rclpy relay, relay.py),
 ``lockstep`` (plant, thermal and feedforward processes in lockstep on ``dm_exposure``),
 ``recorder`` (the recorder's memory while it records a 32 x 32 lockstep run),
-``calibrate`` (bench_calibrate.py), ``thermal`` (bench_thermal.py). Peak memory of every node
+``calibrate`` (bench_calibrate.py), ``thermal`` (bench_thermal.py), ``calibration_loop``
+(bench_calibration_loop.py: characterise, calibrate, closed loop per effect family; writes
+``calibration_loop.md``/``.json``). Peak memory of every node
 process comes with the sections that start them.
 
 Every figure is the median of repeated runs with their min and max (``summary.md``: the
@@ -57,7 +59,8 @@ import numpy as np
 BENCH_DIR = Path(__file__).resolve().parent
 sys.path.insert(0, str(BENCH_DIR))  # the sibling bench_*.py modules
 
-SECTIONS = ("kernels", "convert", "feedforward", "lockstep", "recorder", "calibrate", "thermal")
+SECTIONS = ("kernels", "convert", "feedforward", "lockstep", "recorder", "calibrate", "thermal",
+            "calibration_loop")
 #: Grid shapes of the DDS benchmark (N = 144, 1024, 4096).
 DDS_SHAPES = ((12, 12), (32, 32), (64, 64))
 #: Grids of the lockstep benchmark.
@@ -292,6 +295,16 @@ def section_calibrate(settings: Settings, results: Results) -> None:
         if grid == 32 and settings.profile and np.median([t.calibrate_s for t in timings]) > 60:
             results.profiles["calibration of 32 x 32 x 30 s at 500 Hz"] = _profile_calibration(
                 settings.calibrate_rate)
+
+
+def section_calibration_loop(results: Results, out: Path) -> None:
+    """Run the calibration loop per effect family; closed-loop error against no effect."""
+    from bench_calibration_loop import loop_table, markdown, write_outputs
+
+    with tempfile.TemporaryDirectory(prefix="bench_calibration_loop_") as tmp:
+        loops = loop_table(Path(tmp))
+    path = write_outputs(loops, out)
+    results.notes.append(f"calibration_loop: table in {path.name}; " + markdown(loops)[0])
 
 
 def _profile_calibration(rate: float) -> str:
@@ -889,6 +902,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "recorder": lambda: section_recorder(results, log_dir),
         "calibrate": lambda: section_calibrate(settings, results),
         "thermal": lambda: section_thermal(settings, results),
+        "calibration_loop": lambda: section_calibration_loop(results, args.output),
     }
     for name in args.only:
         start = time.monotonic()
