@@ -29,7 +29,17 @@ i) on a rebuilt time base; otherwise every displacement sample with an ambiguous
 stamp shared with another displacement, or its command in effect one of several commands
 sharing a stamp) is dropped and counted, and if fewer than 200 usable samples remain
 the tool stops with one line and exit status 2. Report and calibration.json say which rule
-was applied. Needs no rclpy.
+was applied.
+
+Gaps (an interval between messages of a topic longer than 3.5 median periods; a topic that
+starts or ends more than that away from the displacement record): nothing is interpolated
+across one. The displacement samples that would need its data are left out of fit and
+scoring (a temperature gap: those inside it and within the half-window of dT/dt; a command
+hole: from the next command's due time to 1 s after the hole, for delays and the hysteresis
+state); each gap is listed with its start, length, missing messages and excluded samples
+(``data.gaps`` in calibration.json, a table in the report). What no candidate explains is
+stated in numbers (lines in Hz and nm, correlations with their slopes); the tool still exits
+0. Needs no rclpy.
 """
 
 from __future__ import annotations
