@@ -18,6 +18,7 @@ from es_feedforward.calibrate import EXIT_BAD_INPUT, run
 from es_feedforward.calibration.align import GAP_DROPS, align
 from es_feedforward.calibration.bagio import read_measured_bags
 from es_feedforward.calibration.gaps import COMMAND_SETTLING_S, find_gaps
+from es_feedforward.calibration.residual import spectrum
 from es_feedforward.calibration.stamps import repeated
 
 from . import law_bags as lb
@@ -200,3 +201,13 @@ def test_topics_starting_late_or_ending_early_have_gaps_at_the_ends(
     assert aligned.dropped[GAP_DROPS["temperature"]] == int(
         ((t_disp <= 5.0 + RATE_HALF_WINDOW_S) | (t_disp >= 86.9 - RATE_HALF_WINDOW_S)).sum()
     )
+
+
+def test_a_run_cut_short_by_a_gap_does_not_coarsen_the_spectrum() -> None:
+    rng = np.random.default_rng(0)
+    resid = rng.standard_normal((2, 4100))
+    contiguous = np.ones(4099, dtype=bool)
+    contiguous[[1999, 2099]] = False  # runs of 2000, 100 and 2000 rows
+    f, psd, segments = spectrum(resid, contiguous, 250.0)
+    assert f[1] == pytest.approx(250.0 / 1024)
+    assert segments >= 4 and np.all(np.isfinite(psd))

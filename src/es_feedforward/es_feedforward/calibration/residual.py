@@ -126,9 +126,13 @@ def noise_floor(resid: FloatArray, contiguous: BoolArray) -> float:
 def spectrum(
     resid: FloatArray, contiguous: BoolArray, rate: float
 ) -> tuple[FloatArray, FloatArray, int]:
-    """Return (frequencies, one-sided PSD [m^2/Hz] averaged over actuators, segment count)."""
+    """Return (frequencies, one-sided PSD [m^2/Hz] averaged over actuators, segment count).
+
+    Welch segments of up to 1024 rows, as long as the median run allows (the pieces of runs
+    cut short by a gap would otherwise coarsen the whole spectrum); shorter runs are left out.
+    """
     lengths = [r.stop - r.start for r in runs(contiguous)]
-    nper = int(min(1024, max(16, min(lengths) if lengths else 16)))
+    nper = int(min(1024, max(16, np.median(lengths) if lengths else 16)))
     total = None
     segments = 0
     for run in runs(contiguous):
