@@ -96,6 +96,11 @@ class _Analysis:
         rows = self.rows
         V = a.command[np.ix_(np.maximum(a.command_index(rows), 0), act)].T
         dV = np.gradient(V, a.t[rows], axis=1)
+        # no derivative across a break between runs (a gap or a block edge): NaN there
+        broken = np.zeros(rows.size, dtype=bool)
+        broken[:-1] |= ~self.contiguous
+        broken[1:] |= ~self.contiguous
+        dV[:, broken] = np.nan
         return {
             "V": ("V", V),
             "dV/dt": ("V/s", dV),
