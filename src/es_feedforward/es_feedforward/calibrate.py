@@ -51,6 +51,7 @@ from pathlib import Path
 
 from es_feedforward.calibration.align import MIN_SAMPLES, CalibrationInputError
 from es_feedforward.calibration.bagio import read_measured_bags
+from es_feedforward.calibration.gaps import GAP_FACTOR
 from es_feedforward.calibration.model import CANDIDATES
 from es_feedforward.calibration.pipeline import calibrate
 
@@ -67,7 +68,9 @@ def _parser() -> argparse.ArgumentParser:
             "count as absent. Repeated stamps: runs of equal stamps are spread up to the next "
             "stamp; command and displacement with equal message counts are paired by order, "
             "otherwise ambiguous displacement samples are dropped and counted (exit 2 if "
-            f"fewer than {MIN_SAMPLES} usable samples remain). Bad input: one line on "
+            f"fewer than {MIN_SAMPLES} usable samples remain). Gaps (> {GAP_FACTOR:g} median "
+            "periods between messages of a topic) are never interpolated across: the samples "
+            "needing their data are left out, counted and listed. Bad input: one line on "
             "stderr, exit 2."
         ),
     )
