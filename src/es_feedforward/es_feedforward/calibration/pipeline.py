@@ -28,7 +28,7 @@ from es_feedforward.calibration.search import (
     screen_block,
     search_effects,
 )
-from es_feedforward.calibration.unexplained import Drive, describe, drive, drive_gain
+from es_feedforward.calibration.unexplained import describe, drive_gain, drive_tones
 
 #: Actuators whose full-rate held-out residual is analysed (spectra, correlations).
 ANALYSIS_ACTUATORS: Final = 16
@@ -109,17 +109,16 @@ class _Analysis:
             "time": ("s", np.broadcast_to(a.t[rows], V.shape)),
         }
 
-    def drive(self, voltage: FloatArray) -> Drive:
-        """Return the drive's tones and gain on the analysed rows (``voltage`` (A, n))."""
-        a = self.ws.aligned
-        z = a.displacement[np.ix_(self.rows, self.ws.actuators[self.keep])].T
-        tones = drive(voltage, self.contiguous, a.sample_rate)
-        return replace(tones, gain_m_per_v=drive_gain(voltage, z))
-
     def analyse(self, state: ModelState) -> tuple[ResidualStructure, FloatArray]:
         resid = self.residual(state)
         rate = self.ws.aligned.sample_rate
-        return analyse(resid, self.contiguous, rate, self.regressors()), resid
+        inputs = self.regressors()
+        voltage = inputs["V"][1]
+        structure = analyse(resid, self.contiguous, rate, inputs)
+        structure.drive_tones_hz = drive_tones(voltage, self.contiguous, rate)
+        z = self.ws.aligned.displacement[np.ix_(self.rows, self.ws.actuators[self.keep])].T
+        structure.drive_gain_m_per_v = drive_gain(voltage, z)
+        return structure, resid
 
 
 def _uncertainties(state: ModelState, name: str, command_period: float) -> dict[str, float]:
@@ -151,6 +150,11 @@ def _uncertainties(state: ModelState, name: str, command_period: float) -> dict[
             "k3": float(np.median(np.sqrt(np.maximum(cov[:, 5, 5], 0)))),
         }
     return {}
+
+
+def _unexplained(after: ResidualStructure, final_rms: float) -> list[str]:
+    """Describe the structure the final model leaves, in words."""
+    return describe(after, final_rms, NOISE_RATIO_LIMIT)
 
 
 def calibrate(measured: MeasuredData, candidates: tuple[str, ...] = CANDIDATES) -> Calibration:
@@ -223,9 +227,7 @@ def calibrate(measured: MeasuredData, candidates: tuple[str, ...] = CANDIDATES) 
         analysis_before=(aligned.t[analysis.rows], resid_before),
         analysis_after=(aligned.t[analysis.rows], resid_after),
         analysis_inputs=inputs,
-        unexplained=describe(
-            after, final.heldout_rms, NOISE_RATIO_LIMIT, analysis.drive(inputs["V"])
-        ),
+        unexplained=_unexplained(after, final.heldout_rms),
         timings_s=timings,
     )
 

@@ -67,6 +67,8 @@ class ResidualStructure:
     psd: FloatArray
     lines: list[tuple[float, float]]  # (frequency [Hz], rms [m]); a sine's amplitude is sqrt 2 x
     dependences: list[Dependence] = field(default_factory=list)
+    drive_tones_hz: tuple[float, ...] = ()  # the command's strongest spectral lines [Hz]
+    drive_gain_m_per_v: float = float("nan")  # median dz/dV over the actuators [m/V]
 
 
 def runs(contiguous: BoolArray) -> list[slice]:

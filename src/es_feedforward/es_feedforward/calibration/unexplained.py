@@ -87,8 +87,8 @@ class Drive:
         return " ".join(terms).lstrip("+")
 
 
-def drive(voltage: FloatArray, contiguous: BoolArray, rate: float) -> Drive:
-    """Return the drive's tones and gain on the analysed rows.
+def drive_tones(voltage: FloatArray, contiguous: BoolArray, rate: float) -> tuple[float, ...]:
+    """Return the frequencies [Hz] of the command's strongest spectral lines (``MAX_TONES``).
 
     Args:
         voltage: command in effect (A, n) [V].
@@ -100,9 +100,7 @@ def drive(voltage: FloatArray, contiguous: BoolArray, rate: float) -> Drive:
     f, psd, segments = spectrum(centred, contiguous, rate)
     finite = centred[np.isfinite(centred)]
     variance = float(np.mean(finite * finite)) if finite.size else 0.0
-    tones = spectral_lines(f, psd, segments, variance)[:MAX_TONES]
-    resolution = float(f[1] - f[0]) if f.size > 1 else float("nan")
-    return Drive(float("nan"), tuple(freq for freq, _ in tones), resolution)
+    return tuple(freq for freq, _ in spectral_lines(f, psd, segments, variance)[:MAX_TONES])
 
 
 def drive_gain(voltage: FloatArray, displacement: FloatArray) -> float:
@@ -174,9 +172,7 @@ def _duration(seconds: float) -> str:
     return f"{seconds:.3g} s" if seconds >= 1.0 else f"{seconds * 1e3:.3g} ms"
 
 
-def describe(
-    after: ResidualStructure, final_rms: float, ratio_limit: float, context: Drive
-) -> list[str]:
+def describe(after: ResidualStructure, final_rms: float, ratio_limit: float) -> list[str]:
     """Return statements on the structure the final model leaves (empty: only noise).
 
     Args:
@@ -184,10 +180,14 @@ def describe(
         final_rms: held-out RMS of the final model on the whole grid [m].
         ratio_limit: ratio of ``final_rms`` to the noise floor above which the residual
             counts as unexplained.
-        context: the drive on the analysed rows (:func:`drive`, with its gain), to tell
-            drive-made lines from others and to express a dV/dt dependence as a timing error.
 
     """
+    f = after.frequencies
+    context = Drive(
+        after.drive_gain_m_per_v,
+        after.drive_tones_hz,
+        float(f[1] - f[0]) if f.size > 1 else float("nan"),
+    )
     notes = []
     floor = after.noise_floor
     if np.isfinite(floor) and floor > 0 and final_rms > ratio_limit * floor:
