@@ -13,6 +13,7 @@ from typing import Final
 
 import numpy as np
 
+from es_feedforward.calibration import unexplained
 from es_feedforward.calibration.align import AlignedData, MeasuredData, align
 from es_feedforward.calibration.model import CANDIDATES, FloatArray
 from es_feedforward.calibration.residual import ResidualStructure, analyse
@@ -28,7 +29,6 @@ from es_feedforward.calibration.search import (
     screen_block,
     search_effects,
 )
-from es_feedforward.calibration.unexplained import describe, drive_gain, drive_tones
 
 #: Actuators whose full-rate held-out residual is analysed (spectra, correlations).
 ANALYSIS_ACTUATORS: Final = 16
@@ -115,9 +115,9 @@ class _Analysis:
         inputs = self.regressors()
         voltage = inputs["V"][1]
         structure = analyse(resid, self.contiguous, rate, inputs)
-        structure.drive_tones_hz = drive_tones(voltage, self.contiguous, rate)
+        structure.drive_tones_hz = unexplained.drive_tones(voltage, self.contiguous, rate)
         z = self.ws.aligned.displacement[np.ix_(self.rows, self.ws.actuators[self.keep])].T
-        structure.drive_gain_m_per_v = drive_gain(voltage, z)
+        structure.drive_gain_m_per_v = unexplained.drive_gain(voltage, z)
         return structure, resid
 
 
@@ -154,7 +154,7 @@ def _uncertainties(state: ModelState, name: str, command_period: float) -> dict[
 
 def _unexplained(after: ResidualStructure, final_rms: float) -> list[str]:
     """Describe the structure the final model leaves, in words."""
-    return describe(after, final_rms, NOISE_RATIO_LIMIT)
+    return unexplained.describe(after, final_rms, NOISE_RATIO_LIMIT)
 
 
 def calibrate(measured: MeasuredData, candidates: tuple[str, ...] = CANDIDATES) -> Calibration:
