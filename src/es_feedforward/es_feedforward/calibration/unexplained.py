@@ -68,7 +68,7 @@ class Drive:
     def combination(self, freq: float) -> str | None:
         """Return the lowest-order combination of the tones within a bin of ``freq``, or None.
 
-        E.g. "2 x 1.10 Hz + 1 x 2.70 Hz"; orders up to ``MAX_ORDER``.
+        E.g. "2 x 1.10 Hz +1 x 2.70 Hz"; orders up to ``MAX_ORDER``.
         """
         tones = np.asarray(self.tones_hz)
         if tones.size == 0:
@@ -153,8 +153,11 @@ def _dependence(dep: Dependence, gain_m_per_v: float) -> str:
     text = (
         f"residual correlates with {dep.name} (r = {dep.correlation:+.3f}, 95 % bound "
         f"{dep.correlation_bound:.3f}; slope {dep.slope * NM:+.3g} nm per {dep.unit}; "
-        f"{100 * dep.explained_fraction:.1f} % of the variance follows it): {_HINTS[dep.name]}"
+        f"{100 * dep.explained_fraction:.1f} % of the variance follows it)"
     )
+    hint = _HINTS.get(dep.name)
+    if hint:
+        text += f": {hint}"
     if dep.name == "dV/dt" and np.isfinite(gain_m_per_v) and gain_m_per_v != 0:
         # z(t) = f(V(t - d)) ~ f(V) - f'(V) d dV/dt, so the slope is -gain * d
         lag = -dep.slope / gain_m_per_v
