@@ -211,3 +211,12 @@ def test_a_run_cut_short_by_a_gap_does_not_coarsen_the_spectrum() -> None:
     f, psd, segments = spectrum(resid, contiguous, 250.0)
     assert f[1] == pytest.approx(250.0 / 1024)
     assert segments >= 4 and np.all(np.isfinite(psd))
+
+
+def test_lagging_stamps_before_a_gap_are_not_spread_across_it() -> None:
+    t = np.round(np.arange(900) * 0.1, 6)
+    lagging = np.repeat(t[::4], 4)[: t.size]  # runs of 4 messages share a stamp
+    keep = (t < 30.0) | (t >= 60.0)
+    (gap,) = find_gaps("/dm/temperature", "temperature", lagging[keep])
+    assert gap.start_s == pytest.approx(29.9) and gap.duration_s == pytest.approx(30.1)
+    assert gap.missing_samples == 300

@@ -9,7 +9,8 @@ bag reader sorts stably). Then:
 - every topic: the stamp of a lagging recorder is the clock it last saw, so the messages of a
   run of equal stamps were received at or after it. Where the times are needed (temperature
   always, displacement when paired by order) each run is spread evenly up to the next
-  distinct stamp.
+  distinct stamp, at most at the typical period (a run just before a gap is not spread
+  across it).
 - command and displacement with as many messages each (lock-step recording, one displacement
   per command): they are paired by message order, displacement i being the response to
   command i. Displacement times are spread, and each command is placed midway between its
@@ -49,7 +50,8 @@ def run_lengths(times: FloatArray) -> npt.NDArray[np.intp]:
 def spread_repeated(times: FloatArray) -> FloatArray:
     """Return strictly increasing times: each run of equal stamps spread up to the next stamp.
 
-    The last run is spread at the mean message period of the rest of the record.
+    The last run is spread at the mean message period of the rest of the record, and no run
+    wider than the median run's period (a run just before a gap keeps the gap after it).
     Needs at least two distinct stamps.
     """
     starts, run_of = _runs(times)
@@ -58,5 +60,7 @@ def spread_repeated(times: FloatArray) -> FloatArray:
     last_period = (times[starts[-1]] - times[0]) / starts[-1]
     next_stamp[-1] = times[starts[-1]] + last_period * (ends[-1] - starts[-1])
     step = (next_stamp - times[starts]) / (ends - starts)
+    # a run just before a gap is spread at the typical period, not across the gap
+    step = np.minimum(step, np.median(step))
     position = np.arange(times.size) - starts[run_of]
     return np.asarray(times + position * step[run_of], dtype=np.float64)
