@@ -132,7 +132,7 @@ def _write_topic(source: Source, plan: TopicPlan, bag: BagWriter) -> TopicSummar
         previous_bad = bool(bad[-1])
         index = np.flatnonzero(good) + start
         ns = stamps.check(seconds[good], index)
-        kept = np.ascontiguousarray(values[good], dtype="<f8").reshape(len(ns), -1)
+        kept = np.ascontiguousarray(values[good], dtype="<f8").reshape(len(ns), entry.size)
         payloads = np.empty((len(ns), header.size + 8 * entry.size), dtype=np.uint8)
         payloads[:, : header.size] = header
         payloads[:, header.size :] = kept.view(np.uint8)

@@ -122,18 +122,29 @@ def _time_vector(source: Source, time: TimeBase, topic: str) -> tuple[int, int]:
     return var.shape[axis], axis
 
 
+def _fits(sample: tuple[int, ...], entry: TopicMap) -> bool:
+    """Return whether one sample of this shape holds the topic.
+
+    It does when flat with as many values, shaped like the grid, or (sensor vectors) of any
+    shape with as many values.
+    """
+    squeezed = tuple(n for n in sample if n != 1)
+    count = int(np.prod(sample))
+    if len(squeezed) <= 1 or entry.kind == "sensor":
+        return count == entry.size
+    return sample == entry.shape
+
+
 def _data_axis(var: Variable, entry: TopicMap, samples: int | None, path: object) -> int:
     shape = var.shape
-    size = entry.size
-    wanted = {"first": [0], "last": [len(shape) - 1], "auto": [0, len(shape) - 1]}
+    last = len(shape) - 1
+    wanted = {"first": [0], "last": [last], "auto": sorted({0, last})}
     candidates = [ax for ax in wanted[entry.time_axis]
-                  if int(np.prod(shape)) // max(shape[ax], 1) == size]
-    if len(shape) == 1:
-        candidates = [0] if size == 1 else []
-    grid = " x ".join(str(n) for n in entry.shape)
+                  if _fits(shape[:ax] + shape[ax + 1 :], entry)]
     if not candidates:
+        grid = " x ".join(str(n) for n in entry.shape)
         raise SourceError(
-            f"{path}: grid size mismatch: {entry.topic} needs {size} values per sample "
+            f"{path}: grid size mismatch: {entry.topic} needs {entry.size} values per sample "
             f"({grid}), {var.name!r} has shape {var.shape}"
         )
     if samples is None:
