@@ -214,10 +214,24 @@ def test_installed_launcher_imports(tmp_path: Path) -> None:
     _check_bag(tmp_path / "bag", rec, True)
 
 
-def test_load_map_reads_the_readme_example(tmp_path: Path) -> None:
+def test_the_readme_example_map_imports_its_rig_log(tmp_path: Path) -> None:
     readme = (ROOT / "README.md").read_text()
     section = readme.split("## Calibrating from your own rig", 1)[1]
     example = section.split("```yaml\n", 1)[1].split("```", 1)[0]
     (tmp_path / "map.yaml").write_text(example)
-    parsed = load_map(tmp_path / "map.yaml")
-    assert {t.topic for t in parsed.topics} >= {"/dm/command", "/dm/displacement"}
+    rec = recording(n=100)
+    scipy.io.savemat(tmp_path / "rig.mat", {
+        "tout": rec.t[:, None],
+        "u_amp": flat_f(rec.command) * 1e3,
+        "interferometer": {"Time": rec.t, "Data": rec.displacement.transpose(1, 2, 0) * 1e9},
+        **{f"ntc_{i}": rec.temperature[:, 0] + 273.15 + i for i in range(4)},
+    })
+    import_recording(tmp_path / "rig.mat", tmp_path / "bag", load_map(tmp_path / "map.yaml"))
+    series = read_bag(tmp_path / "bag")
+    np.testing.assert_allclose(series["/dm/command"].values, rec.command, rtol=1e-12)  # type: ignore[arg-type]
+    np.testing.assert_allclose(series["/dm/displacement"].values, rec.displacement, rtol=1e-12)  # type: ignore[arg-type]
+    temperature = series["/dm/temperature/raw"].values
+    assert temperature is not None
+    np.testing.assert_allclose(temperature, rec.temperature[:, :1] + np.arange(4), rtol=1e-12)
+    np.testing.assert_array_equal(_ns(series["/dm/temperature/raw"].times),
+                                  _ns(np.arange(10) / 10.0))
