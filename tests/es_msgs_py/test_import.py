@@ -147,7 +147,7 @@ def test_nan_runs_across_chunks_in_a_matlab_vector(tmp_path: Path, monkeypatch: 
                                                    ) -> None:
     import es_msgs_py.labimport.importer as importer
 
-    monkeypatch.setattr(importer, "CHUNK_VALUES", 7)  # runs straddle chunk borders
+    monkeypatch.setattr(importer, "CHUNK_BYTES", 7 * 64)  # 7 samples: runs straddle chunks
     u = np.arange(40.0)
     u[5:9] = np.nan
     u[13:15] = np.inf

@@ -114,7 +114,7 @@ def test_non_monotonic_time(tmp_path: Path, capsys: pytest.CaptureFixture[str],
                             monkeypatch: pytest.MonkeyPatch, where: int) -> None:
     import es_msgs_py.labimport.importer as importer
 
-    monkeypatch.setattr(importer, "CHUNK_VALUES", 1200)  # 100 samples per chunk: 250 is late
+    monkeypatch.setattr(importer, "CHUNK_BYTES", 100 * 148)  # 100 samples: 250 is late
     rec = recording(n=300)
     t = rec.t.copy()
     t[where] = t[where - 2]

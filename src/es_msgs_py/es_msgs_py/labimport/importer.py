@@ -23,8 +23,8 @@ from es_msgs_py.labimport.mapfile import ImportMap
 from es_msgs_py.labimport.plan import TopicPlan, plan_import
 from es_msgs_py.labimport.sources import FloatArray, Source, open_source
 
-#: Values read per chunk (float64): the import's working set is a few times this.
-CHUNK_VALUES: Final = 1 << 18
+#: Bytes of messages encoded per chunk: the import's working set is a few times this.
+CHUNK_BYTES: Final = 1 << 22
 
 
 @dataclass
@@ -116,7 +116,7 @@ def _write_topic(source: Source, plan: TopicPlan, bag: BagWriter) -> TopicSummar
     if plan.time.variable is not None:
         names.append(plan.time.variable)
         axes.append(plan.time_axis)
-    step = max(1, CHUNK_VALUES // entry.size)
+    step = max(1, CHUNK_BYTES // (header.size + 8 * entry.size))
     previous_bad = False
     for start in range(0, plan.samples, step):
         stop = min(start + step, plan.samples)
