@@ -107,6 +107,21 @@ def test_matlab_3x4xN_array_keeps_its_indices(tmp_path: Path) -> None:
     np.testing.assert_array_equal(read_bag(tmp_path / "bag")["/dm/command"].values, grids)
 
 
+def test_simulink_structure_with_time(tmp_path: Path) -> None:
+    """Simulink's "structure with time" log: time + signals.values (+ a label string)."""
+    t = np.arange(50) / 100.0
+    values = np.random.default_rng(2).normal(size=(50, 2))
+    scipy.io.savemat(tmp_path / "rec.mat", {"ScopeData": {
+        "time": t[:, None], "signals": {"values": values, "label": "T1 T2", "dimensions": 2},
+        "blockName": "rig/Scope"}})
+    document = {"topics": {"/dm/temperature/raw": {"variable": "ScopeData", "unit": "degC",
+                                                   "sensors": 2}}}
+    import_recording(tmp_path / "rec.mat", tmp_path / "bag", parse_map(document))
+    got = read_bag(tmp_path / "bag")["/dm/temperature/raw"]
+    np.testing.assert_array_equal(got.values, values)
+    np.testing.assert_array_equal(_ns(got.times), _ns(t))
+
+
 def test_rates_differ_per_topic_and_kelvin_becomes_degc(tmp_path: Path) -> None:
     rec = recording(n=100)
     write_mat(tmp_path / "rec.mat", rec)

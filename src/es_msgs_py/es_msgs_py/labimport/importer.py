@@ -11,6 +11,7 @@ from __future__ import annotations
 import os
 import shutil
 import tempfile
+from contextlib import suppress
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Final
@@ -173,22 +174,28 @@ def import_recording(
     source = open_source(recording)
     try:
         plans = plan_import(source, import_map)
+        new_parents = [p for p in reversed(target.absolute().parents) if not p.exists()]
         try:
             target.parent.mkdir(parents=True, exist_ok=True)
             work = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".importing",
                                          dir=target.parent))
         except OSError as err:
             raise LabImportError(f"cannot create {target}: {err.strerror or err}") from None
+        done = False
         try:
             with BagWriter(work / target.name, storage) as writer:
                 topics = [_write_topic(source, plan, writer) for plan in plans]
             os.rename(work / target.name, target)
+            done = True
         except BagError as err:
             raise LabImportError(str(err)) from None
         except OSError as err:
             raise LabImportError(f"cannot write {target}: {err.strerror or err}") from None
         finally:
             shutil.rmtree(work, ignore_errors=True)
+            for parent in [] if done else reversed(new_parents):
+                with suppress(OSError):
+                    parent.rmdir()  # created for this bag, empty again
     finally:
         source.close()
     return ImportSummary(target, storage, topics)

@@ -18,7 +18,7 @@ from typing import Any, Final
 import yaml
 
 from es_msgs_py.labimport.mapfile import TOPICS, UNITS
-from es_msgs_py.labimport.sources import Source, Timeseries, Variable, find_timeseries
+from es_msgs_py.labimport.sources import Source, Variable, find_timeseries
 from es_msgs_py.topic_names import (
     COMMAND,
     DISPLACEMENT,
@@ -76,13 +76,9 @@ def describe(source: Source) -> list[str]:
     for names in groups.values():
         var = variables[names[0]]
         lines.append(f"{names[0]}..{names[-1]}: {len(names)} columns {var.shape} {var.dtype}")
-    for name, series in _series(variables).items():
+    for name, series in find_timeseries(variables).items():
         lines.append(f"{name}: timeseries (Time {series.time}, Data {series.data})")
     return lines
-
-
-def _series(variables: Mapping[str, Variable]) -> dict[str, Timeseries]:
-    return {**find_timeseries(variables, "."), **find_timeseries(variables, "/")}
 
 
 def _time_variable(variables: Mapping[str, Variable], used: set[str]) -> str | None:
@@ -94,7 +90,7 @@ def _time_variable(variables: Mapping[str, Variable], used: set[str]) -> str | N
 
 
 def _candidates(variables: Mapping[str, Variable], samples: int | None) -> list[_Candidate]:
-    series = _series(variables)
+    series = find_timeseries(variables)
     inner = {s.time for s in series.values()} | {s.data for s in series.values()}
     groups = _groups(variables)
     grouped = {name for names in groups.values() for name in names}
@@ -140,7 +136,7 @@ def _entry(topic: str, candidate: _Candidate, matlab: bool) -> dict[str, Any]:
 def guess_map(source: Source) -> str:
     """Return the listing (as YAML comments) and a guessed map of ``source`` as YAML text."""
     variables = source.variables()
-    series_time = {s.time for s in _series(variables).values()}
+    series_time = {s.time for s in find_timeseries(variables).values()}
     time = _time_variable(variables, series_time)
     samples = None
     if time is not None:

@@ -193,22 +193,21 @@ def plan_topic(source: Source, entry: TopicMap, default: TimeBase | None,
             f"{source.path}: grid size mismatch: {entry.topic} needs {entry.size} values per "
             f"sample, the map gives {len(variables)} columns"
         )
-    lengths = {v.name: v.shape[0] for v in variables}
+    expected = samples if samples is not None else variables[0].shape[0]
+    against = "the time variable" if samples is not None else f"column {variables[0].name!r}"
     for var in variables:
         if len(var.shape) != 1:
             raise SourceError(f"{source.path}: column {var.name!r} for {entry.topic} has shape "
                               f"{var.shape}, not one value per sample")
-    if len(set(lengths.values())) > 1 or (samples is not None and samples not in lengths.values()):
-        first = variables[0].name
-        other = f"the time variable {samples}" if samples is not None else "other columns differ"
-        raise SourceError(f"{source.path}: lengths do not match the time base: {entry.topic}: "
-                          f"{first!r} has {lengths[first]} samples, {other}")
+        if var.shape[0] != expected:
+            raise SourceError(f"{source.path}: lengths do not match the time base: "
+                              f"{entry.topic}: {var.name!r} has {var.shape[0]} samples, "
+                              f"{against} {expected}")
     return TopicPlan(entry, tuple(names), (0,) * len(names), variables[0].shape[0], time,
                      time_axis)
 
 
 def plan_import(source: Source, import_map: ImportMap) -> list[TopicPlan]:
     """Resolve every topic of ``import_map`` against ``source`` (see :func:`plan_topic`)."""
-    variables = source.variables()
-    series = {**find_timeseries(variables, "."), **find_timeseries(variables, "/")}
+    series = find_timeseries(source.variables())
     return [plan_topic(source, entry, import_map.time, series) for entry in import_map.topics]

@@ -89,19 +89,24 @@ def numeric_dtype(dtype: np.dtype) -> bool:
     return dtype.kind in "biuf"
 
 
-def find_timeseries(variables: Mapping[str, Variable], sep: str) -> dict[str, Timeseries]:
-    """Return the timeseries-like structs among ``variables`` (names joined with ``sep``)."""
+def find_timeseries(variables: Mapping[str, Variable]) -> dict[str, Timeseries]:
+    """Return the timeseries-like structs among ``variables`` by struct name.
+
+    A struct (fields joined with ``.``) or group (``/``) is one when it has a ``Time`` field
+    and a ``Data`` (or ``signals.values``) field, in any case.
+    """
     lower = {name.lower(): name for name in variables}
     found: dict[str, Timeseries] = {}
     for name in variables:
-        head, _, leaf = name.rpartition(sep)
-        if not head or leaf.lower() != "time":
-            continue
-        data = lower.get(f"{head}{sep}data".lower()) or lower.get(
-            f"{head}{sep}signals{sep}values".lower()
-        )
-        if data is not None:
-            found[head] = Timeseries(name, data)
+        for sep in "./":
+            head, _, leaf = name.rpartition(sep)
+            if not head or leaf.lower() != "time":
+                continue
+            data = lower.get(f"{head}{sep}data".lower()) or lower.get(
+                f"{head}{sep}signals{sep}values".lower()
+            )
+            if data is not None:
+                found[head] = Timeseries(name, data)
     return found
 
 
