@@ -20,8 +20,8 @@ from pathlib import Path
 
 from es_msgs_py.bag import STORAGES
 from es_msgs_py.labimport.errors import LabImportError
+from es_msgs_py.labimport.guess import guess_map
 from es_msgs_py.labimport.importer import import_recording
-from es_msgs_py.labimport.inspect import guess_map
 from es_msgs_py.labimport.mapfile import load_map
 from es_msgs_py.labimport.sources import open_source
 
