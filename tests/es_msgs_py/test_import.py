@@ -107,6 +107,29 @@ def test_matlab_3x4xN_array_keeps_its_indices(tmp_path: Path) -> None:
     np.testing.assert_array_equal(read_bag(tmp_path / "bag")["/dm/command"].values, grids)
 
 
+def test_time_axis_last_in_hdf5(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Grids stored (3, 4, N): `auto` and `last` find time on the last axis, `first` cannot."""
+    import h5py
+
+    grids = np.random.default_rng(4).normal(size=(8, 3, 4))
+    with h5py.File(tmp_path / "rec.h5", "w") as f:
+        f["t"] = (np.arange(8) / 10.0)[:, None]  # an N x 1 time column
+        f["u"] = grids.transpose(1, 2, 0)
+    document: dict[str, Any] = {}
+    for axis in ("auto", "last"):
+        document = {"time": {"variable": "t"},
+                    "topics": {"/dm/command": {"variable": "u", "unit": "V", "grid": [3, 4],
+                                               "time_axis": axis}}}
+        import_recording(tmp_path / "rec.h5", tmp_path / axis, parse_map(document))
+        np.testing.assert_array_equal(read_bag(tmp_path / axis)["/dm/command"].values, grids)
+    document["topics"]["/dm/command"]["time_axis"] = "first"
+    write_map(tmp_path / "map.yaml", document)
+    assert run([str(tmp_path / "rec.h5"), "-o", str(tmp_path / "first"), "--map",
+                str(tmp_path / "map.yaml")]) == 2
+    assert "grid size mismatch: /dm/command needs 12 values per sample (3 x 4), 'u' has " \
+        "shape (3, 4, 8)" in capsys.readouterr().err
+
+
 def test_simulink_structure_with_time(tmp_path: Path) -> None:
     """Simulink's "structure with time" log: time + signals.values (+ a label string)."""
     t = np.arange(50) / 100.0
