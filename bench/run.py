@@ -10,7 +10,8 @@ Sections (``--only``): ``kernels`` (bench_kernels.py), ``convert`` (bench_conver
 ``recorder`` (the recorder's memory while it records a 32 x 32 lockstep run),
 ``calibrate`` (bench_calibrate.py), ``thermal`` (bench_thermal.py), ``calibration_loop``
 (bench_calibration_loop.py: characterise, calibrate, closed loop per effect family; writes
-``calibration_loop.md``/``.json``). Peak memory of every node
+``calibration_loop.md``/``.json``), ``import`` (bench_import.py: lab recordings into bags,
+time and peak memory). Peak memory of every node
 process comes with the sections that start them.
 
 Every figure is the median of repeated runs with their min and max (``summary.md``: the
@@ -60,7 +61,7 @@ BENCH_DIR = Path(__file__).resolve().parent
 sys.path.insert(0, str(BENCH_DIR))  # the sibling bench_*.py modules
 
 SECTIONS = ("kernels", "convert", "feedforward", "lockstep", "recorder", "calibrate", "thermal",
-            "calibration_loop")
+            "calibration_loop", "import")
 #: Grid shapes of the DDS benchmark (N = 144, 1024, 4096).
 DDS_SHAPES = ((12, 12), (32, 32), (64, 64))
 #: Grids of the lockstep benchmark.
@@ -323,6 +324,18 @@ def _profile_calibration(rate: float) -> str:
         profiler.runcall(run, [str(bag), "-o", str(Path(tmp) / "out"), "-q"])
         profiler.dump_stats(profile)
         return _top_of(profile, 14)
+
+
+def section_import(quick: bool, results: Results) -> None:
+    """Import of lab recordings (issue 19): time and peak memory per format, one run each."""
+    from bench_import import describe, run_cases
+
+    for t in run_cases(quick):
+        n = t.rows * t.cols
+        results.records.append(Record.of(f"import_time_{t.fmt}_{t.samples}", n, [t.seconds], "s"))
+        results.records.append(Record.of(f"import_mem_{t.fmt}_{t.samples}", n, [t.import_mib],
+                                         "MiB"))
+        results.notes.append(f"import: {describe(t)}")
 
 
 def section_thermal(settings: Settings, results: Results) -> None:
@@ -903,6 +916,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "calibrate": lambda: section_calibrate(settings, results),
         "thermal": lambda: section_thermal(settings, results),
         "calibration_loop": lambda: section_calibration_loop(results, args.output),
+        "import": lambda: section_import(args.quick, results),
     }
     for name in args.only:
         start = time.monotonic()

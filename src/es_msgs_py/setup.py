@@ -4,7 +4,7 @@ from setuptools import find_packages, setup
 
 PACKAGE = "es_msgs_py"
 # executable name (under lib/es_msgs_py/, for `ros2 run`) -> module with main()
-EXECUTABLES = {"record": "es_msgs_py.record"}
+EXECUTABLES = {"record": "es_msgs_py.record", "import": "es_msgs_py.labimport.cli"}
 
 setup(
     name=PACKAGE,

@@ -26,15 +26,20 @@ PYTHON_DIR = f"python{sys.version_info.major}.{sys.version_info.minor}"
 NODE_EXECUTABLES = ("record",)
 
 
-def executables_of(package: str) -> list[str]:
-    """Return the keys of ``EXECUTABLES = {...}`` in ``src/<package>/setup.py``."""
+def executable_modules(package: str) -> dict[str, str]:
+    """Return ``EXECUTABLES = {exe: module}`` of ``src/<package>/setup.py``."""
     tree = ast.parse((ROOT / "src" / package / "setup.py").read_text())
     for stmt in tree.body:
         if isinstance(stmt, ast.Assign) and any(
             isinstance(t, ast.Name) and t.id == "EXECUTABLES" for t in stmt.targets
         ):
-            return sorted(ast.literal_eval(stmt.value))
+            return dict(ast.literal_eval(stmt.value))
     raise AssertionError(f"src/{package}/setup.py has no EXECUTABLES table")
+
+
+def executables_of(package: str) -> list[str]:
+    """Return the keys of ``EXECUTABLES = {...}`` in ``src/<package>/setup.py``."""
+    return sorted(executable_modules(package))
 
 
 ALL_EXECUTABLES = [(pkg, exe) for pkg in PACKAGES for exe in executables_of(pkg)]
@@ -57,11 +62,12 @@ def assert_installed(prefix: Path, package: str) -> None:
 def test_every_package_lists_executables_with_modules() -> None:
     assert PACKAGES == ["es_feedforward", "es_msgs_py", "es_sim_plant", "es_thermal"]
     for package, exe in ALL_EXECUTABLES:
+        module = executable_modules(package)[exe]
         script = ROOT / "src" / package / "scripts" / exe
         assert script.is_file(), f"{script} missing"
-        assert f"-m {package}.{exe}" in script.read_text(), f"{script} runs another module"
-        assert (ROOT / "src" / package / package / f"{exe}.py").is_file(), (
-            f"module {package}.{exe} does not exist yet"
+        assert f"-m {module} " in script.read_text(), f"{script} runs another module"
+        assert (ROOT / "src" / package / f"{module.replace('.', '/')}.py").is_file(), (
+            f"module {module} does not exist yet"
         )
 
 

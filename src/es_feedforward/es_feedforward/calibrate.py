@@ -1,8 +1,11 @@
 """``calibrate``: fit the actuator model to measured-data bags and find what it still misses.
 
 Usage: ``ros2 run es_feedforward calibrate BAG [BAG ...] -o OUTDIR`` (console script
-``es_feedforward-calibrate``). Reads /dm/command, /dm/displacement and /dm/temperature (or
-/dm/temperature/raw) from each bag (MCAP or sqlite3), then writes into OUTDIR:
+``es_feedforward-calibrate``); a lab recording (.mat, .h5/.hdf5, .csv/.tsv, .npz) takes the
+place of a bag with ``--map MAP.yaml``: it goes through the ``import`` tool's code
+(:mod:`es_msgs_py.labimport`) into a temporary bag in OUTDIR first. Reads /dm/command,
+/dm/displacement and /dm/temperature (or /dm/temperature/raw) from each bag (MCAP or
+sqlite3), then writes into OUTDIR:
 
 - ``report.md`` and its PNG figures: every step (alignment, law fit, held-out residual
   structure, candidate effects, accepted effects, unexplained structure);
@@ -46,6 +49,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -54,6 +58,7 @@ from es_feedforward.calibration.bagio import read_measured_bags
 from es_feedforward.calibration.gaps import GAP_FACTOR
 from es_feedforward.calibration.model import CANDIDATES
 from es_feedforward.calibration.pipeline import calibrate
+from es_msgs_py.labimport import LabImportError, import_recording, load_map
 
 EXIT_BAD_INPUT = 2
 EXIT_INTERNAL_ERROR = 1
@@ -74,7 +79,18 @@ def _parser() -> argparse.ArgumentParser:
             "stderr, exit 2."
         ),
     )
-    parser.add_argument("bags", nargs="+", type=Path, help="rosbag2 directories (MCAP or sqlite3)")
+    parser.add_argument(
+        "bags",
+        nargs="+",
+        type=Path,
+        help="rosbag2 directories (MCAP or sqlite3), or lab recordings (with --map)",
+    )
+    parser.add_argument(
+        "--map",
+        type=Path,
+        help="import map (YAML) of the lab recordings given (.mat, .h5, .csv, .tsv, .npz); "
+        "see `ros2 run es_msgs_py import --inspect REC`",
+    )
     parser.add_argument("-o", "--output", required=True, type=Path, help="output directory")
     parser.add_argument(
         "--candidates",
@@ -83,6 +99,41 @@ def _parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
     return parser
+
+
+def _as_bags(paths: Sequence[Path], map_path: Path | None, work: Path, quiet: bool
+             ) -> list[Path]:
+    """Return ``paths`` with each lab recording (a file) imported into a bag in ``work``.
+
+    Raises:
+        CalibrationInputError: a file without ``--map``, ``--map`` without a file, or a
+            recording given twice.
+        LabImportError: the map or a recording cannot be imported.
+
+    """
+    recordings = [p for p in paths if p.is_file()]
+    if map_path is None:
+        if recordings:
+            raise CalibrationInputError(
+                f"{recordings[0]} is a file, not a bag: give --map MAP.yaml to import a lab "
+                "recording (ros2 run es_msgs_py import --inspect REC guesses one)"
+            )
+        return list(paths)
+    if not recordings:
+        raise CalibrationInputError("--map is given but no lab recording (only bag directories)")
+    if len({p.resolve() for p in recordings}) < len(recordings):
+        raise CalibrationInputError("a recording is given twice")
+    import_map = load_map(map_path)
+    bags = []
+    for i, path in enumerate(paths):
+        if path not in recordings:
+            bags.append(path)
+            continue
+        summary = import_recording(path, work / f"{i}-{path.name}", import_map)
+        if not quiet:
+            print("\n".join(f"import {path}: {line}" for line in summary.lines()[1:]))
+        bags.append(summary.bag)
+    return bags
 
 
 def run(argv: Sequence[str] | None = None) -> int:
@@ -105,7 +156,9 @@ def run(argv: Sequence[str] | None = None) -> int:
         )
         return EXIT_BAD_INPUT
     try:
-        measured = read_measured_bags(args.bags)
+        with tempfile.TemporaryDirectory(prefix=".import-", dir=args.output) as work:
+            bags = _as_bags(args.bags, args.map, Path(work), args.quiet)
+            measured = read_measured_bags(bags)
         cal = calibrate(measured, candidates)
         # matplotlib and the feedforward configuration are only needed once there is a result
         from es_feedforward.calibration.report import write_report
@@ -117,7 +170,7 @@ def run(argv: Sequence[str] | None = None) -> int:
         notes = write_parameters_yaml(cal, args.output / "feedforward_params.yaml")
         write_calibration_json(cal, args.output / "calibration.json")
         report = write_report(cal, args.output, notes)
-    except (CalibrationInputError, OSError) as err:
+    except (CalibrationInputError, LabImportError, OSError) as err:
         print(f"calibrate: {err}".splitlines()[0], file=sys.stderr)
         return EXIT_BAD_INPUT
     except MemoryError:

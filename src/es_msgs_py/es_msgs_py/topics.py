@@ -8,14 +8,16 @@ from typing import Final
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-HEAT_LOAD: Final = "/dm/heat_load"
-TEMPERATURE_RAW: Final = "/dm/temperature/raw"
-TEMPERATURE: Final = "/dm/temperature"
-SETPOINT: Final = "/dm/setpoint"
-COMMAND: Final = "/dm/command"
-DISPLACEMENT: Final = "/dm/displacement"
-DIAGNOSTICS: Final = "/diagnostics"
-CLOCK: Final = "/clock"
+from es_msgs_py.topic_names import (
+    CLOCK,
+    COMMAND,
+    DIAGNOSTICS,
+    DISPLACEMENT,
+    HEAT_LOAD,
+    SETPOINT,
+    TEMPERATURE,
+    TEMPERATURE_RAW,
+)
 
 #: Highest ROS domain whose DDS ports (for the first 50 participants of a host) stay below
 #: Linux's ephemeral range (32768+): in that range any socket of the machine can hold a port
