@@ -34,6 +34,11 @@ SCALE_CASES: tuple[tuple[int, int, float, float, float | None], ...] = (
     (66, 66, 2000.0, 1.0, 1.2),
     (128, 128, 1000.0, 2.0, None),
 )
+#: Lockstep closed loop (plant + thermal + feedforward processes on dm_exposure): grid and
+#: the issue's floor [x real time].
+LOCKSTEP_CASES: tuple[tuple[int, int, float], ...] = ((32, 32, 10.0), (64, 64, 5.0))
+#: Longest wait for the thermal and feedforward nodes of a large grid to start [s].
+CONTROLLERS_TIMEOUT_S = 600.0
 #: The node under test and its floor (bench/relay.py on the EventsExecutor).
 KINDS = ("relay_events", "feedforward")
 
@@ -187,6 +192,63 @@ def section_scale(settings: Settings, results: Results, log_dir: Path) -> None:
     )
 
 
+def lockstep_run(rows: int, cols: int, duration: float,
+                 log_dir: Path) -> tuple[float, float, float]:
+    """Run the closed loop once; return (x real time, plant CPU [ms/step], start-up [s]).
+
+    The start-up is how long the thermal and feedforward nodes took to show on the graph.
+
+    The plant is started only then, so that their start-up (the thermal model of a large
+    grid) is not in the figure.
+
+    Raises:
+        RuntimeError: a node exited, did not start, or the plant printed no summary.
+
+    """
+    import re
+
+    from run import Process, _plant_speedup, _run_until_exit, processes, wait_for_controllers
+
+    from es_sim_plant.bringup import GraphConfig, node_specs
+
+    config = GraphConfig(scenario="dm_exposure",
+                         plant={"rows": rows, "cols": cols, "duration": duration})
+    before, plant_spec = node_specs(config)
+    tag = f"scale_{rows}x{cols}"
+    started = [Process(f"{s.name}_{tag}", s.command, log_dir) for s in before]
+    with processes(*started):
+        ready_s = wait_for_controllers(started, CONTROLLERS_TIMEOUT_S)
+        plant = Process(f"{plant_spec.name}_{tag}", plant_spec.command, log_dir)
+        with processes(plant):
+            _run_until_exit(plant, [plant], 120.0 + 30.0 * duration)
+    output = plant.output()
+    speedup, _ = _plant_speedup(output)
+    cpu = re.search(r"plant CPU ([\d.]+) ms/step", output)
+    return speedup, float(cpu.group(1)) if cpu else float("nan"), ready_s
+
+
+def section_lockstep_scale(settings: Settings, results: Results, log_dir: Path) -> None:
+    """Lockstep closed loop at 32 x 32 and 64 x 64: x real time beside the issue's floors."""
+    from run import Record
+
+    for rows, cols, floor in LOCKSTEP_CASES:
+        runs = [lockstep_run(rows, cols, settings.lockstep_duration, log_dir)
+                for _ in range(1 if rows * cols > 144 else settings.repeats)]
+        speedups = [r[0] for r in runs]
+        results.records.append(Record.of("lockstep_speedup", rows * cols, speedups, "sim/wall"))
+        results.records.append(Record.of("lockstep_plant_cpu_per_step", rows * cols,
+                                          [r[1] for r in runs], "ms"))
+        median = float(np.median(speedups))
+        results.notes.append(
+            f"{'met' if median >= floor else 'MISSED'}: lockstep {rows} x {cols} >= {floor:g}x "
+            f"real time (measured {median:.2f}x; thermal and feedforward took "
+            f"{max(r[2] for r in runs):.0f} s to start, not counted)")
+    results.notes.append(
+        f"lockstep (scale): dm_exposure, {settings.lockstep_duration:g} s sim at 100 Hz, plant + "
+        "thermal (model estimator) + feedforward processes on one host; "
+        f"lockstep_plant_cpu_per_step: the plant process's CPU per step. {load_note()}")
+
+
 def target_line(rows: int, cols: int, rate: float, *, p99_ms: float, ratio: float, lost: int,
                 target_ms: float, target_ratio: float | None) -> str:
     """Return the one-line verdict of a case against the issue's targets."""
@@ -217,12 +279,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--seconds", type=float, default=3.0)
     parser.add_argument("--repeats", type=int, default=1)
     parser.add_argument("--log-dir", type=Path, default=Path("out/scale"))
+    parser.add_argument("--lockstep", type=float, default=0.0, metavar="SECONDS",
+                        help="run the lockstep cases instead, SECONDS of sim time each")
     args = parser.parse_args(argv)
     settings = Settings.create(quick=True, profile=False)
     settings = type(settings)(**{**settings.__dict__, "repeats": args.repeats,
                                  "dds_rate_seconds": args.seconds})
     results = Results()
-    section_scale(settings, results, args.log_dir)
+    if args.lockstep:
+        settings = type(settings)(**{**settings.__dict__, "lockstep_duration": args.lockstep})
+        section_lockstep_scale(settings, results, args.log_dir)
+    else:
+        section_scale(settings, results, args.log_dir)
     for record in [*results.records, *results.references]:
         print(record)
     for note in results.notes:
