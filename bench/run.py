@@ -9,7 +9,8 @@ Sections (``--only``): ``kernels`` (bench_kernels.py), ``convert`` (bench_conver
 ``lockstep`` (plant, thermal and feedforward processes in lockstep on ``dm_exposure``),
 ``recorder`` (the recorder's memory while it records a 32 x 32 lockstep run),
 ``calibrate`` (bench_calibrate.py), ``thermal`` (bench_thermal.py), ``scale`` (bench_scale.py:
-the feedforward node at 66 x 66 / 2 kHz and 128 x 128 / 1 kHz), ``multihost``
+the feedforward node at 66 x 66 / 2 kHz and 128 x 128 / 1 kHz), ``lockstep_scale``
+(bench_scale.py: the closed loop at 32 x 32 and 64 x 64), ``multihost``
 (bench_multihost.py: 64 x 64 at 1 kHz across two network namespaces; needs root). Peak memory
 of every node process comes with the sections that start them.
 
@@ -60,10 +61,10 @@ BENCH_DIR = Path(__file__).resolve().parent
 sys.path.insert(0, str(BENCH_DIR))  # the sibling bench_*.py modules
 
 from bench_multihost import section_multihost  # noqa: E402 - after the path above
-from bench_scale import section_scale  # noqa: E402
+from bench_scale import section_lockstep_scale, section_scale  # noqa: E402
 
 SECTIONS = ("kernels", "convert", "feedforward", "lockstep", "recorder", "calibrate", "thermal",
-            "scale", "multihost")
+            "scale", "lockstep_scale", "multihost")
 #: Grid shapes of the DDS benchmark (N = 144, 1024, 4096).
 DDS_SHAPES = ((12, 12), (32, 32), (64, 64))
 #: Grids of the lockstep benchmark.
@@ -896,6 +897,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "calibrate": lambda: section_calibrate(settings, results),
         "thermal": lambda: section_thermal(settings, results),
         "scale": lambda: section_scale(settings, results, log_dir),
+        "lockstep_scale": lambda: section_lockstep_scale(settings, results, log_dir),
         "multihost": lambda: section_multihost(settings, results, log_dir),
     }
     for name in args.only:
