@@ -220,7 +220,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(RESULT_PREFIX + json.dumps(asdict(run)), flush=True)
         return 0
     measure = measure_local if args.local else measure_across
-    link = measure(args.kind, shape, args.rate, args.seconds, args.log_dir)
+    try:
+        link = measure(args.kind, shape, args.rate, args.seconds, args.log_dir)
+    except RuntimeError as err:  # NetnsError included: one readable line, exit 1
+        print(f"bench_multihost: {err}", file=sys.stderr)
+        return 1
     print(json.dumps({**asdict(link.run), "lost": link.run.lost, "link_bytes": link.link_bytes}))
     return 0
 

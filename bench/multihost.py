@@ -106,7 +106,7 @@ def two_hosts(tag: str | None = None) -> Iterator[tuple[Host, Host]]:
 
     """
     tag = tag or str(os.getpid())
-    hosts = tuple(Host(f"esdm-{tag}-{side}", f"esdm{tag}{side}"[:15], address)
+    hosts = tuple(Host(f"esdm-{tag}-{side}", f"esdm{tag[:10]}{side}", address)  # IFNAMSIZ 16
                   for side, address in zip("ab", LINK_ADDRESSES, strict=True))
     created: list[str] = []
     try:
