@@ -39,6 +39,8 @@ SCALE_CASES: tuple[tuple[int, int, float, float, float | None], ...] = (
 LOCKSTEP_CASES: tuple[tuple[int, int, float], ...] = ((32, 32, 10.0), (64, 64, 5.0))
 #: Longest wait for the thermal and feedforward nodes of a large grid to start [s].
 CONTROLLERS_TIMEOUT_S = 600.0
+#: Set points answered one at a time before each paced run (warm-up).
+WARMUP = 50
 #: The node under test and its floor (bench/relay.py on the EventsExecutor).
 KINDS = ("relay_events", "feedforward")
 
@@ -103,7 +105,7 @@ def start_client(shape: tuple[int, int], timeout: float, hold_check: bool) -> Dd
         client.wait_for_peer(timeout)
         client.temperature_pub.publish(client.temperature)
         client.executor.spin_once(timeout_sec=0.2)
-        client.latencies(50)  # warm-up, one at a time
+        client.latencies(WARMUP)  # one at a time
         if hold_check and client.last_command is not None and not np.any(
                 msg_to_grid(client.last_command) > 0.0):
             raise RuntimeError("feedforward holds (all 0 V): temperature not taken")
@@ -130,12 +132,29 @@ class CaseRuns:
     """Paced runs of one node at one case, and the node's peak memory [MiB]."""
 
     runs: list[PacedRun] = field(default_factory=list)
+    unanswered: list[float] = field(default_factory=list)
     peak_mib: float = 0.0
 
 
+def published_commands(node_log: str) -> int | None:
+    """Return the /dm/command count a node's exit summary logged (``None`` if it has none)."""
+    import re
+
+    match = re.search(r"published /dm/command: (\d+)", node_log)
+    return int(match.group(1)) if match else None
+
+
 def measure(kind: str, shape: tuple[int, int], rate_hz: float, seconds: float,
-            log_dir: Path) -> tuple[PacedRun, float]:
-    """Start the node ``kind``, run one paced measurement; return it and the peak RSS [MiB]."""
+            log_dir: Path) -> tuple[PacedRun, float, int | None]:
+    """Start the node ``kind``, run one paced measurement.
+
+    Returns:
+        The run, the node's peak RSS [MiB], and how many of the paced set points the
+        feedforward node never answered (from the count of published commands in its exit
+        summary; the rest of ``PacedRun.lost`` was lost on the way back to the client);
+        ``None`` for the relay, whose plain publisher is not counted.
+
+    """
     from run import Process, processes
 
     rows, cols = shape
@@ -147,7 +166,9 @@ def measure(kind: str, shape: tuple[int, int], rate_hz: float, seconds: float,
         finally:
             client.close()
         node.sample_rss()
-    return run, node.peak_mib
+    published = published_commands(node.output()) if kind == "feedforward" else None
+    unanswered = None if published is None else run.sent - (published - WARMUP)
+    return run, node.peak_mib, unanswered
 
 
 def section_scale(settings: Settings, results: Results, log_dir: Path) -> None:
@@ -160,8 +181,10 @@ def section_scale(settings: Settings, results: Results, log_dir: Path) -> None:
         by_kind = {kind: CaseRuns() for kind in KINDS}
         for _ in range(settings.repeats):
             for kind in KINDS:  # in turns: a change of the machine's load hits both alike
-                run, peak = measure(kind, (rows, cols), rate, seconds, log_dir)
+                run, peak, unanswered = measure(kind, (rows, cols), rate, seconds, log_dir)
                 by_kind[kind].runs.append(run)
+                by_kind[kind].unanswered.append(float("nan") if unanswered is None
+                                                else unanswered)
                 by_kind[kind].peak_mib = max(by_kind[kind].peak_mib, peak)
         ff, relay = by_kind["feedforward"], by_kind["relay_events"]
         ff_p99 = [r.p99_s * 1e3 for r in ff.runs]
@@ -171,6 +194,8 @@ def section_scale(settings: Settings, results: Results, log_dir: Path) -> None:
                                           ratio))
         results.records.append(Record.of(f"scale_paced_lost_{rate:g}Hz", n,
                                           [r.lost for r in ff.runs], "set points"))
+        results.records.append(Record.of(f"scale_paced_unanswered_{rate:g}Hz", n,
+                                          ff.unanswered, "set points"))
         results.records.append(Record.of(f"scale_paced_rate_{rate:g}Hz", n,
                                           [r.received_rate_hz for r in ff.runs], "Hz"))
         results.records.append(Record.of("peak_rss_feedforward", n, [ff.peak_mib], "MiB"))
@@ -187,7 +212,9 @@ def section_scale(settings: Settings, results: Results, log_dir: Path) -> None:
         f"scale_*: set points paced at the named rate for {seconds:g} s per run, "
         f"{settings.repeats} run(s), feedforward node and relay (EventsExecutor, the node's) "
         "started in turns; p99 set point published -> command received (NaN if any was lost); "
-        "ratio = feedforward p99 / relay p99; scale_paced_lost: set points without a command; "
+        "ratio = feedforward p99 / relay p99; scale_paced_lost: set points without a command at "
+        "the client; scale_paced_unanswered: of those, the ones the node never answered "
+        "(from its exit summary of published commands; the rest were lost on the way back); "
         f"{load_note()}"
     )
 
