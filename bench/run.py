@@ -11,8 +11,10 @@ Sections (``--only``): ``kernels`` (bench_kernels.py), ``convert`` (bench_conver
 ``calibrate`` (bench_calibrate.py), ``thermal`` (bench_thermal.py), ``calibration_loop``
 (bench_calibration_loop.py: characterise, calibrate, closed loop per effect family; writes
 ``calibration_loop.md``/``.json``), ``import`` (bench_import.py: lab recordings into bags,
-time and peak memory). Peak memory of every node
-process comes with the sections that start them.
+time and peak memory), ``scale`` (bench_scale.py: the feedforward node at 66 x 66 / 2 kHz and
+128 x 128 / 1 kHz), ``lockstep_scale`` (bench_scale.py: the closed loop at 32 x 32 and
+64 x 64), ``multihost`` (bench_multihost.py: 64 x 64 at 1 kHz across two network namespaces;
+needs root). Peak memory of every node process comes with the sections that start them.
 
 Every figure is the median of repeated runs with their min and max (``summary.md``: the
 compact table the README shows). ``bench.json`` holds
@@ -60,8 +62,12 @@ import numpy as np
 BENCH_DIR = Path(__file__).resolve().parent
 sys.path.insert(0, str(BENCH_DIR))  # the sibling bench_*.py modules
 
+from bench_multihost import section_multihost  # noqa: E402 - after the path above
+from bench_scale import section_lockstep_scale, section_scale  # noqa: E402
+
 SECTIONS = ("kernels", "convert", "feedforward", "lockstep", "recorder", "calibrate", "thermal",
-            "calibration_loop", "import")
+            "calibration_loop", "import", "scale", "lockstep_scale", "multihost")
+
 #: Grid shapes of the DDS benchmark (N = 144, 1024, 4096).
 DDS_SHAPES = ((12, 12), (32, 32), (64, 64))
 #: Grids of the lockstep benchmark.
@@ -917,6 +923,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         "thermal": lambda: section_thermal(settings, results),
         "calibration_loop": lambda: section_calibration_loop(results, args.output),
         "import": lambda: section_import(args.quick, results),
+        "scale": lambda: section_scale(settings, results, log_dir),
+        "lockstep_scale": lambda: section_lockstep_scale(settings, results, log_dir),
+        "multihost": lambda: section_multihost(settings, results, log_dir),
     }
     for name in args.only:
         start = time.monotonic()

@@ -156,7 +156,7 @@ class Plant:
 
     def actuator_temperature(self) -> FloatArray:
         """Return the true actuator temperatures at t_k (R, C) [degC] (read-only)."""
-        return self.thermal.temperatures()[1]
+        return self.thermal.actuator_temperatures()
 
     def face_temperature(self) -> FloatArray:
         """Return the true face-sheet temperatures at t_k (R, C) [degC] (read-only)."""
@@ -217,9 +217,9 @@ class Plant:
         actuator_heat = (
             self.actuators.heating_power if self.scenario.effects.self_heating.enabled else None
         )
-        T_start = self.thermal.temperatures()[1]
+        T_start = self.thermal.actuator_temperatures()
         self.thermal.step(heat, actuator_heat, self.scenario.base.mean(t0, t0 + self.dt))
-        T_end = self.thermal.temperatures()[1]
+        T_end = self.thermal.actuator_temperatures()
         z = self.actuators.respond(T_start, T_end, t0, all_substeps)
         self._displacement = z[-1]
         self.sensors.track(T_end)

@@ -164,13 +164,29 @@ class ThermalNetwork:
         aug[..., 1, 3] = 1.0 / p.actuator_capacitance
         aug[..., 1, 4] = p.actuator_to_base / p.actuator_capacitance
         self._continuous = aug[..., :2, :].copy()
-        disc = scipy.linalg.expm(aug * dt)
-        self._Ad = np.ascontiguousarray(disc[..., :2, :2])
-        self._Bd = np.ascontiguousarray(disc[..., :2, 2:])
+        # A mode's matrix depends on its eigenvalue only, and lam[i, j] == lam[j, i] on a
+        # square grid: the exponential of each distinct matrix is computed once (scipy's
+        # expm treats every matrix of a stack on its own, so the values are the same).
+        distinct, index = np.unique(lam, return_inverse=True)
+        index = index.ravel()
+        one_of_each = np.zeros(distinct.size, np.intp)
+        one_of_each[index] = np.arange(lam.size)  # any mode of each eigenvalue will do
+        disc = scipy.linalg.expm(aug.reshape(-1, 5, 5)[one_of_each] * dt)[index]
+        disc = disc.reshape(*shape, 5, 5)
+        # Each coefficient of the modal update as its own contiguous (R, C) array: the
+        # elementwise products of a step then run on contiguous memory, not 4-strided views.
+        self._a00, self._a01, self._a10, self._a11 = (
+            np.ascontiguousarray(disc[..., i, j]) for i, j in ((0, 0), (0, 1), (1, 0), (1, 1)))
+        self._b_face_p, self._b_act_p, self._b_face_q, self._b_act_q = (
+            np.ascontiguousarray(disc[..., i, j]) for i, j in ((0, 2), (1, 2), (0, 3), (1, 3)))
+        self._b_face_base, self._b_act_base = float(disc[0, 0, 0, 4]), float(disc[0, 0, 1, 4])
         self._sqrt_n = float(np.sqrt(shape[0] * shape[1]))
-        # Small dense DCT matrices beat an FFT call at these sizes (no per-call overhead).
+        # Small dense DCT matrices beat an FFT call at these sizes (no per-call overhead);
+        # both orientations contiguous, so that every product is a plain GEMM.
         self._d_rows = dct_matrix(shape[0])
-        self._d_cols_t = np.ascontiguousarray(dct_matrix(shape[1]).T)
+        self._d_rows_t = np.ascontiguousarray(self._d_rows.T)
+        self._d_cols = dct_matrix(shape[1])
+        self._d_cols_t = np.ascontiguousarray(self._d_cols.T)
         # Modal state (2, R, C): face sheet and actuator.
         self._modal = np.zeros((2, *shape))
         self.set_uniform(initial_temperature)
@@ -179,38 +195,47 @@ class ThermalNetwork:
         """Put both layers at one uniform temperature (equilibrium with no heat input)."""
         self._modal[:] = 0.0
         self._modal[:, 0, 0] = temperature * self._sqrt_n
-        self._cache: tuple[FloatArray, FloatArray] | None = None
+        self._layers: list[FloatArray | None] = [None, None]
 
     def _dct(self, x: FloatArray) -> FloatArray:
         return np.asarray(self._d_rows @ x @ self._d_cols_t, np.float64)
 
     def _idct(self, x: FloatArray) -> FloatArray:
-        return np.asarray(self._d_rows.T @ x @ self._d_cols_t.T, np.float64)
+        return np.asarray(self._d_rows_t @ x @ self._d_cols, np.float64)
 
     def step(self, power: FloatArray, actuator_heat: FloatArray | None, base: float) -> None:
         """Advance one ``dt`` with P, Q and T_b held over the step."""
         p_hat = self._dct(power)
-        Ad, Bd, x = self._Ad, self._Bd, self._modal
-        f = Ad[..., 0, 0] * x[0] + Ad[..., 0, 1] * x[1] + Bd[..., 0, 0] * p_hat
-        a = Ad[..., 1, 0] * x[0] + Ad[..., 1, 1] * x[1] + Bd[..., 1, 0] * p_hat
+        x = self._modal
+        f = self._a00 * x[0] + self._a01 * x[1] + self._b_face_p * p_hat
+        a = self._a10 * x[0] + self._a11 * x[1] + self._b_act_p * p_hat
         if actuator_heat is not None:
             q_hat = self._dct(actuator_heat)
-            f += Bd[..., 0, 1] * q_hat
-            a += Bd[..., 1, 1] * q_hat
+            f += self._b_face_q * q_hat
+            a += self._b_act_q * q_hat
         # T_b is uniform: only the (0, 0) mode sees it.
         tb_hat = base * self._sqrt_n
-        f[0, 0] += Bd[0, 0, 0, 2] * tb_hat
-        a[0, 0] += Bd[0, 0, 1, 2] * tb_hat
+        f[0, 0] += self._b_face_base * tb_hat
+        a[0, 0] += self._b_act_base * tb_hat
         x[0], x[1] = f, a
-        self._cache = None
+        self._layers = [None, None]
+
+    def _layer(self, index: int) -> FloatArray:
+        """Return one layer's temperatures [degC] (R, C), transformed back once per step."""
+        layer = self._layers[index]
+        if layer is None:
+            layer = self._idct(self._modal[index])
+            layer.flags.writeable = False
+            self._layers[index] = layer
+        return layer
+
+    def actuator_temperatures(self) -> FloatArray:
+        """Return the actuator temperatures [degC], (R, C) (read-only)."""
+        return self._layer(1)
 
     def temperatures(self) -> tuple[FloatArray, FloatArray]:
-        """Return (face-sheet, actuator) temperatures [degC], each (R, C) (read-only views)."""
-        if self._cache is None:
-            both = self._idct(self._modal)
-            both.flags.writeable = False
-            self._cache = (both[0], both[1])
-        return self._cache
+        """Return (face-sheet, actuator) temperatures [degC], each (R, C) (read-only)."""
+        return self._layer(0), self._layer(1)
 
     def steady_state(
         self, power: FloatArray, actuator_heat: FloatArray | None, base: float

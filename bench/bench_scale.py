@@ -1,0 +1,329 @@
+"""The feedforward node at the largest grids in service: paced set points, p99, loss.
+
+Issue 18's cases: 66 x 66 (4356, PALM-3000's grid) at 2 kHz, and 128 x 128 (16384) at 1 kHz.
+The client (run.py's DdsClient, one rclpy node in this process) streams set points at the
+rate for a few seconds; the feedforward node and the floor, a plain relay of the same
+message size on the same executor (the EventsExecutor the node uses), take turns, one
+process start each per repeat. Unlike run.py's paced run, a lost command is counted, not
+an error: the loss is one of the figures.
+
+    .venv/bin/python bench/bench_scale.py [--seconds 3] [--repeats 1]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+BENCH_DIR = Path(__file__).resolve().parent
+sys.path.insert(0, str(BENCH_DIR))
+
+if TYPE_CHECKING:
+    from run import DdsClient, Results, Settings
+
+#: (rows, cols, set-point rate [Hz], p99 target [ms], p99 target as a multiple of the relay's
+#: p99, or None): the issue's figures.
+SCALE_CASES: tuple[tuple[int, int, float, float, float | None], ...] = (
+    (66, 66, 2000.0, 1.0, 1.2),
+    (128, 128, 1000.0, 2.0, None),
+)
+#: Lockstep closed loop (plant + thermal + feedforward processes on dm_exposure): grid and
+#: the issue's floor [x real time].
+LOCKSTEP_CASES: tuple[tuple[int, int, float], ...] = ((32, 32, 10.0), (64, 64, 5.0))
+#: Longest wait for the thermal and feedforward nodes of a large grid to start [s].
+CONTROLLERS_TIMEOUT_S = 600.0
+#: Set points answered one at a time before each paced run (warm-up).
+WARMUP = 50
+#: The node under test and its floor (bench/relay.py on the EventsExecutor).
+KINDS = ("relay_events", "feedforward")
+
+
+@dataclass(frozen=True)
+class PacedRun:
+    """Figures of one paced run.
+
+    Attributes:
+        sent: set points published.
+        received: commands received back.
+        sent_rate_hz: rate the set points went out at.
+        received_rate_hz: commands received per second (first set point to last command).
+        p50_s / p99_s: set-point-to-command latency percentiles [s]; NaN when a command was
+            lost (set points and commands are paired by order).
+
+    """
+
+    sent: int
+    received: int
+    sent_rate_hz: float
+    received_rate_hz: float
+    p50_s: float
+    p99_s: float
+
+    @property
+    def lost(self) -> int:
+        """Set points without a command."""
+        return self.sent - self.received
+
+
+def paced_run(client: DdsClient, rate_hz: float, seconds: float) -> PacedRun:
+    """Stream set points at ``rate_hz`` for ``seconds``; count what came back and time it."""
+    first = client.received
+    start = time.perf_counter()
+    count = round(seconds * rate_hz)
+    try:
+        latencies, sent_rate = client.paced(rate_hz, seconds)
+    except RuntimeError:  # not every command came back within the client's drain time
+        received = client.received - first
+        last = client.received_at[-1] if received else time.perf_counter()
+        return PacedRun(count, received, count / seconds, received / (last - start),
+                        float("nan"), float("nan"))
+    last = client.received_at[-1]
+    return PacedRun(count, count, sent_rate, count / (last - start),
+                    float(np.percentile(latencies, 50)), float(np.percentile(latencies, 99)))
+
+
+def start_client(shape: tuple[int, int], timeout: float, hold_check: bool) -> DdsClient:
+    """Return a DdsClient whose peer is up, has a temperature, and answered 50 set points.
+
+    Raises:
+        RuntimeError: the peer never showed up, or (``hold_check``) it answered 0 V only.
+
+    """
+    from run import DdsClient
+
+    from es_msgs_py.arrays import msg_to_grid
+
+    client = DdsClient(shape)
+    try:
+        client.wait_for_peer(timeout)
+        client.temperature_pub.publish(client.temperature)
+        client.executor.spin_once(timeout_sec=0.2)
+        client.latencies(WARMUP)  # one at a time
+        if hold_check and client.last_command is not None and not np.any(
+                msg_to_grid(client.last_command) > 0.0):
+            raise RuntimeError("feedforward holds (all 0 V): temperature not taken")
+    except BaseException:
+        client.close()
+        raise
+    return client
+
+
+def node_command(kind: str, shape: tuple[int, int]) -> list[str]:
+    """Return the argv of ``feedforward`` (its defaults) or ``relay_events``."""
+    from run import launcher
+
+    if kind == "relay_events":
+        return [sys.executable, str(BENCH_DIR / "relay.py"), "--ros-args", "-r",
+                "__node:=relay", "-p", "executor:=events"]
+    rows, cols = shape
+    return [launcher("es_feedforward", "feedforward_node"), "--ros-args", "-p", f"rows:={rows}",
+            "-p", f"cols:={cols}", "-p", "temperature_timeout:=0.0"]
+
+
+@dataclass
+class CaseRuns:
+    """Paced runs of one node at one case, and the node's peak memory [MiB]."""
+
+    runs: list[PacedRun] = field(default_factory=list)
+    unanswered: list[float] = field(default_factory=list)
+    peak_mib: float = 0.0
+
+
+def published_commands(node_log: str) -> int | None:
+    """Return the /dm/command count a node's exit summary logged (``None`` if it has none)."""
+    import re
+
+    match = re.search(r"published /dm/command: (\d+)", node_log)
+    return int(match.group(1)) if match else None
+
+
+def measure(kind: str, shape: tuple[int, int], rate_hz: float, seconds: float,
+            log_dir: Path) -> tuple[PacedRun, float, int | None]:
+    """Start the node ``kind``, run one paced measurement.
+
+    Returns:
+        The run, the node's peak RSS [MiB], and how many of the paced set points the
+        feedforward node never answered (from the count of published commands in its exit
+        summary; the rest of ``PacedRun.lost`` was lost on the way back to the client);
+        ``None`` for the relay, whose plain publisher is not counted.
+
+    """
+    from run import Process, processes
+
+    rows, cols = shape
+    node = Process(f"scale_{kind}_{rows}x{cols}", node_command(kind, shape), log_dir)
+    with processes(node):
+        client = start_client(shape, 60.0, hold_check=kind == "feedforward")
+        try:
+            run = paced_run(client, rate_hz, seconds)
+        finally:
+            client.close()
+        node.sample_rss()
+    published = published_commands(node.output()) if kind == "feedforward" else None
+    unanswered = None if published is None else run.sent - (published - WARMUP)
+    return run, node.peak_mib, unanswered
+
+
+def section_scale(settings: Settings, results: Results, log_dir: Path) -> None:
+    """Paced p99, rate and loss at 66 x 66 / 2 kHz and 128 x 128 / 1 kHz, beside the relay."""
+    from run import Record
+
+    seconds = settings.dds_rate_seconds
+    for rows, cols, rate, target_ms, target_ratio in SCALE_CASES:
+        n = rows * cols
+        by_kind = {kind: CaseRuns() for kind in KINDS}
+        for _ in range(settings.repeats):
+            for kind in KINDS:  # in turns: a change of the machine's load hits both alike
+                run, peak, unanswered = measure(kind, (rows, cols), rate, seconds, log_dir)
+                by_kind[kind].runs.append(run)
+                by_kind[kind].unanswered.append(float("nan") if unanswered is None
+                                                else unanswered)
+                by_kind[kind].peak_mib = max(by_kind[kind].peak_mib, peak)
+        ff, relay = by_kind["feedforward"], by_kind["relay_events"]
+        ff_p99 = [r.p99_s * 1e3 for r in ff.runs]
+        relay_p99 = [r.p99_s * 1e3 for r in relay.runs]
+        ratio = float(np.median(ff_p99)) / float(np.median(relay_p99))
+        results.records.append(Record.of(f"scale_paced_latency_p99_{rate:g}Hz", n, ff_p99, "ms",
+                                          ratio))
+        results.records.append(Record.of(f"scale_paced_lost_{rate:g}Hz", n,
+                                          [r.lost for r in ff.runs], "set points"))
+        results.records.append(Record.of(f"scale_paced_unanswered_{rate:g}Hz", n,
+                                          ff.unanswered, "set points"))
+        results.records.append(Record.of(f"scale_paced_rate_{rate:g}Hz", n,
+                                          [r.received_rate_hz for r in ff.runs], "Hz"))
+        results.records.append(Record.of("peak_rss_feedforward", n, [ff.peak_mib], "MiB"))
+        results.references.append(Record.of(f"relay_events_paced_latency_p99_{rate:g}Hz", n,
+                                            relay_p99, "ms"))
+        results.references.append(Record.of(f"relay_events_paced_lost_{rate:g}Hz", n,
+                                            [r.lost for r in relay.runs], "set points"))
+        results.references.append(Record.of(f"scale_sent_rate_{rate:g}Hz", n,
+                                            [r.sent_rate_hz for r in ff.runs], "Hz"))
+        results.notes.append(target_line(
+            rows, cols, rate, p99_ms=float(np.median(ff_p99)), ratio=ratio,
+            lost=sum(r.lost for r in ff.runs), target_ms=target_ms, target_ratio=target_ratio))
+    results.notes.append(
+        f"scale_*: set points paced at the named rate for {seconds:g} s per run, "
+        f"{settings.repeats} run(s), feedforward node and relay (EventsExecutor, the node's) "
+        "started in turns; p99 set point published -> command received (NaN if any was lost); "
+        "ratio = feedforward p99 / relay p99; scale_paced_lost: set points without a command at "
+        "the client; scale_paced_unanswered: of those, the ones the node never answered "
+        "(from its exit summary of published commands; the rest were lost on the way back); "
+        f"{load_note()}"
+    )
+
+
+def lockstep_run(rows: int, cols: int, duration: float,
+                 log_dir: Path) -> tuple[float, float, float]:
+    """Run the closed loop once; return (x real time, plant CPU [ms/step], start-up [s]).
+
+    The start-up is how long the thermal and feedforward nodes took to show on the graph.
+
+    The plant is started only then, so that their start-up (the thermal model of a large
+    grid) is not in the figure.
+
+    Raises:
+        RuntimeError: a node exited, did not start, or the plant printed no summary.
+
+    """
+    import re
+
+    from run import Process, _plant_speedup, _run_until_exit, processes, wait_for_controllers
+
+    from es_sim_plant.bringup import GraphConfig, node_specs
+
+    config = GraphConfig(scenario="dm_exposure",
+                         plant={"rows": rows, "cols": cols, "duration": duration})
+    before, plant_spec = node_specs(config)
+    tag = f"scale_{rows}x{cols}"
+    started = [Process(f"{s.name}_{tag}", s.command, log_dir) for s in before]
+    with processes(*started):
+        ready_s = wait_for_controllers(started, CONTROLLERS_TIMEOUT_S)
+        plant = Process(f"{plant_spec.name}_{tag}", plant_spec.command, log_dir)
+        with processes(plant):
+            _run_until_exit(plant, [plant], 120.0 + 30.0 * duration)
+    output = plant.output()
+    speedup, _ = _plant_speedup(output)
+    cpu = re.search(r"plant CPU ([\d.]+) ms/step", output)
+    return speedup, float(cpu.group(1)) if cpu else float("nan"), ready_s
+
+
+def section_lockstep_scale(settings: Settings, results: Results, log_dir: Path) -> None:
+    """Lockstep closed loop at 32 x 32 and 64 x 64: x real time beside the issue's floors."""
+    from run import Record
+
+    for rows, cols, floor in LOCKSTEP_CASES:
+        runs = [lockstep_run(rows, cols, settings.lockstep_duration, log_dir)
+                for _ in range(1 if rows * cols > 144 else settings.repeats)]
+        speedups = [r[0] for r in runs]
+        results.records.append(Record.of("lockstep_speedup", rows * cols, speedups, "sim/wall"))
+        results.records.append(Record.of("lockstep_plant_cpu_per_step", rows * cols,
+                                          [r[1] for r in runs], "ms"))
+        median = float(np.median(speedups))
+        results.notes.append(
+            f"{'met' if median >= floor else 'MISSED'}: lockstep {rows} x {cols} >= {floor:g}x "
+            f"real time (measured {median:.2f}x; thermal and feedforward took "
+            f"{max(r[2] for r in runs):.0f} s to start, not counted)")
+    results.notes.append(
+        f"lockstep (scale): dm_exposure, {settings.lockstep_duration:g} s sim at 100 Hz, plant + "
+        "thermal (model estimator) + feedforward processes on one host; "
+        f"lockstep_plant_cpu_per_step: the plant process's CPU per step. {load_note()}")
+
+
+def target_line(rows: int, cols: int, rate: float, *, p99_ms: float, ratio: float, lost: int,
+                target_ms: float, target_ratio: float | None) -> str:
+    """Return the one-line verdict of a case against the issue's targets."""
+    ok = p99_ms <= target_ms and lost == 0 and (target_ratio is None or ratio <= target_ratio)
+    wanted = f"p99 <= {target_ms:g} ms" + (
+        f" and <= {target_ratio:g}x the relay" if target_ratio is not None else "")
+    return (f"{'met' if ok else 'MISSED'}: {rows} x {cols} at {rate:g} Hz: {wanted}, nothing "
+            f"lost (measured p99 {p99_ms:.3g} ms, {ratio:.2f}x the relay, {lost} lost)")
+
+
+def load_note() -> str:
+    """Return the load average now, for the notes (the machine is shared)."""
+    one, five, fifteen = Path("/proc/loadavg").read_text().split()[:3]
+    return f"load average at the end of the section {one} {five} {fifteen} on {_cores()} cores"
+
+
+def _cores() -> int:
+    import os
+
+    return os.cpu_count() or 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the scale section alone and print its records and notes."""
+    from run import Results, Settings
+
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seconds", type=float, default=3.0)
+    parser.add_argument("--repeats", type=int, default=1)
+    parser.add_argument("--log-dir", type=Path, default=Path("out/scale"))
+    parser.add_argument("--lockstep", type=float, default=0.0, metavar="SECONDS",
+                        help="run the lockstep cases instead, SECONDS of sim time each")
+    args = parser.parse_args(argv)
+    settings = Settings.create(quick=True, profile=False)
+    settings = type(settings)(**{**settings.__dict__, "repeats": args.repeats,
+                                 "dds_rate_seconds": args.seconds})
+    results = Results()
+    if args.lockstep:
+        settings = type(settings)(**{**settings.__dict__, "lockstep_duration": args.lockstep})
+        section_lockstep_scale(settings, results, args.log_dir)
+    else:
+        section_scale(settings, results, args.log_dir)
+    for record in [*results.records, *results.references]:
+        print(record)
+    for note in results.notes:
+        print(note)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
