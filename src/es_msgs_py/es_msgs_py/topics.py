@@ -16,6 +16,10 @@ COMMAND: Final = "/dm/command"
 DISPLACEMENT: Final = "/dm/displacement"
 DIAGNOSTICS: Final = "/diagnostics"
 CLOCK: Final = "/clock"
+#: Latest measured thickness-mode resonance per actuator (grid, Hz; NaN where not measured
+#: this cycle): the self-sensing input of the thermal node, published only when the
+#: measurement is on.
+RESONANCE: Final = "/dm/resonance"
 
 #: Highest ROS domain whose DDS ports (for the first 50 participants of a host) stay below
 #: Linux's ephemeral range (32768+): in that range any socket of the machine can hold a port
@@ -33,6 +37,8 @@ def process_domain_id(pid: int | None = None) -> int:
 
 #: Every /dm topic of the contract, in data-flow order.
 DM_TOPICS: Final = (HEAT_LOAD, TEMPERATURE_RAW, TEMPERATURE, SETPOINT, COMMAND, DISPLACEMENT)
+#: /dm topics of optional features, recorded only when asked for (the self-sensing input).
+OPTIONAL_DM_TOPICS: Final = (RESONANCE,)
 
 FLOAT64_MULTI_ARRAY: Final = "std_msgs/msg/Float64MultiArray"
 DIAGNOSTIC_ARRAY: Final = "diagnostic_msgs/msg/DiagnosticArray"
@@ -41,6 +47,7 @@ CLOCK_TYPE: Final = "rosgraph_msgs/msg/Clock"
 #: ROS 2 type name of each contract topic.
 TOPIC_TYPES: Final[dict[str, str]] = {
     **dict.fromkeys(DM_TOPICS, FLOAT64_MULTI_ARRAY),
+    **dict.fromkeys(OPTIONAL_DM_TOPICS, FLOAT64_MULTI_ARRAY),
     DIAGNOSTICS: DIAGNOSTIC_ARRAY,
     CLOCK: CLOCK_TYPE,
 }

@@ -1,0 +1,269 @@
+"""Self-sensing: fuse each actuator's own resonance reading with the model estimate.
+
+A calibrated actuator i turns its resonance reading f_i [Hz] into a temperature
+
+    T_i = T0 + (f_i - f0_i - a_V,i |V_i|) / a_T,i,
+
+the voltage term corrected with the command in force (/dm/command). The thermal model
+(:mod:`es_thermal.kalman`, corrected by the few NTCs) is right in its dynamics but wrong
+between the sensors (offsets, unmeasured base plate, model error); the resonance readings
+come round robin, a group per cycle. :class:`SelfSensingFusion` therefore estimates, per
+actuator, the model's error c_i as a random walk with a scalar Kalman filter (vectorised over
+the grid): every cycle its variance grows by ``drift**2 * dt``; a reading of actuator i
+updates c_i with gain P_i / (P_i + R_i), R_i = (reading noise / a_T,i)**2; the output is
+model + c. Between an actuator's readings the model carries the temperature's changes.
+
+NaN means "not swept this cycle" and is no fault. A finite reading outside [``f_min_hz``,
+``f_max_hz``], or whose temperature is more than ``gate_degc`` off the current fused estimate
+(a failed or stuck channel once the temperature moves), is dropped as ``implausible``; a
+channel without an accepted reading for ``stale_after`` seconds is ``stale`` and its
+correction falls back to zero (the model alone). Both are counted in :class:`ChannelHealth`
+for the node's diagnostics. Without any resonance data the output is the model estimate
+unchanged.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Final
+
+import numpy as np
+import numpy.typing as npt
+
+FloatArray = npt.NDArray[np.float64]
+BoolArray = npt.NDArray[np.bool_]
+
+#: Worst channels named in a health summary.
+WORST_LISTED: Final = 5
+
+
+class CalibrationError(ValueError):
+    """Resonance calibration arrays that do not fit the grid or are not usable."""
+
+
+@dataclass(frozen=True)
+class ResonanceCalibration:
+    """Per-actuator resonance law f = f0 + a_T (T - T0) + a_V |V|; arrays are flat (N,).
+
+    Attributes:
+        f0_hz: resonance at ``reference_temperature`` and 0 V [Hz].
+        a_t_hz_per_degc: temperature sensitivity [Hz/degC] (non-zero).
+        a_v_hz_per_v: sensitivity to |V| [Hz/V].
+        reference_temperature: T0 [degC].
+        f0_sd_hz: 1-sigma uncertainty of f0 [Hz] (0: exact).
+
+    """
+
+    f0_hz: FloatArray
+    a_t_hz_per_degc: FloatArray
+    a_v_hz_per_v: FloatArray
+    reference_temperature: float
+    f0_sd_hz: FloatArray
+
+    @classmethod
+    def from_values(
+        cls,
+        count: int,
+        *,
+        f0_hz: npt.ArrayLike,
+        a_t_hz_per_degc: npt.ArrayLike,
+        a_v_hz_per_v: npt.ArrayLike,
+        reference_temperature: float,
+        f0_sd_hz: npt.ArrayLike = 0.0,
+    ) -> ResonanceCalibration:
+        """Build from values of length 1 (same for all) or ``count`` (row-major map).
+
+        Raises:
+            CalibrationError: wrong length, non-finite value or a zero a_T.
+
+        """
+        out = []
+        for name, value in (
+            ("f0_hz", f0_hz), ("a_t_hz_per_degc", a_t_hz_per_degc),
+            ("a_v_hz_per_v", a_v_hz_per_v), ("f0_sd_hz", f0_sd_hz),
+        ):  # fmt: skip
+            arr = np.atleast_1d(np.asarray(value, float)).ravel()
+            if arr.size not in (1, count):
+                raise CalibrationError(
+                    f"resonance.{name} has {arr.size} values, expected 1 or {count}"
+                )
+            if not np.all(np.isfinite(arr)):
+                raise CalibrationError(f"resonance.{name} holds NaN or inf")
+            out.append(np.broadcast_to(arr, (count,)).copy())
+        if np.any(out[1] == 0.0):
+            raise CalibrationError("resonance.a_t_hz_per_degc must be non-zero")
+        if not np.isfinite(reference_temperature):
+            raise CalibrationError("resonance.reference_temperature must be finite")
+        return cls(out[0], out[1], out[2], float(reference_temperature), np.abs(out[3]))
+
+    def temperature(self, frequency: FloatArray, voltage: FloatArray) -> FloatArray:
+        """Return the temperature (N,) [degC] each reading (N,) [Hz] means at ``voltage`` [V]."""
+        shifted = frequency - self.f0_hz - self.a_v_hz_per_v * np.abs(voltage)
+        return self.reference_temperature + shifted / self.a_t_hz_per_degc
+
+
+@dataclass(frozen=True)
+class FusionConfig:
+    """How much the fusion trusts the readings and how it screens them.
+
+    Attributes:
+        noise_hz: rms noise of one reading [Hz] (sweep noise and resolution).
+        drift: random-walk intensity of the model's error per actuator [degC/sqrt(s)].
+        gate_degc: a reading this far off the fused estimate is implausible [degC].
+        stale_after: a channel without an accepted reading this long is stale [s].
+        f_min_hz, f_max_hz: plausible reading range [Hz].
+
+    """
+
+    noise_hz: float = 15.0
+    drift: float = 0.01
+    gate_degc: float = 1.0
+    stale_after: float = 5.0
+    f_min_hz: float = 1.0e5
+    f_max_hz: float = 1.0e7
+
+    def __post_init__(self) -> None:
+        for name in ("noise_hz", "drift", "gate_degc", "stale_after"):
+            value = getattr(self, name)
+            if not np.isfinite(value) or value <= 0.0:
+                raise ValueError(f"self-sensing {name}={value} must be finite and > 0")
+        if not self.f_min_hz < self.f_max_hz:
+            raise ValueError("self-sensing f_min_hz must be below f_max_hz")
+
+
+@dataclass(frozen=True)
+class ChannelHealth:
+    """The verdict on one cycle's resonance readings (flat (N,) masks).
+
+    Attributes:
+        accepted: readings used this cycle.
+        implausible: finite readings dropped (out of range or beyond the gate).
+        stale: channels without an accepted reading for ``stale_after``.
+        received: a resonance message came this cycle.
+
+    """
+
+    accepted: BoolArray
+    implausible: BoolArray
+    stale: BoolArray
+    received: bool
+
+    def counts(self) -> dict[str, int]:
+        """Return the number of channels per verdict."""
+        return {
+            "resonance_accepted": int(np.count_nonzero(self.accepted)),
+            "resonance_implausible": int(np.count_nonzero(self.implausible)),
+            "resonance_stale": int(np.count_nonzero(self.stale)),
+        }
+
+    def worst(self) -> dict[str, str]:
+        """Return the first few implausible and stale channel indices (row-major)."""
+        out = {}
+        for name, mask in (("implausible", self.implausible), ("stale", self.stale)):
+            index = np.flatnonzero(mask)[:WORST_LISTED]
+            if index.size:
+                out[f"resonance_first_{name}"] = ", ".join(str(i) for i in index)
+        return out
+
+
+class SelfSensingFusion:
+    """Per-actuator correction of the model estimate from resonance readings.
+
+    Args:
+        calibration: the per-actuator resonance law (N actuators).
+        config: noise, drift and screening.
+
+    """
+
+    def __init__(self, calibration: ResonanceCalibration, config: FusionConfig) -> None:
+        self.calibration = calibration
+        self.config = config
+        n = calibration.f0_hz.size
+        self.count = n
+        a_t = np.abs(calibration.a_t_hz_per_degc)
+        self._noise_var: FloatArray = (config.noise_hz**2 + calibration.f0_sd_hz**2) / a_t**2
+        self._voltage: FloatArray = np.zeros(n)
+        self._correction: FloatArray = np.zeros(n)
+        self._variance: FloatArray = np.full(n, np.inf)
+        self._last_accepted: FloatArray = np.full(n, -np.inf)
+        self._last_time: float | None = None
+        self._first_time: float | None = None
+        self.latest: ChannelHealth | None = None
+
+    @property
+    def correction(self) -> FloatArray:
+        """The current per-actuator correction of the model (N,) [degC] (copy)."""
+        return self._correction.copy()
+
+    def set_command(self, voltage: npt.ArrayLike) -> None:
+        """Take the command in force (N,) or (R, C) [V] for the voltage term.
+
+        Raises:
+            ValueError: wrong size or a non-finite value (the previous command is kept).
+
+        """
+        volts = np.asarray(voltage, float).ravel()
+        if volts.size != self.count:
+            raise ValueError(f"command has {volts.size} values, expected {self.count}")
+        if not np.all(np.isfinite(volts)):
+            raise ValueError("command holds NaN or inf")
+        self._voltage = volts
+
+    def restart(self) -> None:
+        """Forget every correction (after the model estimate restarted)."""
+        self._correction[:] = 0.0
+        self._variance[:] = np.inf
+        self._last_accepted[:] = -np.inf
+        self._last_time = None
+        self._first_time = None
+
+    def fuse(self, now: float, model: FloatArray, frequency: FloatArray | None) -> FloatArray:
+        """Correct the model estimate (N,) [degC] at ``now`` [s] with this cycle's readings.
+
+        Args:
+            now: sample time [s].
+            model: the model estimate (N,) or (R, C) [degC].
+            frequency: this cycle's readings (N,) or (R, C) [Hz], NaN where not swept, or
+                None when no message came.
+
+        Returns:
+            The fused estimate, same shape as ``model``.
+
+        Raises:
+            ValueError: ``frequency`` or ``model`` of the wrong size (nothing is updated).
+
+        """
+        estimate = np.asarray(model, float)
+        flat = estimate.ravel()
+        if flat.size != self.count:
+            raise ValueError(f"model estimate has {flat.size} values, expected {self.count}")
+        readings = None if frequency is None else np.asarray(frequency, float).ravel()
+        if readings is not None and readings.size != self.count:
+            raise ValueError(f"resonance has {readings.size} values, expected {self.count}")
+        cfg = self.config
+        if self._last_time is not None and now > self._last_time:
+            self._variance += cfg.drift**2 * (now - self._last_time)
+        self._last_time = now
+        accepted = np.zeros(self.count, bool)
+        implausible = np.zeros(self.count, bool)
+        if readings is not None:
+            finite = np.isfinite(readings)
+            in_range = finite & (readings >= cfg.f_min_hz) & (readings <= cfg.f_max_hz)
+            sensed = self.calibration.temperature(np.where(in_range, readings, 0.0), self._voltage)
+            innovation = np.where(in_range, sensed - flat - self._correction, 0.0)
+            known = np.isfinite(self._variance)
+            accepted = in_range & (np.abs(innovation) <= cfg.gate_degc)
+            implausible = finite & ~accepted
+            prior = np.where(known, self._variance, 0.0)
+            gain = np.where(known, prior / (prior + self._noise_var), 1.0)
+            self._correction += np.where(accepted, gain * innovation, 0.0)
+            updated = np.where(known, (1.0 - gain) * prior, self._noise_var)
+            self._variance = np.where(accepted, updated, self._variance)
+            self._last_accepted[accepted] = now
+        if self._first_time is None:
+            self._first_time = now
+        stale = now - np.maximum(self._last_accepted, self._first_time) > cfg.stale_after
+        self._correction[stale] = 0.0
+        self._variance[stale] = np.inf
+        self.latest = ChannelHealth(accepted, implausible, stale, readings is not None)
+        return (flat + self._correction).reshape(estimate.shape)
