@@ -132,10 +132,10 @@ def fusion_for(
         a_v_hz_per_v=fit.a_v_hz_per_v,
         reference_temperature=fit.reference_temperature,
         f0_sd_hz=fit.f0_sd_hz,
+        a_t_sd=fit.a_t_sd,
+        a_v_sd=fit.a_v_sd,
     )
-    return SelfSensingFusion(
-        calibration, replace(base, drift=base.drift / float(np.sqrt(time_scale)))
-    )
+    return SelfSensingFusion(calibration, base.time_scaled(time_scale), fit.disabled)
 
 
 def run_case(sc: Scenario, case: str, fit: ResonanceFit | None = None) -> CaseResult:

@@ -24,7 +24,7 @@ unchanged.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Final
 
 import numpy as np
@@ -51,6 +51,8 @@ class ResonanceCalibration:
         a_v_hz_per_v: sensitivity to |V| [Hz/V].
         reference_temperature: T0 [degC].
         f0_sd_hz: 1-sigma uncertainty of f0 [Hz] (0: exact).
+        a_t_sd: 1-sigma uncertainty of a_T [Hz/degC].
+        a_v_sd: 1-sigma uncertainty of a_V [Hz/V].
 
     """
 
@@ -59,6 +61,8 @@ class ResonanceCalibration:
     a_v_hz_per_v: FloatArray
     reference_temperature: float
     f0_sd_hz: FloatArray
+    a_t_sd: FloatArray
+    a_v_sd: FloatArray
 
     @classmethod
     def from_values(
@@ -70,6 +74,8 @@ class ResonanceCalibration:
         a_v_hz_per_v: npt.ArrayLike,
         reference_temperature: float,
         f0_sd_hz: npt.ArrayLike = 0.0,
+        a_t_sd: npt.ArrayLike = 0.0,
+        a_v_sd: npt.ArrayLike = 0.0,
     ) -> ResonanceCalibration:
         """Build from values of length 1 (same for all) or ``count`` (row-major map).
 
@@ -80,7 +86,8 @@ class ResonanceCalibration:
         out = []
         for name, value in (
             ("f0_hz", f0_hz), ("a_t_hz_per_degc", a_t_hz_per_degc),
-            ("a_v_hz_per_v", a_v_hz_per_v), ("f0_sd_hz", f0_sd_hz),
+            ("a_v_hz_per_v", a_v_hz_per_v), ("f0_sd_hz", f0_sd_hz), ("a_t_sd", a_t_sd),
+            ("a_v_sd", a_v_sd),
         ):  # fmt: skip
             arr = np.atleast_1d(np.asarray(value, float)).ravel()
             if arr.size not in (1, count):
@@ -94,12 +101,30 @@ class ResonanceCalibration:
             raise CalibrationError("resonance.a_t_hz_per_degc must be non-zero")
         if not np.isfinite(reference_temperature):
             raise CalibrationError("resonance.reference_temperature must be finite")
-        return cls(out[0], out[1], out[2], float(reference_temperature), np.abs(out[3]))
+        f0, a_t, a_v, f0_sd, a_t_sd_, a_v_sd_ = out
+        return cls(
+            f0, a_t, a_v, float(reference_temperature), np.abs(f0_sd), np.abs(a_t_sd_),
+            np.abs(a_v_sd_),
+        )  # fmt: skip
 
     def temperature(self, frequency: FloatArray, voltage: FloatArray) -> FloatArray:
         """Return the temperature (N,) [degC] each reading (N,) [Hz] means at ``voltage`` [V]."""
         shifted = frequency - self.f0_hz - self.a_v_hz_per_v * np.abs(voltage)
         return self.reference_temperature + shifted / self.a_t_hz_per_degc
+
+    def variance(self, noise_hz: float, temperature: FloatArray, voltage: FloatArray) -> FloatArray:
+        """Return the variance (N,) [degC^2] of a temperature read at a temperature and voltage.
+
+        Reading noise plus the calibration's uncertainties, propagated through the law (the
+        a_T and a_V terms grow with the distance from T0 and with |V|).
+        """
+        spread = (
+            noise_hz**2
+            + self.f0_sd_hz**2
+            + (self.a_t_sd * (temperature - self.reference_temperature)) ** 2
+            + (self.a_v_sd * voltage) ** 2
+        )
+        return spread / self.a_t_hz_per_degc**2
 
 
 @dataclass(frozen=True)
@@ -129,6 +154,13 @@ class FusionConfig:
                 raise ValueError(f"self-sensing {name}={value} must be finite and > 0")
         if not self.f_min_hz < self.f_max_hz:
             raise ValueError("self-sensing f_min_hz must be below f_max_hz")
+
+    def time_scaled(self, time_scale: float) -> FusionConfig:
+        """Return the configuration for a run whose slow times are multiplied by ``time_scale``.
+
+        As for the Kalman filter's intensities, the drift grows by ``1/sqrt(time_scale)``.
+        """
+        return replace(self, drift=self.drift / float(np.sqrt(time_scale)))
 
 
 @dataclass(frozen=True)
@@ -172,16 +204,28 @@ class SelfSensingFusion:
     Args:
         calibration: the per-actuator resonance law (N actuators).
         config: noise, drift and screening.
+        disabled: row-major indices of channels whose readings are never used (a channel
+            the calibration could not fit).
+
+    Raises:
+        CalibrationError: a disabled index off the grid.
 
     """
 
-    def __init__(self, calibration: ResonanceCalibration, config: FusionConfig) -> None:
+    def __init__(
+        self,
+        calibration: ResonanceCalibration,
+        config: FusionConfig,
+        disabled: tuple[int, ...] = (),
+    ) -> None:
         self.calibration = calibration
         self.config = config
         n = calibration.f0_hz.size
         self.count = n
-        a_t = np.abs(calibration.a_t_hz_per_degc)
-        self._noise_var: FloatArray = (config.noise_hz**2 + calibration.f0_sd_hz**2) / a_t**2
+        if any(not 0 <= i < n for i in disabled):
+            raise CalibrationError(f"resonance.disabled_channels must be within 0..{n - 1}")
+        self._enabled = np.ones(n, bool)
+        self._enabled[list(disabled)] = False
         self._voltage: FloatArray = np.zeros(n)
         self._correction: FloatArray = np.zeros(n)
         self._variance: FloatArray = np.full(n, np.inf)
@@ -240,6 +284,8 @@ class SelfSensingFusion:
         readings = None if frequency is None else np.asarray(frequency, float).ravel()
         if readings is not None and readings.size != self.count:
             raise ValueError(f"resonance has {readings.size} values, expected {self.count}")
+        if readings is not None:
+            readings = np.where(self._enabled, readings, np.nan)
         cfg = self.config
         if self._last_time is not None and now > self._last_time:
             self._variance += cfg.drift**2 * (now - self._last_time)
@@ -254,15 +300,18 @@ class SelfSensingFusion:
             known = np.isfinite(self._variance)
             accepted = in_range & (np.abs(innovation) <= cfg.gate_degc)
             implausible = finite & ~accepted
+            noise = self.calibration.variance(cfg.noise_hz, sensed, self._voltage)
             prior = np.where(known, self._variance, 0.0)
-            gain = np.where(known, prior / (prior + self._noise_var), 1.0)
+            gain = np.where(known, prior / (prior + noise), 1.0)
             self._correction += np.where(accepted, gain * innovation, 0.0)
-            updated = np.where(known, (1.0 - gain) * prior, self._noise_var)
+            updated = np.where(known, (1.0 - gain) * prior, noise)
             self._variance = np.where(accepted, updated, self._variance)
             self._last_accepted[accepted] = now
         if self._first_time is None:
             self._first_time = now
-        stale = now - np.maximum(self._last_accepted, self._first_time) > cfg.stale_after
+        stale = self._enabled & (
+            now - np.maximum(self._last_accepted, self._first_time) > cfg.stale_after
+        )
         self._correction[stale] = 0.0
         self._variance[stale] = np.inf
         self.latest = ChannelHealth(accepted, implausible, stale, readings is not None)
