@@ -67,6 +67,11 @@ SPECS: tuple[ParameterSpec, ...] = (
         1e-6, 1000.0, read_only=True,
     ),
     ParameterSpec(
+        "resonance.acquire_gate_degc", _FUSION.acquire_gate_degc,
+        "Self-sensing: the same for a channel without a correction yet, degC.",
+        1e-6, 1000.0, read_only=True,
+    ),
+    ParameterSpec(
         "resonance.stale_after", _FUSION.stale_after,
         "Self-sensing: a channel without an accepted reading this long is stale and its "
         "correction dropped, s of sample time.",
@@ -106,6 +111,7 @@ def fusion_from_parameters(
         noise_hz=float(values["resonance.noise_hz"]),  # type: ignore[arg-type]
         drift=float(values["resonance.drift"]),  # type: ignore[arg-type]
         gate_degc=float(values["resonance.gate_degc"]),  # type: ignore[arg-type]
+        acquire_gate_degc=float(values["resonance.acquire_gate_degc"]),  # type: ignore[arg-type]
         stale_after=float(values["resonance.stale_after"]),  # type: ignore[arg-type]
     ).time_scaled(time_scale)
     disabled = tuple(int(v) for v in numbers("resonance.disabled_channels"))

@@ -15,8 +15,9 @@ model + c. Between an actuator's readings the model carries the temperature's ch
 
 NaN means "not swept this cycle" and is no fault. A finite reading outside [``f_min_hz``,
 ``f_max_hz``], or whose temperature is more than ``gate_degc`` off the current fused estimate
-(a failed or stuck channel once the temperature moves), is dropped as ``implausible``; a
-channel without an accepted reading for ``stale_after`` seconds is ``stale`` and its
+(``acquire_gate_degc`` while the channel has no correction yet: the model alone may be
+further off), is dropped as ``implausible`` (a failed channel, or a stuck one once the
+temperature moves); a channel without an accepted reading for ``stale_after`` seconds is ``stale`` and its
 correction falls back to zero (the model alone). Both are counted in :class:`ChannelHealth`
 for the node's diagnostics. Without any resonance data the output is the model estimate
 unchanged.
@@ -135,6 +136,8 @@ class FusionConfig:
         noise_hz: rms noise of one reading [Hz] (sweep noise and resolution).
         drift: random-walk intensity of the model's error per actuator [degC/sqrt(s)].
         gate_degc: a reading this far off the fused estimate is implausible [degC].
+        acquire_gate_degc: the same for a channel without a current correction (first
+            reading, or after it went stale): the model alone may be further off [degC].
         stale_after: a channel without an accepted reading this long is stale [s].
         f_min_hz, f_max_hz: plausible reading range [Hz].
 
@@ -143,12 +146,13 @@ class FusionConfig:
     noise_hz: float = 15.0
     drift: float = 0.01
     gate_degc: float = 1.0
+    acquire_gate_degc: float = 5.0
     stale_after: float = 5.0
     f_min_hz: float = 1.0e5
     f_max_hz: float = 1.0e7
 
     def __post_init__(self) -> None:
-        for name in ("noise_hz", "drift", "gate_degc", "stale_after"):
+        for name in ("noise_hz", "drift", "gate_degc", "acquire_gate_degc", "stale_after"):
             value = getattr(self, name)
             if not np.isfinite(value) or value <= 0.0:
                 raise ValueError(f"self-sensing {name}={value} must be finite and > 0")
@@ -298,7 +302,8 @@ class SelfSensingFusion:
             sensed = self.calibration.temperature(np.where(in_range, readings, 0.0), self._voltage)
             innovation = np.where(in_range, sensed - flat - self._correction, 0.0)
             known = np.isfinite(self._variance)
-            accepted = in_range & (np.abs(innovation) <= cfg.gate_degc)
+            gate = np.where(known, cfg.gate_degc, cfg.acquire_gate_degc)
+            accepted = in_range & (np.abs(innovation) <= gate)
             implausible = finite & ~accepted
             noise = self.calibration.variance(cfg.noise_hz, sensed, self._voltage)
             prior = np.where(known, self._variance, 0.0)
