@@ -8,7 +8,8 @@ Sections (``--only``): ``kernels`` (bench_kernels.py), ``convert`` (bench_conver
 ``feedforward`` (the feedforward node over DDS against a plain rclpy relay, relay.py),
 ``lockstep`` (plant, thermal and feedforward processes in lockstep on ``dm_exposure``),
 ``recorder`` (the recorder's memory while it records a 32 x 32 lockstep run),
-``calibrate`` (bench_calibrate.py), ``thermal`` (bench_thermal.py). Peak memory of every node
+``calibrate`` (bench_calibrate.py), ``thermal`` (bench_thermal.py), ``selfsensing``
+(bench_selfsensing.py, offline cores). Peak memory of every node
 process comes with the sections that start them.
 
 Every figure is the median of repeated runs with their min and max (``summary.md``: the
@@ -57,7 +58,10 @@ import numpy as np
 BENCH_DIR = Path(__file__).resolve().parent
 sys.path.insert(0, str(BENCH_DIR))  # the sibling bench_*.py modules
 
-SECTIONS = ("kernels", "convert", "feedforward", "lockstep", "recorder", "calibrate", "thermal")
+SECTIONS = (
+    "kernels", "convert", "feedforward", "lockstep", "recorder", "calibrate", "thermal",
+    "selfsensing",
+)
 #: Grid shapes of the DDS benchmark (N = 144, 1024, 4096).
 DDS_SHAPES = ((12, 12), (32, 32), (64, 64))
 #: Grids of the lockstep benchmark.
@@ -326,6 +330,27 @@ def section_thermal(settings: Settings, results: Results) -> None:
         f"{figures['thermal_max_lowpass']:.3g} degC; update "
         f"{figures['thermal_update_ms_model']:.2g} ms (model), "
         f"{figures['thermal_update_ms_lowpass']:.2g} ms (lowpass)."
+    )
+
+
+def section_selfsensing(results: Results) -> None:
+    """Issue 20: temperature error and variation with 4 NTCs, + self-sensing, NTC each."""
+    from bench_selfsensing import goal_checks, selfsensing_figures
+
+    figures = selfsensing_figures()  # seeded: every repeat gives the same figures
+    for name, value in figures.items():
+        if name.startswith(("selfsensing_rms_", "selfsensing_worst_")):
+            results.records.append(Record.of(name, 144, [value], "degC"))
+        elif name.startswith("selfsensing_variation_"):
+            results.records.append(Record.of(name, 144, [value * 1e9], "nm"))
+    results.notes.append(
+        "selfsensing_*: bench_selfsensing.selfsensing_figures() (offline cores; laws calibrated "
+        "from the characterisation scenario with the sweeps on; dm_exposure 12 x 12 with (a) 4 "
+        "NTCs, (b) 4 NTCs + self-sensing, (c) an NTC per actuator; feedforward on the true "
+        f"laws); one run (deterministic), {figures['selfsensing_calibration_s']:.2g} s "
+        f"calibration, {figures['selfsensing_study_s']:.2g} s for the cases. Goals: "
+        + "; ".join(goal_checks(figures))
+        + "."
     )
 
 
@@ -838,6 +863,7 @@ SUMMARY_ROWS: tuple[tuple[str, tuple[int, ...]], ...] = (
     ("lockstep_speedup", ()),
     ("calibrate_time", ()),
     ("thermal_rms_", ()),
+    ("selfsensing_", ()),
     ("peak_rss_", ()),
 )
 
@@ -889,6 +915,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "recorder": lambda: section_recorder(results, log_dir),
         "calibrate": lambda: section_calibrate(settings, results),
         "thermal": lambda: section_thermal(settings, results),
+        "selfsensing": lambda: section_selfsensing(results),
     }
     for name in args.only:
         start = time.monotonic()

@@ -138,7 +138,7 @@ def synthetic_characterisation(rng: np.random.Generator, k: int = 600) -> tuple[
 def test_calibration_recovers_the_laws_within_their_uncertainties() -> None:
     rng = np.random.default_rng(11)
     f0, a_t, a_v, stage, volts, freq = synthetic_characterisation(rng)
-    fit = fit_resonance(np.arange(stage.size) * 0.1, freq, volts, stage, T0)
+    fit = fit_resonance(0.1 * np.arange(stage.size, dtype=float), freq, volts, stage, T0)
     assert fit.disabled == ()
     for value, truth, sd in (
         (fit.f0_hz, f0, fit.f0_sd_hz),
@@ -156,13 +156,14 @@ def test_calibration_flags_dead_channels_and_rejects_unusable_data() -> None:
     _, _, _, stage, volts, freq = synthetic_characterisation(rng)
     freq[:, 0, 0] = np.nan  # never answers
     freq[:, 1, 1] = freq[0, 1, 1] if np.isfinite(freq[0, 1, 1]) else F0  # stuck
-    fit = fit_resonance(np.arange(stage.size) * 0.1, freq, volts, stage, T0)
+    fit = fit_resonance(0.1 * np.arange(stage.size, dtype=float), freq, volts, stage, T0)
     assert fit.disabled == (0, COLS + 1)
     assert np.all(np.isfinite(fit.f0_hz))
     with pytest.raises(ResonanceCalibrationError, match="ramp"):
-        fit_resonance(np.arange(stage.size) * 0.1, freq, volts, np.full(stage.size, 40.0), T0)
+        flat = np.full(stage.size, 40.0)
+        fit_resonance(0.1 * np.arange(stage.size, dtype=float), freq, volts, flat, T0)
     with pytest.raises(ResonanceCalibrationError, match="line up"):
-        fit_resonance(np.arange(3) * 0.1, freq, volts, stage, T0)
+        fit_resonance(0.1 * np.arange(3, dtype=float), freq, volts, stage, T0)
 
 
 def test_command_in_force_is_the_last_one_stamped_before() -> None:

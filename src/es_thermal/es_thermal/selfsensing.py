@@ -17,10 +17,10 @@ NaN means "not swept this cycle" and is no fault. A finite reading outside [``f_
 ``f_max_hz``], or whose temperature is more than ``gate_degc`` off the current fused estimate
 (``acquire_gate_degc`` while the channel has no correction yet: the model alone may be
 further off), is dropped as ``implausible`` (a failed channel, or a stuck one once the
-temperature moves); a channel without an accepted reading for ``stale_after`` seconds is ``stale`` and its
-correction falls back to zero (the model alone). Both are counted in :class:`ChannelHealth`
-for the node's diagnostics. Without any resonance data the output is the model estimate
-unchanged.
+temperature moves); a channel without an accepted reading for ``stale_after`` seconds is
+``stale`` and its correction falls back to zero (the model alone). Both are counted in
+:class:`ChannelHealth` for the node's diagnostics. Without any resonance data the output is
+the model estimate unchanged.
 """
 
 from __future__ import annotations
