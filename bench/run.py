@@ -337,12 +337,17 @@ def section_selfsensing(results: Results) -> None:
     """Issue 20: temperature error and variation with 4 NTCs, + self-sensing, NTC each."""
     from bench_selfsensing import goal_checks, selfsensing_figures
 
+    from es_sim_plant.selfsensing_study import CASES
+
     figures = selfsensing_figures()  # seeded: every repeat gives the same figures
-    for name, value in figures.items():
-        if name.startswith(("selfsensing_rms_", "selfsensing_worst_")):
-            results.records.append(Record.of(name, 144, [value], "degC"))
-        elif name.startswith("selfsensing_variation_"):
-            results.records.append(Record.of(name, 144, [value * 1e9], "nm"))
+    for case in CASES:
+        for kind in ("rms", "worst"):
+            name = f"selfsensing_{kind}_{case}"
+            results.records.append(Record.of(name, 144, [figures[name]], "degC"))
+        name = f"selfsensing_variation_{case}"
+        results.records.append(Record.of(name, 144, [figures[name] * 1e9], "nm"))
+    for name in ("selfsensing_gain", "selfsensing_variation_ratio"):
+        results.records.append(Record.of(name, 144, [figures[name]], "x"))
     results.notes.append(
         "selfsensing_*: bench_selfsensing.selfsensing_figures() (offline cores; laws calibrated "
         "from the characterisation scenario with the sweeps on; dm_exposure 12 x 12 with (a) 4 "
