@@ -14,6 +14,7 @@ from es_thermal.selfsensing import (
     CalibrationError,
     FusionConfig,
     ResonanceCalibration,
+    SampleSync,
     SelfSensingFusion,
 )
 
@@ -171,3 +172,47 @@ def test_command_in_force_is_the_last_one_stamped_before() -> None:
     times = np.array([0.0, 0.1, 0.2, 0.3])
     got = command_in_force(np.array([0.0, 0.1, 0.15, 0.5]), times, commands)
     np.testing.assert_array_equal(got[:, 0, 0], [0.0, 0.0, 1.0, 3.0])
+
+
+def test_a_stuck_channel_is_dropped_once_the_model_moves() -> None:
+    fusion = SelfSensingFusion(calibration(), FusionConfig(noise_hz=10.0, stuck_band_degc=0.3))
+    rng = np.random.default_rng(4)
+    frozen = law(np.full(N, 42.0), np.zeros(N))[9]
+    for k in range(12):
+        truth = np.full(N, 42.0 + 0.05 * k)  # everything warms by 0.55 degC
+        freq = law(truth, np.zeros(N)) + 10.0 * rng.standard_normal(N)
+        freq[9] = frozen  # channel 9 repeats its first reading
+        fused = fusion.fuse(0.1 * k, truth + 0.1, freq)  # the model: 0.1 degC off
+        health = fusion.latest
+        assert health is not None
+        if k <= 5:  # model moved < 0.3 degC: not yet told apart from a still channel
+            assert not health.stuck[9]
+    health = fusion.latest
+    assert health is not None
+    assert health.stuck[9] and health.counts()["resonance_stuck"] == 1
+    assert health.worst()["resonance_first_stuck"] == "9"
+    assert fused[9] == truth[9] + 0.1  # back to the model alone
+    assert not health.stuck[np.arange(N) != 9].any()
+    np.testing.assert_allclose(np.delete(fused, 9), np.delete(truth, 9), atol=0.03)
+
+
+def test_a_sweep_is_fused_with_the_estimate_of_its_own_sample_in_either_order() -> None:
+    truth = np.full(N, 42.0)
+    truth[0] = 43.0  # the model misses actuator 0 by 1 degC
+    model = np.full(N, 42.0)
+    sweep = law(truth, np.zeros(N))
+    # sweep before readings: used at once
+    sync = SampleSync(SelfSensingFusion(calibration(), FusionConfig()), sample_period=0.1)
+    sync.on_resonance(0.0, sweep)
+    assert sync.on_estimate(0.0, 0.0, model)[0] == pytest.approx(43.0, abs=1e-3)
+    # readings before their sweep: the sweep corrects the next estimate, paired with the
+    # model estimate of its own sample (the model moves by +0.5 degC meanwhile)
+    late = SampleSync(SelfSensingFusion(calibration(), FusionConfig()), sample_period=0.1)
+    assert late.on_estimate(0.0, 0.0, model)[0] == 42.0
+    late.on_resonance(0.01, sweep)
+    assert late.on_estimate(0.1, 0.1, model + 0.5)[0] == pytest.approx(43.5, abs=1e-3)
+    # a sweep arriving a period after the readings waits for the next ones instead
+    next_one = SampleSync(SelfSensingFusion(calibration(), FusionConfig()), sample_period=0.1)
+    next_one.on_estimate(0.0, 0.0, model)
+    next_one.on_resonance(0.1, law(truth + 0.5, np.zeros(N)))
+    assert next_one.on_estimate(0.1, 0.1, model + 0.5)[0] == pytest.approx(43.5, abs=1e-3)

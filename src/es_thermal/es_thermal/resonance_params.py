@@ -72,6 +72,11 @@ SPECS: tuple[ParameterSpec, ...] = (
         1e-6, 1000.0, read_only=True,
     ),
     ParameterSpec(
+        "resonance.stuck_band_degc", _FUSION.stuck_band_degc,
+        "Self-sensing: a reading repeating while the model moves this much is stuck, degC.",
+        1e-6, 1000.0, read_only=True,
+    ),
+    ParameterSpec(
         "resonance.stale_after", _FUSION.stale_after,
         "Self-sensing: a channel without an accepted reading this long is stale and its "
         "correction dropped, s of sample time.",
@@ -113,6 +118,7 @@ def fusion_from_parameters(
         gate_degc=float(values["resonance.gate_degc"]),  # type: ignore[arg-type]
         acquire_gate_degc=float(values["resonance.acquire_gate_degc"]),  # type: ignore[arg-type]
         stale_after=float(values["resonance.stale_after"]),  # type: ignore[arg-type]
+        stuck_band_degc=float(values["resonance.stuck_band_degc"]),  # type: ignore[arg-type]
     ).time_scaled(time_scale)
     disabled = tuple(int(v) for v in numbers("resonance.disabled_channels"))
     return SelfSensingFusion(calibration, config, disabled)

@@ -17,8 +17,11 @@ NaN means "not swept this cycle" and is no fault. A finite reading outside [``f_
 ``f_max_hz``], or whose temperature is more than ``gate_degc`` off the current fused estimate
 (``acquire_gate_degc`` while the channel has no correction yet: the model alone may be
 further off), is dropped as ``implausible`` (a failed channel, or a stuck one once the
-temperature moves); a channel without an accepted reading for ``stale_after`` seconds is
-``stale`` and its correction falls back to zero (the model alone). Both are counted in
+temperature moves); a reading that repeats exactly while the model says the actuator's
+temperature moved by more than ``stuck_band_degc`` since that value first came is ``stuck``
+(a healthy channel's reading changes with every resolution step) and drops the channel's
+correction; a channel without an accepted reading for ``stale_after`` seconds is
+``stale`` and its correction falls back to zero (the model alone). All are counted in
 :class:`ChannelHealth` for the node's diagnostics. Without any resonance data the output is
 the model estimate unchanged.
 """
@@ -139,6 +142,7 @@ class FusionConfig:
         acquire_gate_degc: the same for a channel without a current correction (first
             reading, or after it went stale): the model alone may be further off [degC].
         stale_after: a channel without an accepted reading this long is stale [s].
+        stuck_band_degc: a reading unchanged while the model moves this much is stuck [degC].
         f_min_hz, f_max_hz: plausible reading range [Hz].
 
     """
@@ -148,11 +152,15 @@ class FusionConfig:
     gate_degc: float = 1.0
     acquire_gate_degc: float = 5.0
     stale_after: float = 5.0
+    stuck_band_degc: float = 0.3
     f_min_hz: float = 1.0e5
     f_max_hz: float = 1.0e7
 
     def __post_init__(self) -> None:
-        for name in ("noise_hz", "drift", "gate_degc", "acquire_gate_degc", "stale_after"):
+        for name in (
+            "noise_hz", "drift", "gate_degc", "acquire_gate_degc", "stale_after",
+            "stuck_band_degc",
+        ):  # fmt: skip
             value = getattr(self, name)
             if not np.isfinite(value) or value <= 0.0:
                 raise ValueError(f"self-sensing {name}={value} must be finite and > 0")
@@ -176,6 +184,7 @@ class ChannelHealth:
         implausible: finite readings dropped (out of range or beyond the gate).
         stale: channels without an accepted reading for ``stale_after``.
         received: a resonance message came this cycle.
+        stuck: readings dropped as stuck (repeating while the model moved).
 
     """
 
@@ -183,19 +192,22 @@ class ChannelHealth:
     implausible: BoolArray
     stale: BoolArray
     received: bool
-
+    stuck: BoolArray
     def counts(self) -> dict[str, int]:
         """Return the number of channels per verdict."""
         return {
             "resonance_accepted": int(np.count_nonzero(self.accepted)),
             "resonance_implausible": int(np.count_nonzero(self.implausible)),
             "resonance_stale": int(np.count_nonzero(self.stale)),
+            "resonance_stuck": int(np.count_nonzero(self.stuck)),
         }
 
     def worst(self) -> dict[str, str]:
         """Return the first few implausible and stale channel indices (row-major)."""
         out = {}
-        for name, mask in (("implausible", self.implausible), ("stale", self.stale)):
+        for name, mask in (
+            ("implausible", self.implausible), ("stale", self.stale), ("stuck", self.stuck)
+        ):  # fmt: skip
             index = np.flatnonzero(mask)[:WORST_LISTED]
             if index.size:
                 out[f"resonance_first_{name}"] = ", ".join(str(i) for i in index)
@@ -234,6 +246,9 @@ class SelfSensingFusion:
         self._correction: FloatArray = np.zeros(n)
         self._variance: FloatArray = np.full(n, np.inf)
         self._last_accepted: FloatArray = np.full(n, -np.inf)
+        # the last distinct reading per channel and the model's estimate when it came
+        self._held_reading: FloatArray = np.full(n, np.nan)
+        self._held_model: FloatArray = np.full(n, np.nan)
         self._last_time: float | None = None
         self._first_time: float | None = None
         self.latest: ChannelHealth | None = None
@@ -262,6 +277,8 @@ class SelfSensingFusion:
         self._correction[:] = 0.0
         self._variance[:] = np.inf
         self._last_accepted[:] = -np.inf
+        self._held_reading[:] = np.nan
+        self._held_model[:] = np.nan
         self._last_time = None
         self._first_time = None
 
@@ -296,15 +313,24 @@ class SelfSensingFusion:
         self._last_time = now
         accepted = np.zeros(self.count, bool)
         implausible = np.zeros(self.count, bool)
+        stuck = np.zeros(self.count, bool)
         if readings is not None:
             finite = np.isfinite(readings)
             in_range = finite & (readings >= cfg.f_min_hz) & (readings <= cfg.f_max_hz)
+            changed = in_range & (readings != self._held_reading)
+            self._held_reading = np.where(changed, readings, self._held_reading)
+            self._held_model = np.where(changed, flat, self._held_model)
+            moved = np.abs(flat - self._held_model) > cfg.stuck_band_degc
+            stuck = in_range & ~changed & moved
+            self._correction[stuck] = 0.0
+            self._variance[stuck] = np.inf
+            in_range &= ~stuck
             sensed = self.calibration.temperature(np.where(in_range, readings, 0.0), self._voltage)
             innovation = np.where(in_range, sensed - flat - self._correction, 0.0)
             known = np.isfinite(self._variance)
             gate = np.where(known, cfg.gate_degc, cfg.acquire_gate_degc)
             accepted = in_range & (np.abs(innovation) <= gate)
-            implausible = finite & ~accepted
+            implausible = finite & ~accepted & ~stuck
             noise = self.calibration.variance(cfg.noise_hz, sensed, self._voltage)
             prior = np.where(known, self._variance, 0.0)
             gain = np.where(known, prior / (prior + noise), 1.0)
@@ -319,5 +345,63 @@ class SelfSensingFusion:
         )
         self._correction[stale] = 0.0
         self._variance[stale] = np.inf
-        self.latest = ChannelHealth(accepted, implausible, stale, readings is not None)
+        self.latest = ChannelHealth(accepted, implausible, stale, readings is not None, stuck)
         return (flat + self._correction).reshape(estimate.shape)
+
+
+class SampleSync:
+    """Pairs each resonance message with the model estimate of the sample it was swept at.
+
+    The plant publishes a sample's sweep just before its sensor readings, but the two are
+    different topics and may arrive in either order. A sweep that comes before the readings
+    waits for them; one that comes after the readings it belongs to (within half a sample
+    period of them) is fused against that sample's model estimate, late: the estimate already
+    published for the sample goes without it, and the next one carries its correction.
+    Fusing a sweep with the next sample's model estimate instead would err by the
+    temperature change over one period wherever the temperature moves fast.
+
+    Args:
+        fusion: the per-actuator fusion.
+        sample_period: the sensor sample period [s].
+
+    """
+
+    def __init__(self, fusion: SelfSensingFusion, sample_period: float) -> None:
+        self.fusion = fusion
+        self.half_period = 0.5 * sample_period
+        self._pending: FloatArray | None = None
+        self._unpaired: tuple[float, float, FloatArray] | None = None  # stamp, arrival, model
+
+    def on_resonance(self, arrival: float, frequency: FloatArray) -> None:
+        """Take one sweep (R, C) or (N,) [Hz] arriving at ``arrival`` [s].
+
+        Raises:
+            ValueError: a late sweep of the wrong size (nothing is updated).
+
+        """
+        unpaired = self._unpaired
+        if unpaired is not None and abs(arrival - unpaired[1]) <= self.half_period:
+            self._unpaired = None
+            self.fusion.fuse(unpaired[0], unpaired[2], frequency)
+        else:
+            self._pending = np.asarray(frequency, float)
+
+    def on_estimate(self, stamp: float, arrival: float, model: FloatArray) -> FloatArray:
+        """Fuse a sample's model estimate [degC] with its sweep if it came; return the result.
+
+        ``stamp`` is the sample time [s], ``arrival`` the time the readings came [s].
+
+        Raises:
+            ValueError: a sweep or model estimate of the wrong size.
+
+        """
+        frequency, self._pending = self._pending, None
+        fused = self.fusion.fuse(stamp, model, frequency)
+        self._unpaired = (stamp, arrival, np.asarray(model, float)) if frequency is None else None
+        return fused
+
+    def restart(self) -> None:
+        """Forget every correction and any sweep or estimate waiting for its partner."""
+        self.fusion.restart()
+        self._pending = None
+        self._unpaired = None

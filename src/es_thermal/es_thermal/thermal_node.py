@@ -69,6 +69,7 @@ from es_thermal.lowpass import DEFAULT_CUTOFF_HZ, DEFAULT_ORDER
 from es_thermal.network import NetworkParams
 from es_thermal.resonance_params import SPECS as RESONANCE_SPECS
 from es_thermal.resonance_params import fusion_from_parameters
+from es_thermal.selfsensing import SampleSync
 
 NODE_NAME = "thermal"
 #: Measured sample intervals this far off the configured ``sample_rate`` give a WARN.
@@ -288,7 +289,9 @@ class ThermalNode(Node):
             self.config.rows * self.config.cols,
             float(values["time_scale"]),  # type: ignore[arg-type]
         )
-        self._resonance: np.ndarray | None = None  # this cycle's readings, until used
+        self._sync = (
+            None if self.fusion is None else SampleSync(self.fusion, self.config.sample_period)
+        )
         self._fused: np.ndarray | None = None  # the newest fused estimate
         started = time.perf_counter()
         self.core = TemperatureEstimator(self.config)
@@ -376,8 +379,8 @@ class ThermalNode(Node):
             throttle_duration_sec=5.0,
         )
         self.core.restart()
-        if self.fusion is not None:
-            self.fusion.restart()
+        if self._sync is not None:
+            self._sync.restart()
         self._publish_diagnostics()  # rare: report the ERROR at once
 
     def _on_heat_load(self, msg: Float64MultiArray) -> None:
@@ -392,10 +395,13 @@ class ThermalNode(Node):
         self._heat_watch.feed(self._wall_now())
 
     def _on_resonance(self, msg: Float64MultiArray) -> None:
+        assert self._sync is not None
         try:
-            self._resonance = msg_to_grid(msg, self.core.shape)
-        except LayoutError as err:
+            self._sync.on_resonance(self._now(), msg_to_grid(msg, self.core.shape))
+        except (LayoutError, ValueError) as err:
             self._reject("resonance", str(err))
+        except Exception as err:  # the node must outlive any failure of the core
+            self._fail("self-sensing", err)
 
     def _on_command(self, msg: Float64MultiArray) -> None:
         assert self.fusion is not None
@@ -420,13 +426,11 @@ class ThermalNode(Node):
             stamp = self._sample_clock.stamp(now)
             estimate = self.core.update(stamp, readings)
             temperatures = estimate.temperatures
-            if self.fusion is not None and temperatures is not None:
-                temperatures = self.fusion.fuse(stamp, temperatures, self._resonance)
+            if self._sync is not None and temperatures is not None:
+                temperatures = self._sync.on_estimate(stamp, now, temperatures)
         except Exception as err:  # the node must outlive any failure of the core
             self._fail("update", err)
             return
-        finally:
-            self._resonance = None
         self._fused = temperatures
         self._update_seconds.append(time.perf_counter() - started)
         if temperatures is not None and not self._timer_mode:
@@ -470,7 +474,11 @@ class ThermalNode(Node):
         return Level.OK, "all sensors valid", kv
 
     def _input_status(self) -> tuple[Level, str, dict[str, object]]:
-        kv: dict[str, object] = {f"rejected_{k}": v for k, v in self._rejected.items()}
+        kv: dict[str, object] = {
+            f"rejected_{k}": v
+            for k, v in self._rejected.items()
+            if self.fusion is not None or k in ("raw", "heat_load")
+        }
         if self._last_rejection:
             kv["last_rejection"] = self._last_rejection
         if self._wall_now() - self._last_rejection_wall < _REJECTION_HOLD:
@@ -522,9 +530,13 @@ class ThermalNode(Node):
         if health is None or not health.received:
             return Level.WARN, "no /dm/resonance with the last readings: model estimate alone", {}
         kv: dict[str, object] = {**health.counts(), **health.worst()}
-        dropped = int(np.count_nonzero(health.implausible | health.stale))
+        dropped = int(np.count_nonzero(health.implausible | health.stale | health.stuck))
         if dropped:
-            return Level.WARN, f"{dropped} resonance channel(s) dropped (implausible or stale)", kv
+            return (
+                Level.WARN,
+                f"{dropped} resonance channel(s) dropped (implausible, stuck or stale)",
+                kv,
+            )
         return Level.OK, "resonance readings fused", kv
 
     def _statuses(self) -> list[DiagnosticStatus]:
