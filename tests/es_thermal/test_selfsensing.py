@@ -211,8 +211,9 @@ def test_a_sweep_is_fused_with_the_estimate_of_its_own_sample_in_either_order() 
     assert late.on_estimate(0.0, 0.0, model)[0] == 42.0
     late.on_resonance(0.01, sweep)
     assert late.on_estimate(0.1, 0.1, model + 0.5)[0] == pytest.approx(43.5, abs=1e-3)
-    # a sweep arriving a period after the readings waits for the next ones instead
+    assert late.health is not None and late.health.accepted[0]
+    # a sweep arriving two periods after readings without one waits for the next readings
     next_one = SampleSync(SelfSensingFusion(calibration(), FusionConfig()), sample_period=0.1)
     next_one.on_estimate(0.0, 0.0, model)
-    next_one.on_resonance(0.1, law(truth + 0.5, np.zeros(N)))
-    assert next_one.on_estimate(0.1, 0.1, model + 0.5)[0] == pytest.approx(43.5, abs=1e-3)
+    next_one.on_resonance(0.2, law(truth + 0.5, np.zeros(N)))
+    assert next_one.on_estimate(0.2, 0.2, model + 0.5)[0] == pytest.approx(43.5, abs=1e-3)

@@ -39,6 +39,8 @@ BoolArray = npt.NDArray[np.bool_]
 
 #: Worst channels named in a health summary.
 WORST_LISTED: Final = 5
+#: A sweep arriving this many sample periods after readings still without one belongs to them.
+LATE_PERIODS: Final = 1.5
 
 
 class CalibrationError(ValueError):
@@ -353,12 +355,15 @@ class SampleSync:
     """Pairs each resonance message with the model estimate of the sample it was swept at.
 
     The plant publishes a sample's sweep just before its sensor readings, but the two are
-    different topics and may arrive in either order. A sweep that comes before the readings
-    waits for them; one that comes after the readings it belongs to (within half a sample
-    period of them) is fused against that sample's model estimate, late: the estimate already
-    published for the sample goes without it, and the next one carries its correction.
-    Fusing a sweep with the next sample's model estimate instead would err by the
-    temperature change over one period wherever the temperature moves fast.
+    different topics and may arrive in either order (and under sim time the arrival clock
+    itself may read a period early or late). One sweep belongs to each sample: a sweep that
+    comes while the last sample's estimate still lacks its sweep (and within
+    :data:`LATE_PERIODS` periods of it) is fused late against that sample's model estimate:
+    the estimate already published for the sample goes without it, and the next one carries
+    its correction. Otherwise it waits for the next readings. Fusing a sweep with the next
+    sample's model estimate instead would err by the temperature change over one period
+    wherever the temperature moves fast. (A lost sweep lets the next one pair with the
+    sample before its own, once.)
 
     Args:
         fusion: the per-actuator fusion.
@@ -368,9 +373,13 @@ class SampleSync:
 
     def __init__(self, fusion: SelfSensingFusion, sample_period: float) -> None:
         self.fusion = fusion
-        self.half_period = 0.5 * sample_period
+        self.window = LATE_PERIODS * sample_period
         self._pending: FloatArray | None = None
         self._unpaired: tuple[float, float, FloatArray] | None = None  # stamp, arrival, model
+        #: Arrival time of the newest sweep [s] (None before the first).
+        self.last_sweep: float | None = None
+        #: The verdict on the newest sweep fused (None before the first).
+        self.health: ChannelHealth | None = None
 
     def on_resonance(self, arrival: float, frequency: FloatArray) -> None:
         """Take one sweep (R, C) or (N,) [Hz] arriving at ``arrival`` [s].
@@ -379,10 +388,12 @@ class SampleSync:
             ValueError: a late sweep of the wrong size (nothing is updated).
 
         """
+        self.last_sweep = arrival
         unpaired = self._unpaired
-        if unpaired is not None and abs(arrival - unpaired[1]) <= self.half_period:
+        if unpaired is not None and abs(arrival - unpaired[1]) <= self.window:
             self._unpaired = None
             self.fusion.fuse(unpaired[0], unpaired[2], frequency)
+            self.health = self.fusion.latest
         else:
             self._pending = np.asarray(frequency, float)
 
@@ -397,7 +408,11 @@ class SampleSync:
         """
         frequency, self._pending = self._pending, None
         fused = self.fusion.fuse(stamp, model, frequency)
-        self._unpaired = (stamp, arrival, np.asarray(model, float)) if frequency is None else None
+        if frequency is None:
+            self._unpaired = (stamp, arrival, np.asarray(model, float))
+        else:
+            self._unpaired = None
+            self.health = self.fusion.latest
         return fused
 
     def restart(self) -> None:

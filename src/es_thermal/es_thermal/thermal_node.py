@@ -525,11 +525,15 @@ class ThermalNode(Node):
         return level, message, kv
 
     def _selfsensing_status(self) -> tuple[Level, str, dict[str, object]]:
-        assert self.fusion is not None
-        health = self.fusion.latest
-        if health is None or not health.received:
-            return Level.WARN, "no /dm/resonance with the last readings: model estimate alone", {}
-        kv: dict[str, object] = {**health.counts(), **health.worst()}
+        assert self._sync is not None and self.fusion is not None
+        sync = self._sync
+        if sync.last_sweep is None or sync.health is None:
+            return Level.WARN, "waiting for /dm/resonance: model estimate alone", {}
+        kv: dict[str, object] = {**sync.health.counts(), **sync.health.worst()}
+        quiet = self._now() - sync.last_sweep
+        if quiet > self.fusion.config.stale_after:
+            return Level.WARN, f"no /dm/resonance for {quiet:.3g} s: model estimate alone", kv
+        health = sync.health
         dropped = int(np.count_nonzero(health.implausible | health.stale | health.stuck))
         if dropped:
             return (
