@@ -217,3 +217,15 @@ def test_a_sweep_is_fused_with_the_estimate_of_its_own_sample_in_either_order() 
     next_one.on_estimate(0.0, 0.0, model)
     next_one.on_resonance(0.2, law(truth + 0.5, np.zeros(N)))
     assert next_one.on_estimate(0.2, 0.2, model + 0.5)[0] == pytest.approx(43.5, abs=1e-3)
+
+
+def test_a_late_sweep_uses_the_command_in_force_at_its_readings() -> None:
+    fusion = SelfSensingFusion(calibration(), FusionConfig())
+    sync = SampleSync(fusion, sample_period=0.1)
+    truth = np.full(N, 42.0)
+    fusion.set_command(np.full(N, 100.0))  # in force during the sweep
+    sync.on_estimate(0.0, 0.0, truth)
+    fusion.set_command(np.full(N, 130.0))  # the next command, computed from that estimate
+    sync.on_resonance(0.01, law(truth, np.full(N, 100.0)))
+    np.testing.assert_allclose(fusion.correction, 0.0, atol=1e-9)
+    assert sync.paired == {"in_order": 0, "late": 1}

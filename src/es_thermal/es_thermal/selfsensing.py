@@ -284,7 +284,18 @@ class SelfSensingFusion:
         self._last_time = None
         self._first_time = None
 
-    def fuse(self, now: float, model: FloatArray, frequency: FloatArray | None) -> FloatArray:
+    @property
+    def voltage(self) -> FloatArray:
+        """The command in force as last set (N,) [V] (copy)."""
+        return self._voltage.copy()
+
+    def fuse(
+        self,
+        now: float,
+        model: FloatArray,
+        frequency: FloatArray | None,
+        voltage: FloatArray | None = None,
+    ) -> FloatArray:
         """Correct the model estimate (N,) [degC] at ``now`` [s] with this cycle's readings.
 
         Args:
@@ -292,6 +303,8 @@ class SelfSensingFusion:
             model: the model estimate (N,) or (R, C) [degC].
             frequency: this cycle's readings (N,) or (R, C) [Hz], NaN where not swept, or
                 None when no message came.
+            voltage: the command in force during the sweep (N,) [V]; default: the last one
+                set with :meth:`set_command`.
 
         Returns:
             The fused estimate, same shape as ``model``.
@@ -310,6 +323,7 @@ class SelfSensingFusion:
         if readings is not None:
             readings = np.where(self._enabled, readings, np.nan)
         cfg = self.config
+        volts = self._voltage if voltage is None else np.asarray(voltage, float).ravel()
         if self._last_time is not None and now > self._last_time:
             self._variance += cfg.drift**2 * (now - self._last_time)
         self._last_time = now
@@ -327,13 +341,13 @@ class SelfSensingFusion:
             self._correction[stuck] = 0.0
             self._variance[stuck] = np.inf
             in_range &= ~stuck
-            sensed = self.calibration.temperature(np.where(in_range, readings, 0.0), self._voltage)
+            sensed = self.calibration.temperature(np.where(in_range, readings, 0.0), volts)
             innovation = np.where(in_range, sensed - flat - self._correction, 0.0)
             known = np.isfinite(self._variance)
             gate = np.where(known, cfg.gate_degc, cfg.acquire_gate_degc)
             accepted = in_range & (np.abs(innovation) <= gate)
             implausible = finite & ~accepted & ~stuck
-            noise = self.calibration.variance(cfg.noise_hz, sensed, self._voltage)
+            noise = self.calibration.variance(cfg.noise_hz, sensed, volts)
             prior = np.where(known, self._variance, 0.0)
             gain = np.where(known, prior / (prior + noise), 1.0)
             self._correction += np.where(accepted, gain * innovation, 0.0)
@@ -365,6 +379,12 @@ class SampleSync:
     wherever the temperature moves fast. (A lost sweep lets the next one pair with the
     sample before its own, once.)
 
+    The voltage term uses the command in force when the sample's readings were handled: the
+    sweep ran under the command of the step before the sample, which the controller sent
+    before the plant took the sample, and the next command can only follow the estimate of
+    this sample (it is computed from it). A late sweep is fused with that same snapshot,
+    not with a command that came after the estimate.
+
     Args:
         fusion: the per-actuator fusion.
         sample_period: the sensor sample period [s].
@@ -375,7 +395,10 @@ class SampleSync:
         self.fusion = fusion
         self.window = LATE_PERIODS * sample_period
         self._pending: FloatArray | None = None
-        self._unpaired: tuple[float, float, FloatArray] | None = None  # stamp, arrival, model
+        # stamp, arrival, model estimate and command snapshot of readings without a sweep
+        self._unpaired: tuple[float, float, FloatArray, FloatArray] | None = None
+        #: Sweeps fused with their readings as they came, and late (after them).
+        self.paired = {"in_order": 0, "late": 0}
         #: Arrival time of the newest sweep [s] (None before the first).
         self.last_sweep: float | None = None
         #: The verdict on the newest sweep fused (None before the first).
@@ -392,8 +415,9 @@ class SampleSync:
         unpaired = self._unpaired
         if unpaired is not None and abs(arrival - unpaired[1]) <= self.window:
             self._unpaired = None
-            self.fusion.fuse(unpaired[0], unpaired[2], frequency)
+            self.fusion.fuse(unpaired[0], unpaired[2], frequency, unpaired[3])
             self.health = self.fusion.latest
+            self.paired["late"] += 1
         else:
             self._pending = np.asarray(frequency, float)
 
@@ -409,10 +433,11 @@ class SampleSync:
         frequency, self._pending = self._pending, None
         fused = self.fusion.fuse(stamp, model, frequency)
         if frequency is None:
-            self._unpaired = (stamp, arrival, np.asarray(model, float))
+            self._unpaired = (stamp, arrival, np.asarray(model, float), self.fusion.voltage)
         else:
             self._unpaired = None
             self.health = self.fusion.latest
+            self.paired["in_order"] += 1
         return fused
 
     def restart(self) -> None:

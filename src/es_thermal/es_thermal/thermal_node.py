@@ -529,7 +529,11 @@ class ThermalNode(Node):
         sync = self._sync
         if sync.last_sweep is None or sync.health is None:
             return Level.WARN, "waiting for /dm/resonance: model estimate alone", {}
-        kv: dict[str, object] = {**sync.health.counts(), **sync.health.worst()}
+        kv: dict[str, object] = {
+            **sync.health.counts(),
+            **sync.health.worst(),
+            **{f"sweeps_{k}": v for k, v in sync.paired.items()},
+        }
         quiet = self._now() - sync.last_sweep
         if quiet > self.fusion.config.stale_after:
             return Level.WARN, f"no /dm/resonance for {quiet:.3g} s: model estimate alone", kv
