@@ -196,36 +196,34 @@ def test_a_stuck_channel_is_dropped_once_the_model_moves() -> None:
     np.testing.assert_allclose(np.delete(fused, 9), np.delete(truth, 9), atol=0.03)
 
 
-def test_a_sweep_is_fused_with_the_estimate_of_its_own_sample_in_either_order() -> None:
+def test_a_sweep_is_fused_with_its_own_sample_and_command_in_any_order() -> None:
     truth = np.full(N, 42.0)
     truth[0] = 43.0  # the model misses actuator 0 by 1 degC
     model = np.full(N, 42.0)
-    sweep = law(truth, np.zeros(N))
-    # sweep before readings: used at once
+    v1, v2 = np.full(N, 100.0), np.full(N, 130.0)
+    sweep = law(truth, v1)  # swept under v1, published at 20 ns; v2 published at 30 ns
+    # in order: command, sweep, readings, next command
     sync = SampleSync(SelfSensingFusion(calibration(), FusionConfig()), sample_period=0.1)
-    sync.on_resonance(0.0, sweep)
+    sync.on_command(10, v1)
+    sync.on_resonance(0.0, 20, sweep)
+    sync.on_command(30, v2)
     assert sync.on_estimate(0.0, 0.0, model)[0] == pytest.approx(43.0, abs=1e-3)
-    # readings before their sweep: the sweep corrects the next estimate, paired with the
-    # model estimate of its own sample (the model moves by +0.5 degC meanwhile)
+    assert sync.paired == {"in_order": 1, "late": 0, "without_command": 0}
+    # readings first, then the sweep, then the command it ran under arrives late (a backlog)
+    # and the next one: fused against its own sample's model estimate and v1
     late = SampleSync(SelfSensingFusion(calibration(), FusionConfig()), sample_period=0.1)
     assert late.on_estimate(0.0, 0.0, model)[0] == 42.0
-    late.on_resonance(0.01, sweep)
+    late.on_resonance(0.01, 20, sweep)
+    late.on_command(10, v1)
+    late.on_command(30, v2)
+    assert late.paired == {"in_order": 0, "late": 1, "without_command": 0}
     assert late.on_estimate(0.1, 0.1, model + 0.5)[0] == pytest.approx(43.5, abs=1e-3)
     assert late.health is not None and late.health.accepted[0]
-    # a sweep arriving two periods after readings without one waits for the next readings
-    next_one = SampleSync(SelfSensingFusion(calibration(), FusionConfig()), sample_period=0.1)
-    next_one.on_estimate(0.0, 0.0, model)
-    next_one.on_resonance(0.2, law(truth + 0.5, np.zeros(N)))
-    assert next_one.on_estimate(0.2, 0.2, model + 0.5)[0] == pytest.approx(43.5, abs=1e-3)
-
-
-def test_a_late_sweep_uses_the_command_in_force_at_its_readings() -> None:
-    fusion = SelfSensingFusion(calibration(), FusionConfig())
-    sync = SampleSync(fusion, sample_period=0.1)
-    truth = np.full(N, 42.0)
-    fusion.set_command(np.full(N, 100.0))  # in force during the sweep
-    sync.on_estimate(0.0, 0.0, truth)
-    fusion.set_command(np.full(N, 130.0))  # the next command, computed from that estimate
-    sync.on_resonance(0.01, law(truth, np.full(N, 100.0)))
-    np.testing.assert_allclose(fusion.correction, 0.0, atol=1e-9)
-    assert sync.paired == {"in_order": 0, "late": 1}
+    # no command after the sweep for longer than the window: fused with the newest one
+    quiet = SampleSync(SelfSensingFusion(calibration(), FusionConfig()), sample_period=0.1)
+    quiet.on_command(10, v1)
+    quiet.on_resonance(0.0, 20, sweep)
+    quiet.on_estimate(0.0, 0.0, model)
+    quiet.on_estimate(0.2, 0.2, model)
+    assert quiet.paired["without_command"] == 1
+    assert quiet.fusion.correction[0] == pytest.approx(1.0, abs=1e-3)

@@ -23,8 +23,11 @@ running.
 Self-sensing (optional): with ``resonance.f0_hz`` set (the parameters file that
 ``calibrate_resonance`` writes, :mod:`es_thermal.resonance_params`) the node also subscribes
 /dm/resonance and /dm/command and corrects every actuator's model estimate with its own
-resonance reading (:mod:`es_thermal.selfsensing`); implausible or stale channels are dropped
-and reported in the ``thermal: self-sensing`` diagnostic. Without it nothing changes.
+resonance reading (:mod:`es_thermal.selfsensing`); implausible, stuck or stale channels
+are dropped and reported in the ``thermal: self-sensing`` diagnostic. The command a sweep
+ran under is found by the messages' publication stamps (``source_timestamp``, the
+publishing host's clock: plant and controller on one host, or hosts with synchronised
+clocks). Without ``resonance.f0_hz`` nothing changes.
 
 Sensor positions: ``sensor_positions`` = flat [r0, c0, r1, c1, ...] (fractional row/col
 allowed); empty = ``sensor_pitch`` (1: one sensor on every actuator, sensor i on actuator i;
@@ -330,12 +333,14 @@ class ThermalNode(Node):
             topics.qos_for(topics.HEAT_LOAD),
         )
         if self.fusion is not None:  # the plant publishes a sweep just before its readings
+            # two-argument callbacks get the message info (publication stamps); rclpy's
+            # annotation only knows the one-argument form
             self.create_subscription(
-                Float64MultiArray, topics.RESONANCE, self._on_resonance,
+                Float64MultiArray, topics.RESONANCE, self._on_resonance,  # type: ignore[arg-type]
                 topics.qos_for(topics.RESONANCE),
             )
             self.create_subscription(
-                Float64MultiArray, topics.COMMAND, self._on_command,
+                Float64MultiArray, topics.COMMAND, self._on_command,  # type: ignore[arg-type]
                 topics.qos_for(topics.COMMAND),
             )
         self.create_subscription(
@@ -394,21 +399,25 @@ class ThermalNode(Node):
             return
         self._heat_watch.feed(self._wall_now())
 
-    def _on_resonance(self, msg: Float64MultiArray) -> None:
+    def _on_resonance(self, msg: Float64MultiArray, info: dict[str, int]) -> None:
         assert self._sync is not None
         try:
-            self._sync.on_resonance(self._now(), msg_to_grid(msg, self.core.shape))
+            grid = msg_to_grid(msg, self.core.shape)
+            self._sync.on_resonance(self._now(), int(info["source_timestamp"]), grid)
         except (LayoutError, ValueError) as err:
             self._reject("resonance", str(err))
         except Exception as err:  # the node must outlive any failure of the core
             self._fail("self-sensing", err)
 
-    def _on_command(self, msg: Float64MultiArray) -> None:
-        assert self.fusion is not None
+    def _on_command(self, msg: Float64MultiArray, info: dict[str, int]) -> None:
+        assert self._sync is not None
         try:
-            self.fusion.set_command(msg_to_grid(msg, self.core.shape))
+            grid = msg_to_grid(msg, self.core.shape)
+            self._sync.on_command(int(info["source_timestamp"]), grid)
         except (LayoutError, ValueError) as err:
             self._reject("command", str(err))
+        except Exception as err:  # the node must outlive any failure of the core
+            self._fail("self-sensing", err)
 
     def _on_raw(self, msg: Float64MultiArray) -> None:
         try:
