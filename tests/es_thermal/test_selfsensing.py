@@ -14,9 +14,9 @@ from es_thermal.selfsensing import (
     CalibrationError,
     FusionConfig,
     ResonanceCalibration,
-    SampleSync,
     SelfSensingFusion,
 )
+from es_thermal.sweep_sync import SampleSync
 
 ROWS, COLS = 8, 8
 N = ROWS * COLS

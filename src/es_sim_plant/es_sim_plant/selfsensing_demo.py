@@ -192,7 +192,7 @@ def plot_maps(cases: dict[str, CaseFigures], path: Path) -> None:
         image = ax.imshow(case.rms_map, vmin=0.0, vmax=top, cmap="viridis")
         ax.set_title(f"{CASE_TITLES[case.name]}\nRMS {case.rms:.3g} degC", fontsize=9)
         ax.set_xlabel("column")
-        ax.set_ylabel("row")
+    axes[0][0].set_ylabel("row")
     if image is not None:
         fig.colorbar(image, ax=axes[0].tolist(), label="RMS temperature error [degC]")
     fig.savefig(path, dpi=110, bbox_inches="tight")

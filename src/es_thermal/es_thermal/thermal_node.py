@@ -72,7 +72,7 @@ from es_thermal.lowpass import DEFAULT_CUTOFF_HZ, DEFAULT_ORDER
 from es_thermal.network import NetworkParams
 from es_thermal.resonance_params import SPECS as RESONANCE_SPECS
 from es_thermal.resonance_params import fusion_from_parameters
-from es_thermal.selfsensing import SampleSync
+from es_thermal.sweep_sync import SampleSync
 
 NODE_NAME = "thermal"
 #: Measured sample intervals this far off the configured ``sample_rate`` give a WARN.
