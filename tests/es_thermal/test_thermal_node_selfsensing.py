@@ -9,7 +9,7 @@ import pytest
 import yaml
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from std_msgs.msg import Float64MultiArray
-from support.ros import node_process, spin_until
+from support.ros import NodeProcess, node_process, spin_until
 from support.ros import test_node as ros_node
 
 from es_msgs_py import topics
@@ -111,3 +111,19 @@ def test_node_fuses_resonance_and_drops_an_implausible_channel(tmp_path: Path) -
         fused = ("sweeps_in_order", "sweeps_late", "sweeps_without_command")
         assert sum(int(values[k]) for k in fused) >= 38, values
         assert proc.process.poll() is None
+
+
+def test_unusable_resonance_parameters_exit_with_one_line() -> None:
+    args = [
+        "--ros-args", "-p", "rows:=4", "-p", "cols:=4", "-p", "sensor_pitch:=4",
+        "-p", "resonance.f0_hz:=[1000000.0, 1000000.0, 1000000.0]",
+    ]  # fmt: skip
+    proc = NodeProcess("es_thermal", "thermal_node", args)
+    try:
+        proc.process.wait(60.0)
+    finally:
+        code = proc.stop()
+    lines = [line for line in proc.output().splitlines() if line.strip()]
+    assert code == 2, proc.output()
+    assert "resonance.f0_hz has 3 values, expected 1 or 16" in lines[-1]
+    assert "Traceback" not in proc.output()
