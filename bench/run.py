@@ -14,7 +14,8 @@ Sections (``--only``): ``kernels`` (bench_kernels.py), ``convert`` (bench_conver
 time and peak memory), ``scale`` (bench_scale.py: the feedforward node at 66 x 66 / 2 kHz and
 128 x 128 / 1 kHz), ``lockstep_scale`` (bench_scale.py: the closed loop at 32 x 32 and
 64 x 64), ``multihost`` (bench_multihost.py: 64 x 64 at 1 kHz across two network namespaces;
-needs root). Peak memory of every node process comes with the sections that start them.
+needs root), ``selfsensing`` (bench_selfsensing.py, offline cores). Peak memory of every
+node process comes with the sections that start them.
 
 Every figure is the median of repeated runs with their min and max (``summary.md``: the
 compact table the README shows). ``bench.json`` holds
@@ -66,7 +67,7 @@ from bench_multihost import section_multihost  # noqa: E402 - after the path abo
 from bench_scale import section_lockstep_scale, section_scale  # noqa: E402
 
 SECTIONS = ("kernels", "convert", "feedforward", "lockstep", "recorder", "calibrate", "thermal",
-            "calibration_loop", "import", "scale", "lockstep_scale", "multihost")
+            "calibration_loop", "import", "scale", "lockstep_scale", "multihost", "selfsensing")
 
 #: Grid shapes of the DDS benchmark (N = 144, 1024, 4096).
 DDS_SHAPES = ((12, 12), (32, 32), (64, 64))
@@ -358,6 +359,32 @@ def section_thermal(settings: Settings, results: Results) -> None:
         f"{figures['thermal_max_lowpass']:.3g} degC; update "
         f"{figures['thermal_update_ms_model']:.2g} ms (model), "
         f"{figures['thermal_update_ms_lowpass']:.2g} ms (lowpass)."
+    )
+
+
+def section_selfsensing(results: Results) -> None:
+    """Issue 20: temperature error and variation with 4 NTCs, + self-sensing, NTC each."""
+    from bench_selfsensing import goal_checks, selfsensing_figures
+
+    from es_sim_plant.selfsensing_study import CASES
+
+    figures = selfsensing_figures()  # seeded: every repeat gives the same figures
+    for case in CASES:
+        for kind in ("rms", "worst"):
+            name = f"selfsensing_{kind}_{case}"
+            results.records.append(Record.of(name, 144, [figures[name]], "degC"))
+        name = f"selfsensing_variation_{case}"
+        results.records.append(Record.of(name, 144, [figures[name] * 1e9], "nm"))
+    for name in ("selfsensing_gain", "selfsensing_variation_ratio"):
+        results.records.append(Record.of(name, 144, [figures[name]], "x"))
+    results.notes.append(
+        "selfsensing_*: bench_selfsensing.selfsensing_figures() (offline cores; laws calibrated "
+        "from the characterisation scenario with the sweeps on; dm_exposure 12 x 12 with (a) 4 "
+        "NTCs, (b) 4 NTCs + self-sensing, (c) an NTC per actuator; feedforward on the true "
+        f"laws); one run (deterministic), {figures['selfsensing_calibration_s']:.2g} s "
+        f"calibration, {figures['selfsensing_study_s']:.2g} s for the cases. Goals: "
+        + "; ".join(goal_checks(figures))
+        + "."
     )
 
 
@@ -870,6 +897,7 @@ SUMMARY_ROWS: tuple[tuple[str, tuple[int, ...]], ...] = (
     ("lockstep_speedup", ()),
     ("calibrate_time", ()),
     ("thermal_rms_", ()),
+    ("selfsensing_", ()),
     ("peak_rss_", ()),
 )
 
@@ -926,6 +954,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "scale": lambda: section_scale(settings, results, log_dir),
         "lockstep_scale": lambda: section_lockstep_scale(settings, results, log_dir),
         "multihost": lambda: section_multihost(settings, results, log_dir),
+        "selfsensing": lambda: section_selfsensing(results),
     }
     for name in args.only:
         start = time.monotonic()

@@ -4,7 +4,10 @@ from setuptools import find_packages, setup
 
 PACKAGE = "es_thermal"
 # executable name (under lib/es_thermal/, for `ros2 run`) -> module with main()
-EXECUTABLES = {"thermal_node": "es_thermal.thermal_node"}
+EXECUTABLES = {
+    "thermal_node": "es_thermal.thermal_node",
+    "calibrate_resonance": "es_thermal.calibrate_resonance",
+}
 
 setup(
     name=PACKAGE,

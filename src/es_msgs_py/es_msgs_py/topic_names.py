@@ -12,3 +12,7 @@ COMMAND: Final = "/dm/command"
 DISPLACEMENT: Final = "/dm/displacement"
 DIAGNOSTICS: Final = "/diagnostics"
 CLOCK: Final = "/clock"
+#: Latest measured thickness-mode resonance per actuator (grid, Hz; NaN where not measured
+#: this cycle): the self-sensing input of the thermal node, published only when the
+#: measurement is on.
+RESONANCE: Final = "/dm/resonance"

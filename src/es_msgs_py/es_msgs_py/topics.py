@@ -14,6 +14,7 @@ from es_msgs_py.topic_names import (
     DIAGNOSTICS,
     DISPLACEMENT,
     HEAT_LOAD,
+    RESONANCE,
     SETPOINT,
     TEMPERATURE,
     TEMPERATURE_RAW,
@@ -35,6 +36,8 @@ def process_domain_id(pid: int | None = None) -> int:
 
 #: Every /dm topic of the contract, in data-flow order.
 DM_TOPICS: Final = (HEAT_LOAD, TEMPERATURE_RAW, TEMPERATURE, SETPOINT, COMMAND, DISPLACEMENT)
+#: /dm topics of optional features, recorded only when asked for (the self-sensing input).
+OPTIONAL_DM_TOPICS: Final = (RESONANCE,)
 
 FLOAT64_MULTI_ARRAY: Final = "std_msgs/msg/Float64MultiArray"
 DIAGNOSTIC_ARRAY: Final = "diagnostic_msgs/msg/DiagnosticArray"
@@ -43,6 +46,7 @@ CLOCK_TYPE: Final = "rosgraph_msgs/msg/Clock"
 #: ROS 2 type name of each contract topic.
 TOPIC_TYPES: Final[dict[str, str]] = {
     **dict.fromkeys(DM_TOPICS, FLOAT64_MULTI_ARRAY),
+    **dict.fromkeys(OPTIONAL_DM_TOPICS, FLOAT64_MULTI_ARRAY),
     DIAGNOSTICS: DIAGNOSTIC_ARRAY,
     CLOCK: CLOCK_TYPE,
 }

@@ -148,6 +148,7 @@ class GraphConfig:
         namespace: run the graph below ``/<namespace>`` (topics remapped; bags keep the
             contract's topic names), so that several graphs share one ROS domain.
         wall_timeout: wall seconds after which the run is stopped as failed (``None``: none).
+        record_extra: further topics the recorder records (e.g. the optional /dm/resonance).
 
     """
 
@@ -165,6 +166,7 @@ class GraphConfig:
     ready_timeout: float = 30.0
     namespace: str | None = None
     wall_timeout: float | None = None
+    record_extra: tuple[str, ...] = ()
 
 
 def node_specs(config: GraphConfig) -> tuple[list[ProcessSpec], ProcessSpec]:
@@ -187,6 +189,7 @@ def node_specs(config: GraphConfig) -> tuple[list[ProcessSpec], ProcessSpec]:
                         else ["--queue-depth", str(TEST_STAND_QUEUE_DEPTH)]
                     ),
                     *(RECORDED_TOPICS if config.with_controllers else TEST_STAND_TOPICS),
+                    *config.record_extra,
                     *ros_arguments(RECORDER, sim_time, namespace=config.namespace),
                 ],
                 stop_stage=1,  # after every node it records
@@ -377,6 +380,8 @@ class Bringup:
         expected = {spec.name: SUBSCRIPTIONS[spec.name] for spec in before}
         if not self.config.with_controllers and RECORDER in expected:
             expected[RECORDER] = TEST_STAND_TOPICS
+        if RECORDER in expected:
+            expected[RECORDER] = (*expected[RECORDER], *self.config.record_extra)
         namespace = self.config.namespace
         problem = wait_for_subscriptions(
             {name: [scoped(t, namespace) for t in wanted] for name, wanted in expected.items()},

@@ -12,7 +12,10 @@ The product's story, in order, every step a separate process graph run by the br
    ``uncompensated`` and every compensating mode, using the calibrated parameters;
 4. one calibration loop end to end: a test-stand bag with an effect the model lacks, the
    effect found, the error before and after, and the closed-loop tracking with the
-   parameters before and after the effect was added;
+   parameters before and after the effect was added; then self-sensing
+   (:mod:`es_sim_plant.selfsensing_demo`): a test stand with the resonance sweeps,
+   ``calibrate_resonance``, and ``dm_exposure`` with 4 NTCs, 4 NTCs + self-sensing and an
+   NTC per actuator;
 5. the report (Markdown + PNG + summary.json) in the output folder named at the end.
 
 Runs go in parallel (``--jobs``) in one ROS domain, each graph below its own namespace
@@ -39,7 +42,8 @@ from typing import Any, NoReturn
 import numpy as np
 import yaml
 
-from es_msgs_py.topics import process_domain_id
+from es_msgs_py.topics import RESONANCE, process_domain_id
+from es_sim_plant import selfsensing_demo
 from es_sim_plant.analysis import RunAnalysis, analyse_run
 from es_sim_plant.bringup import Bringup, GraphConfig, ParamValue, executable
 from es_sim_plant.plant import sensor_every
@@ -112,6 +116,7 @@ class Job:
     plant: dict[str, ParamValue] = field(default_factory=dict)
     thermal: dict[str, ParamValue] = field(default_factory=dict)
     feedforward: dict[str, ParamValue] = field(default_factory=dict)
+    record_extra: tuple[str, ...] = ()
     wall_s: float = 0.0
 
 
@@ -153,6 +158,7 @@ class Runner:
             domain_id=self._domain,
             namespace=slot,
             wall_timeout=600.0,
+            record_extra=job.record_extra,
         )
         bringup = Bringup(config, announce=lambda _text: None)
         with self._lock:
@@ -318,6 +324,7 @@ class Options:
     scenarios: tuple[str, ...]
     modes: tuple[str, ...]
     loop: bool
+    selfsensing: bool = True
 
 
 def parse_args(argv: Sequence[str]) -> Options:
@@ -338,6 +345,10 @@ def parse_args(argv: Sequence[str]) -> Options:
     parser.add_argument(
         "--no-loop", action="store_true", help="skip the calibration loop with an extra effect"
     )
+    parser.add_argument(
+        "--no-selfsensing", action="store_true",
+        help=f"skip the self-sensing section (runs when {selfsensing_demo.SCENARIO} is selected)",
+    )  # fmt: skip
     ns = parser.parse_args(list(argv))
     if not 1 <= ns.jobs <= 8:
         parser.error(f"--jobs must be 1..8, got {ns.jobs}")
@@ -353,7 +364,10 @@ def parse_args(argv: Sequence[str]) -> Options:
     out = ns.out or Path("out") / f"demo-{_now()}"
     if out.exists() and any(out.iterdir()):
         parser.error(f"--out {out} exists and is not empty")
-    return Options(out, ns.long, ns.jobs, tuple(ns.scenarios), modes, not ns.no_loop)
+    return Options(
+        out, ns.long, ns.jobs, tuple(ns.scenarios), modes, not ns.no_loop,
+        not ns.no_selfsensing and selfsensing_demo.SCENARIO in ns.scenarios,
+    )  # fmt: skip
 
 
 def _domain() -> int:
@@ -630,6 +644,60 @@ class Demo:
             lines += ["", *notes]
         return "\n".join(lines)
 
+    def selfsensing(self, calibrated: Calibrated) -> str:
+        """Step 4b: resonance test stand, calibrate_resonance, the three sensor set-ups."""
+        ss = selfsensing_demo
+        self.progress(
+            f"4/5 self-sensing: test stand with resonance sweeps, calibrate_resonance, "
+            f"{ss.SCENARIO} with 4 NTCs / 4 NTCs + self-sensing / an NTC per actuator"
+        )
+        d = self.dirs
+        stand_path = ss.stand_scenario(
+            characterisation_scenario(ss.SCENARIO, d["scenarios"]), d["scenarios"]
+        )
+        stand = self._job("selfsensing-stand", str(stand_path), "uncompensated", None, False)
+        stand.record_extra = (RESONANCE,)
+        self._run_all([stand], "test stand")
+        try:
+            daq = ss.sample_clock_copy(stand.bag, d["bags"] / f"{stand.key}-daq", str(stand_path))
+            params = ss.calibrate(
+                daq, d["calibration"] / stand.key / "thermal_params.yaml",
+                d["logs"] / f"{stand.key}-calibrate.log",
+            )  # fmt: skip
+        except (ss.SelfSensingError, ValueError) as err:
+            raise DemoError(str(err)) from None
+        scenarios = ss.case_scenarios(resolve_scenario(ss.SCENARIO), d["scenarios"])
+        jobs = []
+        for case, path in scenarios.items():
+            job = self._job(
+                f"selfsensing-{case}", str(path), "inverse_hyperbolic", calibrated.params
+            )
+            job.record_extra = (RESONANCE,)
+            if case == "ntc_selfsensing":
+                job.thermal = params
+            jobs.append(job)
+        done = self._run_all(jobs, "run")
+        figures = {}
+        for case, job in zip(scenarios, done, strict=True):
+            result = self._analyse(job)
+            rate = job.plant.get("control_rate")
+            control_rate = (
+                float(rate)
+                if isinstance(rate, int | float)
+                else load_scenario(job.scenario).control_rate
+            )
+            errors = ss.temperature_errors(job.bag, job.scenario, control_rate)
+            figures[case] = ss.case_figures(case, errors, result.metrics.variation_m)
+            self.progress(
+                f"  {case}: temperature RMS {figures[case].rms:.4f} degC, worst actuator "
+                f"{figures[case].worst:.4f} degC, variation {_nm(result.metrics.variation_m)}"
+            )
+        figure_dir = self.options.out / "figures"
+        figure_dir.mkdir(parents=True, exist_ok=True)
+        ss.plot_maps(figures, figure_dir / "selfsensing_error_maps.png")
+        bags = {case: job.bag for case, job in zip(scenarios, done, strict=True)}
+        return ss.section_markdown(figures, "figures/selfsensing_error_maps.png", params, bags)
+
     def run(self) -> Path:
         """Run every step; return the report path."""
         stands = self.characterise()
@@ -637,6 +705,11 @@ class Demo:
         results = self.closed_loop(calibrated)
         goal = self.goal_markdown(results, calibrated)
         loop_text, loop_runs = self.calibration_loop() if self.options.loop else ("", [])
+        selfsensing = (
+            self.selfsensing(calibrated[selfsensing_demo.SCENARIO])
+            if self.options.selfsensing
+            else ""
+        )
         self.progress("5/5 report")
         preamble = [story_markdown(stands, calibrated, self.options)]
         if loop_text:
@@ -647,7 +720,11 @@ class Demo:
             command=" ".join(["scripts/demo", *sys.argv[1:]]),
             wall_s=self.progress.elapsed,
             preamble=preamble,
-            notes=[goal, time_scale_markdown(self.options, self.time_scale_factor)],
+            notes=[
+                goal,
+                *([selfsensing] if selfsensing else []),
+                time_scale_markdown(self.options, self.time_scale_factor),
+            ],
         )
         del loop_runs
         return write_report(inputs, self.options.out)

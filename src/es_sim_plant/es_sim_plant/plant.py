@@ -24,6 +24,7 @@ import numpy.typing as npt
 from es_feedforward.params import ActuatorParams
 from es_sim_plant.actuators import ActuatorGrid
 from es_sim_plant.reference import ExcitationGenerator, SetpointGenerator
+from es_sim_plant.resonance import ResonanceSensor
 from es_sim_plant.scenario import Scenario
 from es_sim_plant.sensors import SensorArray
 from es_sim_plant.thermal import ThermalNetwork
@@ -38,7 +39,10 @@ def sensor_every(control_rate: float, sensor_rate: float) -> int:
 
 
 #: Seed streams, one per random consumer, so switching one on leaves the others unchanged.
-_STREAMS = ("spread", "sensor_offsets", "sensor_noise", "displacement_noise", "excitation")
+_STREAMS = (
+    "spread", "sensor_offsets", "sensor_noise", "displacement_noise", "excitation",
+    "resonance_spread", "resonance_noise",
+)  # fmt: skip
 
 
 class Plant:
@@ -61,13 +65,9 @@ class Plant:
         self.steps = max(1, round(scenario.duration * scenario.control_rate))
         #: A sensor sample is taken every ``sensor_every`` steps (k = 0, n, 2n, ...).
         self.sensor_every = sensor_every(scenario.control_rate, scenario.sensor_rate)
-        rngs = dict(
-            zip(
-                _STREAMS,
-                (np.random.default_rng(s) for s in np.random.SeedSequence(scenario.seed).spawn(5)),
-                strict=True,
-            )
-        )
+        # spawn(n) gives the same first children for any n: a new stream changes no old one
+        children = np.random.SeedSequence(scenario.seed).spawn(len(_STREAMS))
+        rngs = dict(zip(_STREAMS, (np.random.default_rng(s) for s in children), strict=True))
         self._displacement_rng = rngs["displacement_noise"]
         t0 = scenario.initial_base_temperature
         self.thermal = ThermalNetwork(self.shape, scenario.thermal, self.dt, t0)
@@ -101,6 +101,14 @@ class Plant:
             np.zeros(self.shape)
             if scenario.illumination is None
             else scenario.illumination.power_map(self.shape)
+        )
+        #: The self-sensing resonance sweeps (None unless the scenario switches them on).
+        self.resonance = (
+            ResonanceSensor(
+                self.shape, scenario.resonance, rngs["resonance_spread"], rngs["resonance_noise"]
+            )
+            if scenario.resonance.enabled
+            else None
         )
         self.k = 0
         self._displacement = np.zeros(self.shape)
@@ -165,6 +173,16 @@ class Plant:
     def read_sensors(self) -> FloatArray:
         """Take one sensor sample at t_k (S,) [degC]; draws noise (call once per due step)."""
         return self.sensors.read()
+
+    def read_resonance(self) -> FloatArray | None:
+        """Sweep the next group at t_k under the command in force; (R, C) [Hz], NaN unswept.
+
+        ``None`` when the scenario has no resonance measurement. Call once per due sensor
+        step, like :meth:`read_sensors`.
+        """
+        if self.resonance is None:
+            return None
+        return self.resonance.measure(self.actuator_temperature(), self.actuators.command)
 
     def displacement(self) -> FloatArray:
         """Return the true displacement at t_k (R, C) [m], the response to the previous command."""
@@ -231,7 +249,9 @@ class Plant:
 class Observation:
     """What a controller sees at step k (what the node publishes before waiting).
 
-    ``temperature_raw`` and ``heat_load`` are ``None`` on steps without a sensor sample.
+    ``temperature_raw`` and ``heat_load`` are ``None`` on steps without a sensor sample;
+    ``resonance`` (R, C) [Hz], NaN where not swept, only comes with a sensor sample of a
+    scenario with the resonance measurement on.
     """
 
     step: int
@@ -239,6 +259,7 @@ class Observation:
     setpoint: FloatArray
     temperature_raw: FloatArray | None
     heat_load: FloatArray | None
+    resonance: FloatArray | None = None
 
 
 #: A controller maps the observation of step k to the command (R, C) [V] for that step.
@@ -264,6 +285,8 @@ class SimulationResult:
         sensor_step: step index of each sensor sample (Ns,).
         sensor_time: t of each sample (Ns,) [s].
         temperature_raw: the sensor samples (Ns, S) [degC].
+        resonance: the resonance readings at the sensor samples (Ns, R, C) [Hz], or ``None``
+            when the scenario has no resonance measurement.
         substep_time: end time of every internal step (K n,) [s], or ``None``.
         substep_displacement: true z at those times (K n, R, C) [m], or ``None``.
 
@@ -285,6 +308,7 @@ class SimulationResult:
     temperature_raw: FloatArray
     substep_time: FloatArray | None = None
     substep_displacement: FloatArray | None = None
+    resonance: FloatArray | None = None
 
 
 def simulate(
@@ -335,6 +359,7 @@ def simulate(
     base = np.empty(count)
     sensor_steps: list[int] = []
     readings: list[FloatArray] = []
+    resonance: list[FloatArray] = []
     sub = np.empty((count * n, *shape)) if record_substeps else None
     for i in range(count):
         k = plant.k
@@ -342,13 +367,22 @@ def simulate(
         r = plant.setpoint()
         heat = plant.heat_load()
         raw_temperature: FloatArray | None = None
+        swept: FloatArray | None = None
         if plant.sensor_due():
             raw_temperature = plant.read_sensors()
             sensor_steps.append(k)
             readings.append(raw_temperature)
+            swept = plant.read_resonance()
+            if swept is not None:
+                resonance.append(swept)
         if controller is not None:
             observation = Observation(
-                k, plant.time, r, raw_temperature, heat if raw_temperature is not None else None
+                k,
+                plant.time,
+                r,
+                raw_temperature,
+                heat if raw_temperature is not None else None,
+                swept,
             )
             command = np.asarray(controller(observation), np.float64)
         elif cmd_array is not None:
@@ -379,5 +413,8 @@ def simulate(
             None if sub is None else time[0] + plant.dt / n * np.arange(1, count * n + 1)
         ),
         substep_displacement=sub,
+        resonance=(
+            None if plant.resonance is None else np.asarray(resonance).reshape(-1, *shape)
+        ),
         **out,
     )

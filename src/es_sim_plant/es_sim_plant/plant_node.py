@@ -3,7 +3,9 @@
 Subscribes /dm/command (and /dm/temperature in lockstep with ``sync_temperature``);
 publishes /clock, /dm/displacement (truth, or measured when the scenario adds
 ``displacement_noise``), /dm/temperature/raw and /dm/heat_load (at ``sensor_rate``),
-/dm/setpoint (the scenario reference, ``publish_setpoints``) and /diagnostics.
+/dm/setpoint (the scenario reference, ``publish_setpoints``) and /diagnostics; with the
+scenario's resonance measurement on (or parameter ``resonance``) also /dm/resonance, the
+self-sensing sweeps, at ``sensor_rate`` just before each /dm/temperature/raw.
 
 Lockstep (default ``lockstep: true``), per control step k, exactly as docs/architecture.md
 "Lockstep (sim time) protocol": /clock = t_k; /dm/displacement; when a sensor sample is due
@@ -29,6 +31,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
+from dataclasses import replace
 from enum import Enum, auto
 
 import numpy as np
@@ -230,6 +233,18 @@ class PlantNode(Node):
             for name in EFFECT_NAMES
         ]
         effect_values = declare_parameters(self, effect_specs)
+        resonance_on = declare_parameters(
+            self,
+            [
+                ParameterSpec(
+                    "resonance",
+                    scenario.resonance.enabled,
+                    "Publish /dm/resonance, the self-sensing sweeps (default: the scenario's "
+                    "setting; the sweep model comes from the scenario).",
+                    read_only=True,
+                )
+            ],
+        )["resonance"]
 
         def positive_or_none(key: str) -> float | None:
             value = float(values[key])  # type: ignore[arg-type]
@@ -250,6 +265,10 @@ class PlantNode(Node):
             effects={name: bool(effect_values[f"effects.{name}"]) for name in EFFECT_NAMES},
             displacement_noise=noise if noise >= 0.0 else None,
         )
+        if bool(resonance_on) != scenario.resonance.enabled:
+            scenario = replace(
+                scenario, resonance=replace(scenario.resonance, enabled=bool(resonance_on))
+            )
         self.plant = Plant(scenario)
         self.scenario = scenario
         self.lockstep = bool(values["lockstep"])
@@ -272,6 +291,11 @@ class PlantNode(Node):
         self._pub_raw = self.create_publisher(Float64MultiArray, topics.TEMPERATURE_RAW, qos)
         self._pub_heat = self.create_publisher(Float64MultiArray, topics.HEAT_LOAD, qos)
         self._pub_setpoint = self.create_publisher(Float64MultiArray, topics.SETPOINT, qos)
+        self._pub_resonance = (
+            None
+            if self.plant.resonance is None
+            else self.create_publisher(Float64MultiArray, topics.RESONANCE, qos)
+        )
         self._pub_diag = self.create_publisher(
             DiagnosticArray, topics.DIAGNOSTICS, topics.DIAGNOSTICS_QOS
         )
@@ -504,6 +528,9 @@ class PlantNode(Node):
         if plant.done or not plant.sensor_due():
             return False
         self._pub_heat.publish(grid_to_msg(plant.heat_load()))
+        swept = plant.read_resonance()
+        if self._pub_resonance is not None and swept is not None:
+            self._pub_resonance.publish(grid_to_msg(swept))
         self._pub_raw.publish(sensors_to_msg(plant.read_sensors()))
         return True
 
@@ -544,6 +571,8 @@ class PlantNode(Node):
             timeout = rclpy.duration.Duration(seconds=self.command_timeout)
             for pub in (self._pub_displacement, self._pub_setpoint, self._pub_raw, self._pub_diag):
                 pub.wait_for_all_acked(timeout)
+            if self._pub_resonance is not None:
+                self._pub_resonance.wait_for_all_acked(timeout)
             rclpy.try_shutdown(context=self.context)
 
     def _statuses(self) -> list[DiagnosticStatus]:

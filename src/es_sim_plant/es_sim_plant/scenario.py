@@ -33,6 +33,7 @@ A scenario is a YAML mapping (all keys optional except ``name``; SI units, degC)
     excitation: null             # test-stand voltage program instead of commands (reference.py)
     effects: {hysteresis: {enabled: true, weight: 0.1, threshold_v: 30}, delay: true, ...}
     displacement_noise: 0.0      # m rms added to the *measured* displacement (interferometer)
+    resonance: {enabled: false, group_size: 48, ...}  # self-sensing sweeps (resonance.py)
 
 ``time_scale`` multiplies the duration, the exposure schedule, the base-temperature profile
 times, the thermal capacitances (so every thermal time constant) and the slow effect times
@@ -53,6 +54,7 @@ import yaml
 from es_sim_plant.actuators import ActuatorConfig
 from es_sim_plant.effects import Effects
 from es_sim_plant.reference import Excitation, SetpointSpec
+from es_sim_plant.resonance import ResonanceConfig
 from es_sim_plant.sensors import SensorConfig
 from es_sim_plant.thermal import BaseProfile, ExposureSchedule, Illumination, ThermalParams
 
@@ -60,7 +62,7 @@ PACKAGE = "es_sim_plant"
 _TOP_KEYS = {
     "name", "description", "grid", "control_rate", "sensor_rate", "duration", "time_scale",
     "seed", "thermal", "base_temperature", "illumination", "sensors", "actuators", "setpoint",
-    "excitation", "effects", "displacement_noise",
+    "excitation", "effects", "displacement_noise", "resonance",
 }  # fmt: skip
 
 
@@ -90,6 +92,7 @@ class Scenario:
     excitation: Excitation | None = None
     effects: Effects = field(default_factory=Effects)
     displacement_noise: float = 0.0
+    resonance: ResonanceConfig = field(default_factory=ResonanceConfig)
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -122,6 +125,7 @@ class Scenario:
             self.illumination.validate()
         self.actuators.validate()
         self.effects.validate()
+        self.resonance.validate()
 
     @classmethod
     def from_dict(cls, data: dict[str, Any], time_scale: float | None = None) -> Scenario:
@@ -185,6 +189,7 @@ class Scenario:
                 excitation=Excitation.from_dict(excitation_raw) if excitation_raw else None,
                 effects=Effects.from_dict(data.get("effects")).time_scaled(scale),
                 displacement_noise=float(data.get("displacement_noise", 0.0)),
+                resonance=ResonanceConfig.from_dict(data.get("resonance")),
             )
         except (TypeError, KeyError, IndexError, AttributeError) as err:
             raise ValueError(f"malformed scenario ({type(err).__name__}: {err})") from None

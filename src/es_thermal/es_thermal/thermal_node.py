@@ -20,6 +20,15 @@ fail all the same (a bug, not bad input), the callback logs it, reports ERROR, p
 nothing for that message and restarts the estimate from the next readings: the node keeps
 running.
 
+Self-sensing (optional): with ``resonance.f0_hz`` set (the parameters file that
+``calibrate_resonance`` writes, :mod:`es_thermal.resonance_params`) the node also subscribes
+/dm/resonance and /dm/command and corrects every actuator's model estimate with its own
+resonance reading (:mod:`es_thermal.selfsensing`); implausible, stuck or stale channels
+are dropped and reported in the ``thermal: self-sensing`` diagnostic. The command a sweep
+ran under is found by the messages' publication stamps (``source_timestamp``, the
+publishing host's clock: plant and controller on one host, or hosts with synchronised
+clocks). Without ``resonance.f0_hz`` nothing changes.
+
 Sensor positions: ``sensor_positions`` = flat [r0, c0, r1, c1, ...] (fractional row/col
 allowed); empty = ``sensor_pitch`` (1: one sensor on every actuator, sensor i on actuator i;
 p: one per p x p block at its centre). The thermal network's parameters (``thermal.*``) are
@@ -61,6 +70,9 @@ from es_thermal.interpolation import block_centre_positions, sensor_positions
 from es_thermal.kalman import KalmanTuning
 from es_thermal.lowpass import DEFAULT_CUTOFF_HZ, DEFAULT_ORDER
 from es_thermal.network import NetworkParams
+from es_thermal.resonance_params import SPECS as RESONANCE_SPECS
+from es_thermal.resonance_params import fusion_from_parameters
+from es_thermal.sweep_sync import SampleSync
 
 NODE_NAME = "thermal"
 #: Measured sample intervals this far off the configured ``sample_rate`` give a WARN.
@@ -275,6 +287,15 @@ class ThermalNode(Node):
         super().__init__(NODE_NAME)
         values = declare_parameters(self, SPECS)
         self.config = config_from_parameters(values)
+        self.fusion = fusion_from_parameters(
+            declare_parameters(self, RESONANCE_SPECS),
+            self.config.rows * self.config.cols,
+            float(values["time_scale"]),  # type: ignore[arg-type]
+        )
+        self._sync = (
+            None if self.fusion is None else SampleSync(self.fusion, self.config.sample_period)
+        )
+        self._fused: np.ndarray | None = None  # the newest fused estimate
         started = time.perf_counter()
         self.core = TemperatureEstimator(self.config)
         self.get_logger().info(
@@ -285,7 +306,7 @@ class ThermalNode(Node):
         self._wall = Clock(clock_type=ClockType.STEADY_TIME)
         self._raw_watch = StaleWatch(self.config.faults.stale_timeout)
         self._heat_watch = StaleWatch(self.config.faults.stale_timeout)
-        self._rejected = {"raw": 0, "heat_load": 0}  # since start
+        self._rejected = {"raw": 0, "heat_load": 0, "resonance": 0, "command": 0}
         self._last_rejection = ""
         self._last_rejection_wall = -np.inf
         self._published = 0
@@ -311,6 +332,17 @@ class ThermalNode(Node):
             Float64MultiArray, topics.HEAT_LOAD, self._on_heat_load,
             topics.qos_for(topics.HEAT_LOAD),
         )
+        if self.fusion is not None:  # the plant publishes a sweep just before its readings
+            # two-argument callbacks get the message info (publication stamps); rclpy's
+            # annotation only knows the one-argument form
+            self.create_subscription(
+                Float64MultiArray, topics.RESONANCE, self._on_resonance,  # type: ignore[arg-type]
+                topics.qos_for(topics.RESONANCE),
+            )
+            self.create_subscription(
+                Float64MultiArray, topics.COMMAND, self._on_command,  # type: ignore[arg-type]
+                topics.qos_for(topics.COMMAND),
+            )
         self.create_subscription(
             Float64MultiArray, topics.TEMPERATURE_RAW, self._on_raw,
             topics.qos_for(topics.TEMPERATURE_RAW),
@@ -335,7 +367,7 @@ class ThermalNode(Node):
         self._last_rejection_wall = self._wall_now()
         self._last_rejection = f"{what}: {reason}"
         self.get_logger().warning(
-            f"rejected /dm/{what.replace('_', '/') if what == 'raw' else what} message: "
+            f"rejected /dm/{'temperature/raw' if what == 'raw' else what} message: "
             f"{reason}",
             throttle_duration_sec=5.0,
         )
@@ -352,6 +384,8 @@ class ThermalNode(Node):
             throttle_duration_sec=5.0,
         )
         self.core.restart()
+        if self._sync is not None:
+            self._sync.restart()
         self._publish_diagnostics()  # rare: report the ERROR at once
 
     def _on_heat_load(self, msg: Float64MultiArray) -> None:
@@ -364,6 +398,26 @@ class ThermalNode(Node):
             self._fail("heat load", err)
             return
         self._heat_watch.feed(self._wall_now())
+
+    def _on_resonance(self, msg: Float64MultiArray, info: dict[str, int]) -> None:
+        assert self._sync is not None
+        try:
+            grid = msg_to_grid(msg, self.core.shape)
+            self._sync.on_resonance(self._now(), int(info["source_timestamp"]), grid)
+        except (LayoutError, ValueError) as err:
+            self._reject("resonance", str(err))
+        except Exception as err:  # the node must outlive any failure of the core
+            self._fail("self-sensing", err)
+
+    def _on_command(self, msg: Float64MultiArray, info: dict[str, int]) -> None:
+        assert self._sync is not None
+        try:
+            grid = msg_to_grid(msg, self.core.shape)
+            self._sync.on_command(int(info["source_timestamp"]), grid)
+        except (LayoutError, ValueError) as err:
+            self._reject("command", str(err))
+        except Exception as err:  # the node must outlive any failure of the core
+            self._fail("self-sensing", err)
 
     def _on_raw(self, msg: Float64MultiArray) -> None:
         try:
@@ -378,13 +432,18 @@ class ThermalNode(Node):
         self._last_arrival = now
         started = time.perf_counter()
         try:
-            estimate = self.core.update(self._sample_clock.stamp(now), readings)
+            stamp = self._sample_clock.stamp(now)
+            estimate = self.core.update(stamp, readings)
+            temperatures = estimate.temperatures
+            if self._sync is not None and temperatures is not None:
+                temperatures = self._sync.on_estimate(stamp, now, temperatures)
         except Exception as err:  # the node must outlive any failure of the core
             self._fail("update", err)
             return
+        self._fused = temperatures
         self._update_seconds.append(time.perf_counter() - started)
-        if estimate.temperatures is not None and not self._timer_mode:
-            self._publish(estimate.temperatures)
+        if temperatures is not None and not self._timer_mode:
+            self._publish(temperatures)
         self._publish_if_level_changed()
 
     # --- output -----------------------------------------------------------------------------
@@ -394,14 +453,9 @@ class ThermalNode(Node):
         self._published += 1
 
     def _publish_latest(self) -> None:
-        latest = self.core.latest
-        if (
-            latest is None
-            or latest.temperatures is None
-            or self._raw_watch.is_stale(self._wall_now())
-        ):
+        if self._fused is None or self._raw_watch.is_stale(self._wall_now()):
             return
-        self._publish(latest.temperatures)
+        self._publish(self._fused)
 
     # --- diagnostics ------------------------------------------------------------------------
 
@@ -430,8 +484,9 @@ class ThermalNode(Node):
 
     def _input_status(self) -> tuple[Level, str, dict[str, object]]:
         kv: dict[str, object] = {
-            "rejected_raw": self._rejected["raw"],
-            "rejected_heat_load": self._rejected["heat_load"],
+            f"rejected_{k}": v
+            for k, v in self._rejected.items()
+            if self.fusion is not None or k in ("raw", "heat_load")
         }
         if self._last_rejection:
             kv["last_rejection"] = self._last_rejection
@@ -460,10 +515,9 @@ class ThermalNode(Node):
         if model is not None and model.initialised:
             kv["base_plate_degc"] = model.base_temperature
             kv.update({f"model_error_{k}": v for k, v in model.biases.items()})
-        latest = self.core.latest
-        if latest is not None and latest.temperatures is not None:
-            kv["min_degc"] = float(np.min(latest.temperatures))
-            kv["max_degc"] = float(np.max(latest.temperatures))
+        if self._fused is not None:
+            kv["min_degc"] = float(np.min(self._fused))
+            kv["max_degc"] = float(np.max(self._fused))
         level, message = Level.OK, "estimating"
         if self._wall_now() - self._last_failure_wall < _REJECTION_HOLD:
             return Level.ERROR, "an update failed: estimate restarted from the readings", kv
@@ -479,13 +533,39 @@ class ThermalNode(Node):
                 )
         return level, message, kv
 
+    def _selfsensing_status(self) -> tuple[Level, str, dict[str, object]]:
+        assert self._sync is not None and self.fusion is not None
+        sync = self._sync
+        if sync.last_sweep is None or sync.health is None:
+            return Level.WARN, "waiting for /dm/resonance: model estimate alone", {}
+        kv: dict[str, object] = {
+            **sync.health.counts(),
+            **sync.health.worst(),
+            **{f"sweeps_{k}": v for k, v in sync.paired.items()},
+        }
+        quiet = self._now() - sync.last_sweep
+        if quiet > self.fusion.config.stale_after:
+            return Level.WARN, f"no /dm/resonance for {quiet:.3g} s: model estimate alone", kv
+        health = sync.health
+        dropped = int(np.count_nonzero(health.implausible | health.stale | health.stuck))
+        if dropped:
+            return (
+                Level.WARN,
+                f"{dropped} resonance channel(s) dropped (implausible, stuck or stale)",
+                kv,
+            )
+        return Level.OK, "resonance readings fused", kv
+
     def _statuses(self) -> list[DiagnosticStatus]:
         out = []
-        for aspect, build in (
+        aspects = [
             ("sensors", self._sensor_status),
             ("input", self._input_status),
             ("estimate", self._estimate_status),
-        ):
+        ]
+        if self.fusion is not None:
+            aspects.append(("self-sensing", self._selfsensing_status))
+        for aspect, build in aspects:
             level, message, kv = build()
             self._levels[aspect] = level
             out.append(make_status(f"{self.get_name()}: {aspect}", level, message, kv))
