@@ -72,8 +72,9 @@ RANGES: Final = (
     Range("thermal_expansion", "alpha_m_per_degc", 0.3e-9, 0.6e-9, "m/degC",
           "voltage independent, z += alpha (T - 40 degC)"),
     Range("temperature_curvature", "m3_abs", 0.15e-18, 0.5e-18, "m^2/V^2/degC^2",
-          "|m3|, random sign"),
-    Range("temperature_curvature", "k3_abs", 0.1e-9, 0.4e-9, "m/V/degC^2", "|k3|, random sign"),
+          "magnitude of m3, random sign"),
+    Range("temperature_curvature", "k3_abs", 0.1e-9, 0.4e-9, "m/V/degC^2",
+          "magnitude of k3, random sign"),
 )
 
 #: Conditions of every recording (not effects): what a lab stand varies.

@@ -36,6 +36,7 @@ from standgen.operators import (
 )
 from standgen.physics import Law
 from standgen.program import PeltierProfile, VoltageProgram, make_program
+from standgen.ranges import range_of
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -146,15 +147,17 @@ class Recording:
 
 
 def spread_law(rng: np.random.Generator, shape: tuple[int, int], effects: Effects) -> Law:
-    """Nominal law with 2 % (m2) and 1 % (k2) per-actuator scatter and any curvature."""
+    """Return the nominal law with the stand table's per-actuator scatter and any curvature."""
     base = Law()
     curvature = effects.temperature_curvature
+    spread_m2 = range_of("stand", "spread_m2").low
+    spread_k2 = range_of("stand", "spread_k2").low
     return Law(
         m1=np.full(shape, base.m1),
-        m2=base.m2 * (1 + 0.02 * rng.standard_normal(shape)),
+        m2=base.m2 * (1 + spread_m2 * rng.standard_normal(shape)),
         m3=np.full(shape, curvature.m3 if curvature else 0.0),
         k1=np.full(shape, base.k1),
-        k2=base.k2 * (1 + 0.01 * rng.standard_normal(shape)),
+        k2=base.k2 * (1 + spread_k2 * rng.standard_normal(shape)),
         k3=np.full(shape, curvature.k3 if curvature else 0.0),
     )
 

@@ -24,6 +24,7 @@ GRIDS: Final = ((1, 1), (2, 2), (4, 4), (1, 1), (8, 8), (3, 2))
 TEMPERATURE_RATES_HZ: Final = (10.0, 1.0, 50.0, 5.0, 100.0, 20.0)
 STORAGES: Final = ("mcap", "sqlite3")
 NOISES_M: Final = (0.5e-9, 0.3e-9, 0.8e-9, 1.0e-9, 0.4e-9)
+SENSOR_NOISES_DEGC: Final = (0.02, 0.01, 0.03)
 #: Largest grid cell count per command rate (keeps every case to seconds of calibration).
 MAX_CELLS: Final = {250.0: 64, 500.0: 64, 1000.0: 16, 2000.0: 6, 5000.0: 4}
 #: Share of displacement messages dropped in every case.
@@ -86,6 +87,7 @@ def make_case(name: str, truth: tuple[str, ...], index: int, seed: int) -> Case:
         duration_s=duration,
         temperature_kind=TEMPERATURE_KINDS[index % len(TEMPERATURE_KINDS)],
         noise_m=NOISES_M[index % len(NOISES_M)],
+        sensor_noise_degc=SENSOR_NOISES_DEGC[(index // 2) % len(SENSOR_NOISES_DEGC)],
         effects=draw_effects(truth, rng, rate_hz=rate, duration_s=duration, shape=shape),
         drop_fraction=DROP_FRACTION, temperature_gap=gap, command_holes=holes, seed=seed,
     )
