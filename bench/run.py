@@ -8,7 +8,9 @@ Sections (``--only``): ``kernels`` (bench_kernels.py), ``convert`` (bench_conver
 ``feedforward`` (the feedforward node over DDS against a plain rclpy relay, relay.py),
 ``lockstep`` (plant, thermal and feedforward processes in lockstep on ``dm_exposure``),
 ``recorder`` (the recorder's memory while it records a 32 x 32 lockstep run),
-``calibrate`` (bench_calibrate.py), ``thermal`` (bench_thermal.py). Peak memory of every node
+``calibrate`` (bench_calibrate.py), ``thermal`` (bench_thermal.py), ``identify`` (the
+identification sweep of identify.py on standgen bags, its own report in OUT/identify; not in
+the default selection: run it with ``--only identify``). Peak memory of every node
 process comes with the sections that start them.
 
 Every figure is the median of repeated runs with their min and max (``summary.md``: the
@@ -57,7 +59,10 @@ import numpy as np
 BENCH_DIR = Path(__file__).resolve().parent
 sys.path.insert(0, str(BENCH_DIR))  # the sibling bench_*.py modules
 
-SECTIONS = ("kernels", "convert", "feedforward", "lockstep", "recorder", "calibrate", "thermal")
+SECTIONS = ("kernels", "convert", "feedforward", "lockstep", "recorder", "calibrate", "thermal",
+            "identify")
+#: Sections run when ``--only`` is not given (the identification sweep has its own command).
+DEFAULT_SECTIONS = SECTIONS[:-1]
 #: Grid shapes of the DDS benchmark (N = 144, 1024, 4096).
 DDS_SHAPES = ((12, 12), (32, 32), (64, 64))
 #: Grids of the lockstep benchmark.
@@ -327,6 +332,32 @@ def section_thermal(settings: Settings, results: Results) -> None:
         f"{figures['thermal_update_ms_model']:.2g} ms (model), "
         f"{figures['thermal_update_ms_lowpass']:.2g} ms (lowpass)."
     )
+
+
+def section_identify(quick: bool, results: Results, out: Path) -> None:
+    """Run the identification sweep (identify.py): right effect sets, clean FP rate, RMS."""
+    import identify
+
+    jobs = min(2, os.cpu_count() or 1)
+    start = time.monotonic()
+    outcomes = identify.run_sweep(identify.build_cases(quick=quick), jobs=jobs,
+                                  keep=out / "cases")
+    wall = time.monotonic() - start
+    summary = identify.write_results(out, outcomes, {
+        "date": dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC"),
+        "command": f"bench/run.py --only identify{' --quick' if quick else ''}",
+        "quick": quick, "jobs": jobs, "seed": 0, "cores": os.cpu_count(), "wall_s": wall})
+    n = summary["cases"]
+    for name, key in (("identify_single_right", "single_right"),
+                      ("identify_pair_right", "pair_right"),
+                      ("identify_clean_false_positive", "clean_false_positive_rate"),
+                      ("identify_right_within_1p2_noise", "right_within_1p2_true_noise")):
+        if summary[key] is not None:
+            results.records.append(Record.of(name, n, [summary[key]], "fraction"))
+    results.records.append(Record.of("identify_wall_time", n, [wall], "s"))
+    results.notes.append(f"identify_*: {n} standgen cases ({'quick' if quick else 'full'}), "
+                         f"{jobs} jobs; goals: {'; '.join(identify.goal_lines(summary))}; "
+                         f"tables in {out / 'identify.md'}.")
 
 
 # --- sections: DDS -------------------------------------------------------------------------
@@ -868,7 +899,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("-o", "--output", type=Path, default=Path(f"out/bench-{stamp}"))
     parser.add_argument("--quick", action="store_true",
                         help="one run of each figure, shorter runs (about 1.5 minutes)")
-    parser.add_argument("--only", nargs="+", choices=SECTIONS, default=list(SECTIONS))
+    parser.add_argument("--only", nargs="+", choices=SECTIONS, default=list(DEFAULT_SECTIONS))
     parser.add_argument("--no-profile", action="store_true",
                         help="skip the cProfile runs of the nodes and the calibration")
     parser.add_argument("--calibrate-seconds", type=float, default=None,
@@ -889,6 +920,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "recorder": lambda: section_recorder(results, log_dir),
         "calibrate": lambda: section_calibrate(settings, results),
         "thermal": lambda: section_thermal(settings, results),
+        "identify": lambda: section_identify(args.quick, results, args.output / "identify"),
     }
     for name in args.only:
         start = time.monotonic()
