@@ -18,7 +18,8 @@ floor and against the generator's true interferometer noise.
 Writes ``identify.md`` and ``identify.json`` (figures, confusion tables, every case) and
 ``cases/<case>.json`` (each calibration.json) into OUT (default ``out/identify-<UTC time>``).
 Nothing is asserted; the issue's goals are compared in the report. Exit status 0 when every
-case ran (whatever the calibration found), 1 when a case could not be generated.
+case ran (whatever the calibration found; a failed calibration is a scored outcome), 1 when
+a case could not be generated, 2 for an unknown ``--only`` case name.
 """
 
 from __future__ import annotations
@@ -71,10 +72,10 @@ def calibrate_bag(bag: Path, out: Path, timeout_s: float = CALIBRATE_TIMEOUT_S
     return json.loads(result.read_text()), ""
 
 
-def run_case(case: Case, keep: Path | None = None) -> Outcome:
+def run_case(case: Case, keep: Path | None = None, keep_bag: bool = False) -> Outcome:
     """Generate the case's bag in a temporary directory, calibrate it, score the result.
 
-    ``keep``: a directory to copy calibration.json (and, with ``--keep-bags``, the bag) to.
+    ``keep``: a directory to copy calibration.json (and, with ``keep_bag``, the bag) to.
     """
     start = time.monotonic()
     conditions = case.describe()
@@ -86,7 +87,7 @@ def run_case(case: Case, keep: Path | None = None) -> Outcome:
             keep.mkdir(parents=True, exist_ok=True)
             if doc is not None:
                 shutil.copy(Path(tmp) / "out" / "calibration.json", keep / f"{case.name}.json")
-            if os.environ.get("IDENTIFY_KEEP_BAGS"):
+            if keep_bag:
                 shutil.copytree(bag, keep / f"{case.name}.bag")
     outcome = Outcome(case=case.name, truth=case.truth, accepted=None,
                       true_noise_m=case.config.noise_rms_m, error=error,
@@ -101,7 +102,7 @@ def run_case(case: Case, keep: Path | None = None) -> Outcome:
 
 
 def run_sweep(cases: Sequence[Case], jobs: int = 1, keep: Path | None = None,
-              log: bool = True) -> list[Outcome]:
+              log: bool = True, keep_bags: bool = False) -> list[Outcome]:
     """Run every case (``jobs`` processes at once); outcomes in the order of ``cases``."""
     outcomes: list[Outcome] = []
 
@@ -115,11 +116,11 @@ def run_sweep(cases: Sequence[Case], jobs: int = 1, keep: Path | None = None,
 
     if jobs <= 1:
         for case in cases:
-            outcomes.append(run_case(case, keep))
+            outcomes.append(run_case(case, keep, keep_bags))
             report(outcomes[-1])
         return outcomes
     with ProcessPoolExecutor(max_workers=jobs) as pool:
-        futures = [pool.submit(run_case, case, keep) for case in cases]
+        futures = [pool.submit(run_case, case, keep, keep_bags) for case in cases]
         for future in futures:
             outcomes.append(future.result())
             report(outcomes[-1])
@@ -223,14 +224,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--keep-bags", action="store_true",
                         help="keep every generated bag in OUT/cases (large)")
     args = parser.parse_args(argv)
-    if args.keep_bags:
-        os.environ["IDENTIFY_KEEP_BAGS"] = "1"
     cases = build_cases(quick=args.quick, seed=args.seed)
     if args.only:
+        unknown = sorted(set(args.only) - {c.name for c in cases})
+        if unknown:
+            print(f"identify: no case named {', '.join(unknown)} in this sweep "
+                  f"(e.g. {cases[0].name}, {cases[-1].name})", file=sys.stderr)
+            return 2
         cases = [c for c in cases if c.name in set(args.only)]
     start = time.monotonic()
     try:
-        outcomes = run_sweep(cases, jobs=args.jobs, keep=args.output / "cases")
+        outcomes = run_sweep(cases, jobs=args.jobs, keep=args.output / "cases",
+                             keep_bags=args.keep_bags)
     except (ValueError, OSError) as err:
         print(f"identify: a case could not be generated: {err}".splitlines()[0], file=sys.stderr)
         return 1

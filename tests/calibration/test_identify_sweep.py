@@ -131,3 +131,5 @@ def test_command_line_writes_markdown_and_json(tmp_path: Path) -> None:
     text = (out / "identify.md").read_text()
     assert "| clean-0 |" in text and "Confusion matrix" in text
     assert (out / "cases" / "clean-0.json").is_file()
+    assert main(["--quick", "--only", "no-such-case", "-o", str(tmp_path / "x")]) == 2
+    assert not (tmp_path / "x").exists()
