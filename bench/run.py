@@ -870,6 +870,7 @@ SUMMARY_ROWS: tuple[tuple[str, tuple[int, ...]], ...] = (
     ("calibrate_time", ()),
     ("thermal_rms_", ()),
     ("peak_rss_", ()),
+    ("identify_", ()),
 )
 
 
