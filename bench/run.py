@@ -15,7 +15,9 @@ time and peak memory), ``scale`` (bench_scale.py: the feedforward node at 66 x 6
 128 x 128 / 1 kHz), ``lockstep_scale`` (bench_scale.py: the closed loop at 32 x 32 and
 64 x 64), ``multihost`` (bench_multihost.py: 64 x 64 at 1 kHz across two network namespaces;
 needs root), ``selfsensing`` (bench_selfsensing.py, offline cores). Peak memory of every
-node process comes with the sections that start them.
+node process comes with the sections that start them. ``identify`` (the identification sweep
+of identify.py on standgen bags, its own report in OUT/identify) is not in the default
+selection: run it with ``--only identify``.
 
 Every figure is the median of repeated runs with their min and max (``summary.md``: the
 compact table the README shows). ``bench.json`` holds
@@ -67,8 +69,10 @@ from bench_multihost import section_multihost  # noqa: E402 - after the path abo
 from bench_scale import section_lockstep_scale, section_scale  # noqa: E402
 
 SECTIONS = ("kernels", "convert", "feedforward", "lockstep", "recorder", "calibrate", "thermal",
-            "calibration_loop", "import", "scale", "lockstep_scale", "multihost", "selfsensing")
-
+            "calibration_loop", "import", "scale", "lockstep_scale", "multihost", "selfsensing",
+            "identify")
+#: Sections run when ``--only`` is not given (the identification sweep has its own command).
+DEFAULT_SECTIONS = tuple(name for name in SECTIONS if name != "identify")
 #: Grid shapes of the DDS benchmark (N = 144, 1024, 4096).
 DDS_SHAPES = ((12, 12), (32, 32), (64, 64))
 #: Grids of the lockstep benchmark.
@@ -386,6 +390,32 @@ def section_selfsensing(results: Results) -> None:
         + "; ".join(goal_checks(figures))
         + "."
     )
+
+
+def section_identify(quick: bool, results: Results, out: Path) -> None:
+    """Run the identification sweep (identify.py): right effect sets, clean FP rate, RMS."""
+    import identify
+
+    jobs = min(2, os.cpu_count() or 1)
+    start = time.monotonic()
+    outcomes = identify.run_sweep(identify.build_cases(quick=quick), jobs=jobs,
+                                  keep=out / "cases")
+    wall = time.monotonic() - start
+    summary = identify.write_results(out, outcomes, {
+        "date": dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC"),
+        "command": f"bench/run.py --only identify{' --quick' if quick else ''}",
+        "quick": quick, "jobs": jobs, "seed": 0, "cores": os.cpu_count(), "wall_s": wall})
+    n = summary["cases"]
+    for name, key in (("identify_single_right", "single_right"),
+                      ("identify_pair_right", "pair_right"),
+                      ("identify_clean_false_positive", "clean_false_positive_rate"),
+                      ("identify_right_within_1p2_noise", "right_within_1p2_true_noise")):
+        if summary[key] is not None:
+            results.records.append(Record.of(name, n, [summary[key]], "fraction"))
+    results.records.append(Record.of("identify_wall_time", n, [wall], "s"))
+    results.notes.append(f"identify_*: {n} standgen cases ({'quick' if quick else 'full'}), "
+                         f"{jobs} jobs; goals: {'; '.join(identify.goal_lines(summary))}; "
+                         f"tables in {out / 'identify.md'}.")
 
 
 # --- sections: DDS -------------------------------------------------------------------------
@@ -899,6 +929,7 @@ SUMMARY_ROWS: tuple[tuple[str, tuple[int, ...]], ...] = (
     ("thermal_rms_", ()),
     ("selfsensing_", ()),
     ("peak_rss_", ()),
+    ("identify_", ()),
 )
 
 
@@ -928,7 +959,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("-o", "--output", type=Path, default=Path(f"out/bench-{stamp}"))
     parser.add_argument("--quick", action="store_true",
                         help="one run of each figure, shorter runs (about 1.5 minutes)")
-    parser.add_argument("--only", nargs="+", choices=SECTIONS, default=list(SECTIONS))
+    parser.add_argument("--only", nargs="+", choices=SECTIONS, default=list(DEFAULT_SECTIONS))
     parser.add_argument("--no-profile", action="store_true",
                         help="skip the cProfile runs of the nodes and the calibration")
     parser.add_argument("--calibrate-seconds", type=float, default=None,
@@ -955,6 +986,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "lockstep_scale": lambda: section_lockstep_scale(settings, results, log_dir),
         "multihost": lambda: section_multihost(settings, results, log_dir),
         "selfsensing": lambda: section_selfsensing(results),
+        "identify": lambda: section_identify(args.quick, results, args.output / "identify"),
     }
     for name in args.only:
         start = time.monotonic()

@@ -1,0 +1,257 @@
+"""Identification sweep: score the calibration tool on independent test-stand bags.
+
+Usage (from the repository root; ``scripts/identify`` bootstraps the venv and calls this,
+``scripts/bench --only identify`` runs the quick sweep inside the benchmark)::
+
+    .venv/bin/python bench/identify.py [-o OUT] [--quick] [--jobs N] [--seed S] [--keep-bags]
+
+For every case of :func:`standgen.sweep.build_cases` (clean data with several seeds, every
+effect family alone, every pair; command rates 250 Hz - 5 kHz with delays that are not whole
+samples, grids 1 x 1 - 8 x 8, MCAP and sqlite3, 2 % of displacement messages dropped, gaps in
+the temperature topic, a few holes in the command topic) the generator :mod:`standgen`
+writes a measured-data bag into a temporary directory, the calibration tool
+(``es_feedforward.calibrate.run``, the ``calibrate BAG -o OUT`` CLI) runs on it in a
+subprocess with a timeout, and its ``calibration.json`` is compared with the truth: the
+accepted effect set against the true set, the held-out RMS after against the tool's noise
+floor and against the generator's true interferometer noise.
+
+Writes ``identify.md`` and ``identify.json`` (figures, confusion tables, every case) and
+``cases/<case>.json`` (each calibration.json) into OUT (default ``out/identify-<UTC time>``).
+Nothing is asserted; the issue's goals are compared in the report. Exit status 0 when every
+case ran (whatever the calibration found; a failed calibration is a scored outcome), 1 when
+a case could not be generated, 2 for an unknown ``--only`` case name.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Sequence
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+from typing import Any, Final
+
+from standgen import simulate, write_bag
+from standgen.sweep import Case, Outcome, build_cases, by_condition, summarise
+
+#: Wall-time limit of one calibration run [s] (generous: the machine is shared).
+CALIBRATE_TIMEOUT_S: Final = 600.0
+#: The calibration tool, run as ``python -c CALIBRATE BAG -o OUT -q``.
+CALIBRATE: Final = ("import sys; from es_feedforward.calibrate import run; "
+                    "sys.exit(run(sys.argv[1:]))")
+#: Goals of the issue: (figure, comparison, bound, label).
+GOALS: Final = (
+    ("single_right", ">=", 0.95, "right effect set in >= 95 % of single-effect cases"),
+    ("pair_right", ">=", 0.85, "right effect set in >= 85 % of pair cases"),
+    ("clean_false_positive_rate", "<=", 0.02, "<= 2 % of clean cases with any effect"),
+    ("right_within_1p2_true_noise", ">=", 1.0,
+     "where the set is right, held-out RMS after <= 1.2x the (true) noise"),
+)
+
+
+def calibrate_bag(bag: Path, out: Path, timeout_s: float = CALIBRATE_TIMEOUT_S
+                  ) -> tuple[dict[str, Any] | None, str]:
+    """Run the calibration CLI on ``bag``; return (calibration.json or None, error line)."""
+    command = [sys.executable, "-c", CALIBRATE, str(bag), "-o", str(out), "-q"]
+    try:
+        done = subprocess.run(command, capture_output=True, text=True, timeout=timeout_s,
+                              check=False)
+    except subprocess.TimeoutExpired:
+        return None, f"calibration timed out after {timeout_s:g} s"
+    result = out / "calibration.json"
+    if done.returncode != 0 or not result.is_file():
+        lines = (done.stderr or done.stdout or "").strip().splitlines()
+        return None, f"exit {done.returncode}: {lines[-1] if lines else 'no output'}"
+    return json.loads(result.read_text()), ""
+
+
+def run_case(case: Case, keep: Path | None = None, keep_bag: bool = False) -> Outcome:
+    """Generate the case's bag in a temporary directory, calibrate it, score the result.
+
+    ``keep``: a directory to copy calibration.json (and, with ``keep_bag``, the bag) to.
+    """
+    start = time.monotonic()
+    conditions = case.describe()
+    with tempfile.TemporaryDirectory(prefix=f"identify_{case.name}_") as tmp:
+        bag = Path(tmp) / "bag"
+        write_bag(simulate(case.config), bag, case.storage)
+        doc, error = calibrate_bag(bag, Path(tmp) / "out")
+        if keep is not None:
+            keep.mkdir(parents=True, exist_ok=True)
+            if doc is not None:
+                shutil.copy(Path(tmp) / "out" / "calibration.json", keep / f"{case.name}.json")
+            if keep_bag:
+                shutil.copytree(bag, keep / f"{case.name}.bag")
+    outcome = Outcome(case=case.name, truth=case.truth, accepted=None,
+                      true_noise_m=case.config.noise_rms_m, error=error,
+                      conditions=conditions)
+    if doc is not None:
+        outcome.accepted = tuple(str(e["name"]) for e in doc.get("effects", []))
+        outcome.heldout_rms_before_m = doc.get("heldout_rms_before_m")
+        outcome.heldout_rms_after_m = doc.get("heldout_rms_after_m")
+        outcome.noise_floor_m = doc.get("noise_floor_m")
+    outcome.seconds = time.monotonic() - start
+    return outcome
+
+
+def run_sweep(cases: Sequence[Case], jobs: int = 1, keep: Path | None = None,
+              log: bool = True, keep_bags: bool = False) -> list[Outcome]:
+    """Run every case (``jobs`` processes at once); outcomes in the order of ``cases``."""
+    outcomes: list[Outcome] = []
+
+    def report(o: Outcome) -> None:
+        if log:
+            found = "(failed: " + o.error + ")" if o.accepted is None else (
+                "+".join(o.accepted) or "none")
+            mark = "ok  " if o.right else "MISS"
+            print(f"[identify] {mark} {o.case}: found {found} ({o.seconds:.0f} s)",
+                  file=sys.stderr, flush=True)
+
+    if jobs <= 1:
+        for case in cases:
+            outcomes.append(run_case(case, keep, keep_bags))
+            report(outcomes[-1])
+        return outcomes
+    with ProcessPoolExecutor(max_workers=jobs) as pool:
+        futures = [pool.submit(run_case, case, keep, keep_bags) for case in cases]
+        for future in futures:
+            outcomes.append(future.result())
+            report(outcomes[-1])
+    return outcomes
+
+
+def _pct(value: float | None) -> str:
+    return "-" if value is None else f"{100 * value:.1f} %"
+
+
+def _num(value: float | None, digits: int = 3) -> str:
+    return "-" if value is None else f"{value:.{digits}g}"
+
+
+def goal_lines(summary: dict[str, Any]) -> list[str]:
+    """One line per goal of the issue: met, MISSED or not measured, with the figure."""
+    lines = []
+    for key, op, bound, label in GOALS:
+        value = summary.get(key)
+        if value is None:
+            lines.append(f"not measured: {label}")
+            continue
+        ok = value >= bound if op == ">=" else value <= bound
+        lines.append(f"{'met' if ok else 'MISSED'}: {label} (measured {_pct(value)})")
+    return lines
+
+
+def markdown(summary: dict[str, Any], outcomes: Sequence[Outcome], header: str) -> str:
+    """Return identify.md: figures, goals, confusion tables, conditions, every case."""
+    from standgen.ranges import FAMILIES
+
+    s = summary
+    md = [
+        "# Identification sweep", "", header, "",
+        f"- cases: {s['cases']} ({s['failed']} calibrations failed)",
+        f"- single effect, right set: {_pct(s['single_right'])} of {s['single_cases']}",
+        f"- pairs, right set: {_pct(s['pair_right'])} of {s['pair_cases']}",
+        f"- clean cases with any effect accepted (or failed): "
+        f"{_pct(s['clean_false_positive_rate'])} of {s['clean_cases']}",
+        f"- right set and held-out RMS after <= 1.2x true noise: "
+        f"{_pct(s['right_within_1p2_true_noise'])}",
+        f"- median over right-set cases: held-out RMS after / true noise "
+        f"{_num(s['median_after_over_true_noise_right'])}, / tool's noise floor "
+        f"{_num(s['median_after_over_floor_right'])}; tool's floor / true noise (all cases) "
+        f"{_num(s['median_floor_over_true_noise'])}",
+        "", "## Goals (issue 14)", "", *[f"- {line}" for line in goal_lines(s)], "",
+        "## Per family (TP: true and accepted, FN: true, missed, FP: accepted, not true)", "",
+        "| family | TP | FN | FP |", "|---|---:|---:|---:|",
+        *[f"| `{f}` | {c['TP']} | {c['FN']} | {c['FP']} |" for f, c in s["families"].items()],
+        "", "## Confusion matrix (rows: a true family, 'none' = clean; columns: accepted)", "",
+    ]
+    cols = [*FAMILIES, "none"]
+    md += ["| true \\ accepted | " + " | ".join(cols) + " |",
+           "|---|" + "---:|" * len(cols)]
+    md += [f"| {row} | " + " | ".join(str(v[c]) for c in cols) + " |"
+           for row, v in s["matrix"].items()]
+    md += ["", "## True set -> accepted set", "", "| true -> accepted | cases |", "|---|---:|",
+           *[f"| {k} | {v} |" for k, v in sorted(s["sets"].items())], ""]
+    for key in ("rate_hz", "grid", "storage", "temperature_kind", "temperature_rate_hz"):
+        rows = by_condition(list(outcomes), key)
+        md += [f"Right by {key}: " + ", ".join(f"{k}: {r}/{n}" for k, (r, n) in rows.items()),
+               ""]
+    md += ["## Cases", "",
+           "| case | grid | rate Hz | storage | true | accepted | after / floor | "
+           "after / true noise | floor / true noise | s |",
+           "|---|---|---:|---|---|---|---:|---:|---:|---:|"]
+    for o in outcomes:
+        r, c = o.ratios(), o.conditions
+        found = f"(failed: {o.error})" if o.accepted is None else "+".join(o.accepted) or "none"
+        md.append(f"| {o.case} | {c['grid'][0]}x{c['grid'][1]} | {c['rate_hz']:g} | "
+                  f"{c['storage']} | {'+'.join(o.truth) or 'none'} | {found} | "
+                  f"{_num(r['after_over_floor'])} | {_num(r['after_over_true_noise'])} | "
+                  f"{_num(r['floor_over_true_noise'])} | {o.seconds:.0f} |")
+    return "\n".join(md) + "\n"
+
+
+def write_results(out: Path, outcomes: Sequence[Outcome], settings: dict[str, Any]) -> dict[
+        str, Any]:
+    """Write identify.json and identify.md into ``out``; return the summary."""
+    out.mkdir(parents=True, exist_ok=True)
+    summary = summarise(list(outcomes))
+    document = {"settings": settings, "summary": summary, "goals": goal_lines(summary),
+                "cases": [o.as_dict() for o in outcomes]}
+    (out / "identify.json").write_text(json.dumps(document, indent=1) + "\n")
+    header = (f"{settings['date']}, {settings['cores']} cores, jobs {settings['jobs']}, "
+              f"{settings['wall_s']:.0f} s wall. Command: `{settings['command']}`. Bags from "
+              "bench/standgen (independent of es_sim_plant and the calibration).")
+    (out / "identify.md").write_text(markdown(summary, outcomes, header))
+    return summary
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the sweep and write its report; return 0 when every case ran."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    stamp = dt.datetime.now(dt.UTC).strftime("%Y%m%d-%H%M%S")
+    parser.add_argument("-o", "--output", type=Path, default=Path(f"out/identify-{stamp}"))
+    parser.add_argument("--quick", action="store_true", help="a few cases per kind")
+    parser.add_argument("--jobs", type=int, default=1, help="cases run at once (default 1)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the whole sweep")
+    parser.add_argument("--only", nargs="+", default=None, help="run only these case names")
+    parser.add_argument("--keep-bags", action="store_true",
+                        help="keep every generated bag in OUT/cases (large)")
+    args = parser.parse_args(argv)
+    cases = build_cases(quick=args.quick, seed=args.seed)
+    if args.only:
+        unknown = sorted(set(args.only) - {c.name for c in cases})
+        if unknown:
+            print(f"identify: no case named {', '.join(unknown)} in this sweep "
+                  f"(e.g. {cases[0].name}, {cases[-1].name})", file=sys.stderr)
+            return 2
+        cases = [c for c in cases if c.name in set(args.only)]
+    start = time.monotonic()
+    try:
+        outcomes = run_sweep(cases, jobs=args.jobs, keep=args.output / "cases",
+                             keep_bags=args.keep_bags)
+    except (ValueError, OSError) as err:
+        print(f"identify: a case could not be generated: {err}".splitlines()[0], file=sys.stderr)
+        return 1
+    settings = {
+        "date": dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC"),
+        "command": " ".join(["bench/identify.py", *(argv if argv is not None else sys.argv[1:])]),
+        "quick": args.quick, "jobs": args.jobs, "seed": args.seed, "cores": os.cpu_count(),
+        "wall_s": time.monotonic() - start,
+    }
+    summary = write_results(args.output, outcomes, settings)
+    for line in goal_lines(summary):
+        print(f"[identify] {line}", file=sys.stderr)
+    print(f"[identify] wrote {args.output / 'identify.md'} and {args.output / 'identify.json'}",
+          file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
