@@ -15,8 +15,8 @@ from es_feedforward.calibration.model import (
     play_operator,
 )
 from es_feedforward.calibration.residual import integrated_autocorrelation_time, noise_floor
-from es_feedforward.models import hyperbolic_forward
-from es_feedforward.params import ActuatorParams
+from es_physics.laws import hyperbolic_forward
+from es_physics.params import ActuatorParams
 from es_sim_plant.effects import grid_laplacian, play
 
 

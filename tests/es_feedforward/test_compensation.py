@@ -13,7 +13,7 @@ from es_feedforward.compensation import (
     drift_factor,
 )
 from es_feedforward.feedforward import Feedforward, FeedforwardConfig
-from es_feedforward.models import hyperbolic_forward
+from es_physics.laws import hyperbolic_forward
 
 from .plantlike import drift_gain, grid_params, laplacian_of, play
 

@@ -7,7 +7,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from es_feedforward.models import hyperbolic_forward
+from es_physics.laws import hyperbolic_forward
 from es_sim_plant.effects import EFFECT_NAMES, Effects, drift_factor, grid_laplacian
 from es_sim_plant.plant import Plant, simulate
 from es_sim_plant.scenario import Scenario

@@ -21,7 +21,7 @@ import numpy as np
 from scipy.sparse import csc_matrix, diags, identity
 from scipy.sparse.linalg import splu
 
-from es_feedforward.params import FloatArray
+from es_physics.params import FloatArray
 
 #: Name prefix of the compensation parameters (ROS parameters and parameter files).
 PREFIX: Final = "compensation."

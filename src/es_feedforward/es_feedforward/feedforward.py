@@ -39,7 +39,7 @@ from es_feedforward.compensation import (
     TemperatureLead,
     drift_factor,
 )
-from es_feedforward.models import (
+from es_physics.laws import (
     CODE_CLIPPED_HIGH,
     CODE_CLIPPED_LOW,
     CODE_INVALID,
@@ -51,7 +51,7 @@ from es_feedforward.models import (
     StatusArray,
     limit_voltages,
 )
-from es_feedforward.params import ActuatorParams, FloatArray
+from es_physics.params import ActuatorParams, FloatArray
 
 #: Middle of the thesis's 40-52 degC range: where "uncompensated" evaluates the model.
 DEFAULT_REFERENCE_TEMPERATURE: Final = 46.0

@@ -1,7 +1,7 @@
 """The actuator grid: per-actuator hyperbolic model, manufacturing spread, amplifier, effects.
 
 Each actuator follows z = (M L / k^2) tanh^2(k V / L) with M(T), k(T) from
-:mod:`es_feedforward.params` / :mod:`es_feedforward.models` (the same library the
+:mod:`es_physics.params` / :mod:`es_physics.laws` (the same library the
 feedforward inverts). The nominal parameters get a seeded relative spread per actuator
 (manufacturing scatter; default 2 % on m2, 1 % on k2, so gains scatter by ~2 %).
 
@@ -23,8 +23,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from es_feedforward.models import DEFAULT_V_LIMIT, hyperbolic_forward
-from es_feedforward.params import ActuatorParams
+from es_physics.laws import DEFAULT_V_LIMIT, hyperbolic_forward
+from es_physics.params import ActuatorParams
 from es_sim_plant.effects import Effects, drift_factor, grid_laplacian, hysteresis_weight, play
 
 FloatArray = npt.NDArray[np.float64]

@@ -13,7 +13,7 @@ import numpy as np
 from es_feedforward.calibration.pipeline import NOISE_RATIO_LIMIT, Calibration
 from es_feedforward.calibration.residual import ResidualStructure
 from es_feedforward.calibration.schema import law_uncertainty
-from es_feedforward.params import THESIS_INTERVALS_95
+from es_physics.params import THESIS_INTERVALS_95
 
 NM = 1e9
 

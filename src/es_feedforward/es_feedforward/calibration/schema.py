@@ -40,7 +40,7 @@ from es_feedforward.calibration.pipeline import Calibration
 from es_feedforward.compensation import RANGES, CompensationParams
 from es_feedforward.feedforward import FeedforwardConfig
 from es_feedforward.param_file import write_params_file
-from es_feedforward.params import ActuatorParams
+from es_physics.params import ActuatorParams
 
 SCHEMA_VERSION: Final = 1
 

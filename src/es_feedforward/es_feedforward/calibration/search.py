@@ -34,7 +34,7 @@ from es_feedforward.calibration.model import (
     play_operator,
 )
 from es_feedforward.calibration.residual import integrated_autocorrelation_time
-from es_feedforward.params import ActuatorParams
+from es_physics.params import ActuatorParams
 
 SCREEN_SIZE: Final = 8
 #: Smallest relative cut of the held-out RMS that counts as an improvement.
