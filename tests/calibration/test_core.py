@@ -15,9 +15,10 @@ from es_feedforward.calibration.model import (
     play_operator,
 )
 from es_feedforward.calibration.residual import integrated_autocorrelation_time, noise_floor
+from es_physics.effects.coupling import grid_laplacian
+from es_physics.effects.hysteresis import play
 from es_physics.laws import hyperbolic_forward
 from es_physics.params import ActuatorParams
-from es_sim_plant.effects import grid_laplacian, play
 
 
 def _inputs(rng: np.random.Generator, A: int = 6, n: int = 400, grid=(2, 3)) -> FitInputs:

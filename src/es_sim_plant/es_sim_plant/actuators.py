@@ -23,9 +23,12 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from es_physics.effects.coupling import grid_laplacian
+from es_physics.effects.drift import drift_factor
+from es_physics.effects.hysteresis import hysteresis_weight, play
 from es_physics.laws import DEFAULT_V_LIMIT, hyperbolic_forward
 from es_physics.params import ActuatorParams
-from es_sim_plant.effects import Effects, drift_factor, grid_laplacian, hysteresis_weight, play
+from es_sim_plant.effects import Effects
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -205,7 +208,8 @@ class ActuatorGrid:
         z = hyperbolic_forward(V, T, self.params)
         if self.effects.drift.enabled:
             times = np.asarray(t_start + ends * (self.dt / n), np.float64)
-            z = z * drift_factor(times, self.effects.drift)[:, None, None]
+            drift = self.effects.drift
+            z = z * drift_factor(times, drift.fraction, drift.tau_s, drift.nu)[:, None, None]
         if self.effects.coupling.enabled:
             z = z + self.effects.coupling.coefficient * grid_laplacian(z)
         if self.effects.thermal_expansion.enabled:
