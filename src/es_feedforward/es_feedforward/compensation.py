@@ -21,6 +21,7 @@ import numpy as np
 from scipy.sparse import csc_matrix, diags, identity
 from scipy.sparse.linalg import splu
 
+from es_physics.effects import registry
 from es_physics.params import FloatArray
 
 #: Name prefix of the compensation parameters (ROS parameters and parameter files).
@@ -30,6 +31,10 @@ PREFIX: Final = "compensation."
 @dataclass(frozen=True)
 class CompensationParams:
     """The ``compensation.*`` parameters; every effect is off at its default.
+
+    The fields are the typed face of the compensation parameters that the effects of
+    :mod:`es_physics.effects` declare (names, ranges and defaults are theirs; a test checks
+    that the two agree).
 
     Attributes:
         temperature_lead_s: sensor lag tau to undo [s] (0 = off).
@@ -92,21 +97,9 @@ class CompensationParams:
         return None
 
 
-#: Accepted range of every compensation parameter (inclusive).
+#: Accepted range of every compensation parameter (inclusive), from the effect registry.
 RANGES: Final[dict[str, tuple[float, float]]] = {
-    "temperature_lead_s": (0.0, 3600.0),
-    "temperature_lead_filter_s": (0.0, 3600.0),
-    "delay_s": (0.0, 1.0),
-    "hysteresis_weight": (0.0, 0.9),
-    "hysteresis_threshold_v": (0.0, 1000.0),
-    # I + c lap stays positive definite for c < 1/8 (lap's eigenvalues lie in [-8, 0])
-    "coupling": (-0.12, 0.12),
-    "thermal_expansion": (-1e-8, 1e-8),
-    "expansion_reference_temperature": (-50.0, 150.0),
-    "drift_fraction": (0.0, 0.5),
-    "drift_tau_s": (1e-3, 1e9),
-    "drift_nu": (0.05, 5.0),
-    "drift_epoch_s": (0.0, 1e12),
+    p.name: (p.low, p.high) for effect in registry().values() for p in effect.compensation
 }
 
 

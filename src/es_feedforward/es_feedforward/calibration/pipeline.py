@@ -22,12 +22,13 @@ from es_feedforward.calibration.search import (
     Workspace,
     base_state,
     choose_stamp_convention,
-    effect_parameters,
+    fitted_effect,
     heldout_residual,
     refit_full,
     screen_block,
     search_effects,
 )
+from es_physics.effects import get
 
 #: Actuators whose full-rate held-out residual is analysed (spectra, correlations).
 ANALYSIS_ACTUATORS: Final = 16
@@ -85,8 +86,7 @@ class _Analysis:
         self.contiguous = np.diff(rows) == 1
 
     def residual(self, state: ModelState) -> FloatArray:
-        threshold = state.threshold_v if state.model.has("hysteresis") else None
-        _, held = self.ws.input_pair(state.delay_s, threshold)
+        _, held = self.ws.input_pair(state.delay_s, state.play_threshold)
         return heldout_residual(state, held)[self.keep]
 
     def regressors(self) -> dict[str, tuple[str, FloatArray]]:
@@ -107,37 +107,6 @@ class _Analysis:
         resid = self.residual(state)
         rate = self.ws.aligned.sample_rate
         return analyse(resid, self.contiguous, rate, self.regressors()), resid
-
-
-def _uncertainties(state: ModelState, name: str, command_period: float) -> dict[str, float]:
-    """Return 1-sigma uncertainties of an effect's parameters (delay: half a command period)."""
-    names = state.model.global_names
-    sig = np.sqrt(np.maximum(np.diag(state.fit.cov_global), 0.0))
-    g = dict(zip(names, state.fit.glob, strict=True))
-    s = dict(zip(names, sig, strict=True))
-    if name == "sensor_lag":
-        return {"tau_s": s["sensor_lag.tau_s"]}
-    if name == "delay":
-        return {"delay_s": 0.5 * command_period}
-    if name == "hysteresis":
-        return {"weight": s["hysteresis.weight"]}
-    if name == "coupling":
-        return {"coefficient": s["coupling.coefficient"]}
-    if name == "thermal_expansion":
-        return {"alpha_m_per_degc": s["thermal_expansion.alpha_m_per_degc"]}
-    if name == "drift":
-        return {
-            "fraction": s["drift.fraction"],
-            "tau_s": float(np.exp(g["drift.log_tau_s"])) * s["drift.log_tau_s"],
-            "nu": float(np.exp(g["drift.log_nu"])) * s["drift.log_nu"],
-        }
-    if name == "temperature_curvature":
-        cov = state.fit.cov_local
-        return {
-            "m3": float(np.median(np.sqrt(np.maximum(cov[:, 4, 4], 0)))),
-            "k3": float(np.median(np.sqrt(np.maximum(cov[:, 5, 5], 0)))),
-        }
-    return {}
 
 
 def _unexplained(after: ResidualStructure, final_rms: float) -> list[str]:
@@ -213,14 +182,15 @@ def calibrate(measured: MeasuredData, candidates: tuple[str, ...] = CANDIDATES) 
         )
     timings["refit and analysis"] = time.perf_counter() - clock
 
-    period = aligned.command_period
     effects = []
     for (name, _, _), prev, state in zip(added, prefix_states[:-1], prefix_states[1:], strict=True):
+        effect = get(name)
+        fitted = fitted_effect(state, effect, aligned)
         effects.append(
             AcceptedEffect(
                 name,
-                effect_parameters(state, name, aligned),
-                _uncertainties(state, name, period),
+                effect.reported(fitted),
+                effect.uncertainties(fitted),
                 prev.heldout_rms,
                 state.heldout_rms,
             )

@@ -40,6 +40,7 @@ from es_feedforward.calibration.pipeline import Calibration
 from es_feedforward.compensation import RANGES, CompensationParams
 from es_feedforward.feedforward import FeedforwardConfig
 from es_feedforward.param_file import write_params_file
+from es_physics.effects import get
 from es_physics.params import ActuatorParams
 
 SCHEMA_VERSION: Final = 1
@@ -66,24 +67,9 @@ def compensation(cal: Calibration) -> tuple[CompensationParams, list[str]]:
     """Return the compensation of the accepted effects and notes on values clipped to range."""
     values: dict[str, float] = {}
     for effect in cal.effects:
-        p = effect.parameters
-        if effect.name == "sensor_lag":
-            values["temperature_lead_s"] = p["tau_s"]
-        elif effect.name == "delay":
-            values["delay_s"] = p["delay_s"]
-        elif effect.name == "hysteresis":
-            values["hysteresis_weight"] = p["weight"]
-            values["hysteresis_threshold_v"] = p["threshold_v"]
-        elif effect.name == "coupling":
-            values["coupling"] = p["coefficient"]
-        elif effect.name == "thermal_expansion":
-            values["thermal_expansion"] = p["alpha_m_per_degc"]
-            values["expansion_reference_temperature"] = p["reference_temperature"]
-        elif effect.name == "drift":
-            values["drift_fraction"] = p["fraction"]
-            values["drift_tau_s"] = p["tau_s"]
-            values["drift_nu"] = p["nu"]
-            values["drift_epoch_s"] = cal.aligned.start_time
+        values.update(
+            get(effect.name).compensation_values(effect.parameters, cal.aligned.start_time)
+        )
     notes = []
     for name, value in list(values.items()):
         low, high = RANGES[name]

@@ -34,6 +34,7 @@ from es_feedforward.calibration.model import (
     play_operator,
 )
 from es_feedforward.calibration.residual import integrated_autocorrelation_time
+from es_physics.effects import Effect, FittedEffect, Role, get
 from es_physics.params import ActuatorParams
 
 SCREEN_SIZE: Final = 8
@@ -48,8 +49,6 @@ MAX_DELAY_PERIODS: Final = 40
 THRESHOLD_FRACTIONS: Final = (0.005, 0.01, 0.02, 0.04, 0.08, 0.16, 0.3)
 #: Thresholds tried between the best coarse threshold's neighbours.
 FINE_THRESHOLDS: Final = 5
-#: Drift time constants tried, as fractions of the record's duration.
-DRIFT_TAU_FRACTIONS: Final = (0.05, 0.25, 1.0)
 #: Samples per actuator used for fits and held-out scores (capped by sample-actuator totals).
 FIT_SAMPLES: Final = 6000
 FIT_BUDGET: Final = 2_000_000
@@ -72,6 +71,11 @@ class ModelState:
     def heldout_rms(self) -> float:
         """Return the held-out RMS error [m]."""
         return float(np.sqrt(self.heldout_sse / max(self.heldout_count, 1)))
+
+    @property
+    def play_threshold(self) -> float | None:
+        """Return the play threshold [V] when the model has a play effect, else None."""
+        return self.threshold_v if self.model.play else None
 
 
 @dataclass
@@ -261,99 +265,93 @@ def _candidate_states(
     """Return fitted states of ``state`` plus effect ``name`` (several starts or grid points)."""
     model = CompositeModel((*state.model.effects, name))
     local0 = _extend_local(state, model)
-    a = ws.aligned
-    out: list[ModelState] = []
-    threshold = state.threshold_v if state.model.has("hysteresis") else None
-    if name == "delay":
-        # rank the shifts with the current law (no refit), then refit around the best one
-        period = a.command_period
-        n_max = int(min(MAX_DELAY_PERIODS, max(1, MAX_DELAY_S / period)))
-        play = None
-        if threshold is not None:
-            play = ws.play_pair([threshold], state.delay_s)[0][:, 0, :]
-        costs = []
-        for j in range(1, n_max + 1):
-            shifted = ws.inputs(ws.fit_rows, j * period, play)
-            pred = state.model.evaluate(state.fit.local, state.fit.glob, shifted, False)
-            costs.append(
-                float(
-                    np.sum(
-                        np.where(shifted.valid, shifted.displacement - pred.prediction, 0.0) ** 2
-                    )
-                )
-            )
-        best_j = int(np.argmin(costs)) + 1
-        shifts = {max(1, best_j - 1), best_j, min(n_max, best_j + 1)}
-        if costs[best_j - 1] > state.fit.total_cost:
-            shifts = {best_j}  # every shift fits worse than none: one refit to score it
-        for j in sorted(shifts):
-            train, held = ws.input_pair(j * period, threshold)
-            out.append(
-                fit_state(
-                    model,
-                    train,
-                    held,
-                    local0,
-                    _extend_global(state, model, {}),
-                    delay_s=j * period,
-                    threshold_v=state.threshold_v,
-                    max_iter=15,
-                )
-            )
-        return out
-    if name == "hysteresis":
-        span = float(np.ptp(a.command[:, ws.actuators]))
-        glob0 = _extend_global(state, model, {"hysteresis.weight": 0.0})
-        coarse = [max(f * span, 1e-6) for f in THRESHOLD_FRACTIONS]
-        best = _best_threshold(ws, state, model, (local0, glob0), coarse)
-        if best.fit.total_cost > (1.0 - MIN_RELATIVE_GAIN) ** 2 * state.fit.total_cost:
-            return [best]  # no threshold helps even on training data: no need to refine
-        i = coarse.index(best.threshold_v)
-        lo, hi = coarse[max(i - 1, 0)], coarse[min(i + 1, len(coarse) - 1)]
-        fine = [float(r) for r in np.geomspace(lo, hi, FINE_THRESHOLDS + 2)[1:-1]]
-        refined = _best_threshold(ws, state, model, (best.fit.local, best.fit.glob), fine)
-        best = refined if refined.fit.total_cost < best.fit.total_cost else best
-        train, held = ws.input_pair(state.delay_s, best.threshold_v)
-        out.append(
-            fit_state(
-                model,
-                train,
-                held,
-                best.fit.local,
-                best.fit.glob,
-                delay_s=state.delay_s,
-                threshold_v=best.threshold_v,
-            )
+    role = get(name).role
+    if role is Role.INPUT_SHIFT:
+        return _shift_states(ws, state, model, local0)
+    if role is Role.PLAY:
+        return _play_states(ws, state, model, local0)
+    train, held = ws.input_pair(state.delay_s, state.play_threshold)
+    return [
+        fit_state(
+            model,
+            train,
+            held,
+            local0,
+            _extend_global(state, model, {f"{name}.{k}": v for k, v in start.items()}),
+            delay_s=state.delay_s,
+            threshold_v=state.threshold_v,
         )
-        return out
-    train, held = ws.input_pair(state.delay_s, threshold)
-    starts: list[dict[str, float]] = [{}]
-    if name == "drift":
-        starts = [
-            {
-                "drift.fraction": 0.0,
-                "drift.log_tau_s": float(np.log(f * duration)),
-                "drift.log_nu": 0.0,
-            }
-            for f in DRIFT_TAU_FRACTIONS
-        ]
-    for start in starts:
-        glob0 = _extend_global(state, model, start)
-        if name == "drift":
-            # start the nonlinear drift terms from a small fraction so their gradients exist
-            glob0[model.global_names.index("drift.fraction")] = 0.01
+        for start in get(name).starts(duration)
+    ]
+
+
+def _shift_states(
+    ws: Workspace, state: ModelState, model: CompositeModel, local0: FloatArray
+) -> list[ModelState]:
+    """Scan whole command-period shifts with the current law, then refit around the best."""
+    a = ws.aligned
+    threshold = state.play_threshold
+    period = a.command_period
+    n_max = int(min(MAX_DELAY_PERIODS, max(1, MAX_DELAY_S / period)))
+    play = None
+    if threshold is not None:
+        play = ws.play_pair([threshold], state.delay_s)[0][:, 0, :]
+    costs = []
+    for j in range(1, n_max + 1):
+        shifted = ws.inputs(ws.fit_rows, j * period, play)
+        pred = state.model.evaluate(state.fit.local, state.fit.glob, shifted, False)
+        costs.append(
+            float(np.sum(np.where(shifted.valid, shifted.displacement - pred.prediction, 0.0) ** 2))
+        )
+    best_j = int(np.argmin(costs)) + 1
+    shifts = {max(1, best_j - 1), best_j, min(n_max, best_j + 1)}
+    if costs[best_j - 1] > state.fit.total_cost:
+        shifts = {best_j}  # every shift fits worse than none: one refit to score it
+    out = []
+    for j in sorted(shifts):
+        train, held = ws.input_pair(j * period, threshold)
         out.append(
             fit_state(
                 model,
                 train,
                 held,
                 local0,
-                glob0,
-                delay_s=state.delay_s,
+                _extend_global(state, model, {}),
+                delay_s=j * period,
                 threshold_v=state.threshold_v,
+                max_iter=15,
             )
         )
     return out
+
+
+def _play_states(
+    ws: Workspace, state: ModelState, model: CompositeModel, local0: FloatArray
+) -> list[ModelState]:
+    """Scan play thresholds on a logarithmic grid of the command range, then refine."""
+    span = float(np.ptp(ws.aligned.command[:, ws.actuators]))
+    glob0 = _extend_global(state, model, {})
+    coarse = [max(f * span, 1e-6) for f in THRESHOLD_FRACTIONS]
+    best = _best_threshold(ws, state, model, (local0, glob0), coarse)
+    if best.fit.total_cost > (1.0 - MIN_RELATIVE_GAIN) ** 2 * state.fit.total_cost:
+        return [best]  # no threshold helps even on training data: no need to refine
+    i = coarse.index(best.threshold_v)
+    lo, hi = coarse[max(i - 1, 0)], coarse[min(i + 1, len(coarse) - 1)]
+    fine = [float(r) for r in np.geomspace(lo, hi, FINE_THRESHOLDS + 2)[1:-1]]
+    refined = _best_threshold(ws, state, model, (best.fit.local, best.fit.glob), fine)
+    best = refined if refined.fit.total_cost < best.fit.total_cost else best
+    train, held = ws.input_pair(state.delay_s, best.threshold_v)
+    return [
+        fit_state(
+            model,
+            train,
+            held,
+            best.fit.local,
+            best.fit.glob,
+            delay_s=state.delay_s,
+            threshold_v=best.threshold_v,
+        )
+    ]
 
 
 def _best_threshold(
@@ -378,57 +376,33 @@ def _best_threshold(
     return min(trials, key=lambda s: s.fit.total_cost)
 
 
+def fitted_effect(state: ModelState, effect: Effect, aligned: AlignedData) -> FittedEffect:
+    """Return ``effect``'s unknowns in ``state`` in the effect's own parameter names."""
+    model = state.model
+    sig_g = np.sqrt(np.maximum(np.diag(state.fit.cov_global), 0.0))
+    values: dict[str, float] = {}
+    sigma: dict[str, float] = {}
+    for i, p in enumerate(effect.fit_parameters):
+        j = model.global_names.index(model.key(effect, i))
+        values[p], sigma[p] = float(state.fit.glob[j]), float(sig_g[j])
+    scanned = {Role.INPUT_SHIFT: state.delay_s, Role.PLAY: state.threshold_v}
+    for p in effect.searched:
+        values[p] = scanned[effect.role]
+    local: dict[str, FloatArray] = {}
+    local_sigma: dict[str, FloatArray] = {}
+    for p in effect.local_parameters:
+        j = model.local_names.index(p)
+        local[p] = state.fit.local[:, j]
+        local_sigma[p] = np.sqrt(np.maximum(state.fit.cov_local[:, j, j], 0.0))
+    return FittedEffect(
+        values, sigma, local, local_sigma, aligned.command_period, aligned.mean_temperature
+    )
+
+
 def effect_parameters(state: ModelState, name: str, aligned: AlignedData) -> dict[str, float]:
-    """Return the physical parameters of effect ``name`` in ``state`` (architecture table)."""
-    g = dict(zip(state.model.global_names, state.fit.glob, strict=True))
-    if name == "sensor_lag":
-        return {"tau_s": g["sensor_lag.tau_s"]}
-    if name == "delay":
-        # a shift of j command periods covers delays in (j, j + 1] periods: report the middle
-        return {"delay_s": state.delay_s + 0.5 * aligned.command_period}
-    if name == "hysteresis":
-        return {"weight": g["hysteresis.weight"], "threshold_v": state.threshold_v}
-    if name == "coupling":
-        return {"coefficient": g["coupling.coefficient"]}
-    if name == "thermal_expansion":
-        alpha = g["thermal_expansion.alpha_m_per_degc"]
-        ref = aligned.mean_temperature - g["thermal_expansion.offset_m"] / alpha if alpha else 0.0
-        return {"alpha_m_per_degc": alpha, "reference_temperature": ref}
-    if name == "drift":
-        return {
-            "fraction": g["drift.fraction"],
-            "tau_s": float(np.exp(g["drift.log_tau_s"])),
-            "nu": float(np.exp(g["drift.log_nu"])),
-        }
-    if name == "temperature_curvature":
-        local = state.fit.local
-        return {"m3": float(np.median(local[:, 4])), "k3": float(np.median(local[:, 5]))}
-    raise ValueError(f"unknown effect {name}")
-
-
-def physical_problem(name: str, params: dict[str, float]) -> str | None:
-    """Return why fitted parameters are unphysical for effect ``name``, or None."""
-    if name == "sensor_lag" and params["tau_s"] <= 0:
-        return f"lag {params['tau_s']:.3g} s is not positive"
-    if name == "hysteresis" and not 0.0 < params["weight"] < 1.0:
-        return f"weight {params['weight']:.3g} outside (0, 1)"
-    if name == "coupling" and params["coefficient"] <= 0:
-        return f"coefficient {params['coefficient']:.3g} is not positive"
-    if name == "drift" and not abs(params["fraction"]) < 1.0:
-        return f"fraction {params['fraction']:.3g} outside (-1, 1)"
-    return None
-
-
-def _added_parameters(name: str, n_actuators: int) -> int:
-    return {
-        "sensor_lag": 1,
-        "delay": 1,
-        "hysteresis": 2,
-        "coupling": 1,
-        "thermal_expansion": 2,
-        "drift": 3,
-        "temperature_curvature": 2 * n_actuators,
-    }[name]
+    """Return the physical parameters of effect ``name`` in ``state``."""
+    effect = get(name)
+    return effect.reported(fitted_effect(state, effect, aligned))
 
 
 def information_delta(
@@ -460,23 +434,22 @@ def search_effects(
         remaining = [c for c in candidates if not state.model.has(c)]
         if not remaining:
             break
-        _, held = ws.input_pair(
-            state.delay_s, state.threshold_v if state.model.has("hysteresis") else None
-        )
+        _, held = ws.input_pair(state.delay_s, state.play_threshold)
         n_eff = effective_count(ws, state, held)
         scores: list[CandidateScore] = []
         best: tuple[float, str, ModelState] | None = None
         for name in remaining:
-            if name == "coupling" and A < 2:
+            effect = get(name)
+            if effect.role is Role.SPATIAL and A < 2:
                 continue
             tried = _candidate_states(ws, state, name, duration)
             new = min(tried, key=lambda s: s.fit.total_cost)
             params = effect_parameters(new, name, ws.aligned)
             delta = information_delta(
-                state.heldout_sse, new.heldout_sse, n_eff, _added_parameters(name, A)
+                state.heldout_sse, new.heldout_sse, n_eff, effect.added_parameters(A)
             )
             gain = 1.0 - new.heldout_rms / max(state.heldout_rms, 1e-300)
-            problem = physical_problem(name, params)
+            problem = effect.problem(params)
             reason = "passes"
             if problem:
                 reason = f"unphysical: {problem}"
@@ -543,8 +516,7 @@ def refit_full(
     """Refit a screened model on the whole grid, starting from its global parameters."""
     idx = np.arange(aligned.n_actuators, dtype=np.intp)
     ws = Workspace(aligned, idx, aligned.grid)
-    threshold = screened.threshold_v if screened.model.has("hysteresis") else None
-    train, held = ws.input_pair(screened.delay_s, threshold)
+    train, held = ws.input_pair(screened.delay_s, screened.play_threshold)
     local0 = initial_law(train) if start is None else start.fit.local
     if len(screened.model.local_names) > local0.shape[1]:
         local0 = np.concatenate([local0, np.zeros((local0.shape[0], 2))], axis=1)

@@ -125,7 +125,6 @@ class FittedEffect:
         local_sigma: their 1-sigma uncertainties, each (A,).
         command_period: the data's command period [s].
         mean_temperature: mean temperature of the data [degC].
-        start_time: time of the data's first sample [s] (ROS time).
 
     """
 
@@ -135,7 +134,6 @@ class FittedEffect:
     local_sigma: Mapping[str, FloatArray] = field(default_factory=dict)
     command_period: float = 0.0
     mean_temperature: float = 0.0
-    start_time: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -207,9 +205,12 @@ class Effect(ABC):
         return None
 
     def compensation_values(
-        self, fit: FittedEffect, reported: dict[str, float]
+        self, reported: dict[str, float], start_time: float
     ) -> dict[str, float]:
-        """Return the ``compensation.*`` values (without prefix) a calibration sets."""
+        """Return the ``compensation.*`` values (no prefix) for reported parameters.
+
+        ``start_time`` is the ROS time of the data's first sample [s].
+        """
         return {}
 
     def additive(self, g: Mapping[str, float], t: FloatArray, Ta: FloatArray) -> Additive:

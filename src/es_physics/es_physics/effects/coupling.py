@@ -75,7 +75,7 @@ class Coupling(Effect):
         return None
 
     def compensation_values(
-        self, fit: FittedEffect, reported: dict[str, float]
+        self, reported: dict[str, float], start_time: float
     ) -> dict[str, float]:
         """Solve the coupling for the free displacements."""
         return {"coupling": reported["coefficient"]}

@@ -39,7 +39,7 @@ class Delay(Effect):
         return {"delay_s": 0.5 * fit.command_period}
 
     def compensation_values(
-        self, fit: FittedEffect, reported: dict[str, float]
+        self, reported: dict[str, float], start_time: float
     ) -> dict[str, float]:
         """Predict the set point over the reported delay."""
         return {"delay_s": reported["delay_s"]}

@@ -75,12 +75,12 @@ class Drift(Effect):
         return None
 
     def compensation_values(
-        self, fit: FittedEffect, reported: dict[str, float]
+        self, reported: dict[str, float], start_time: float
     ) -> dict[str, float]:
         """Divide by the fitted drift from the data's start on."""
         return {
             "drift_fraction": reported["fraction"],
             "drift_tau_s": reported["tau_s"],
             "drift_nu": reported["nu"],
-            "drift_epoch_s": fit.start_time,
+            "drift_epoch_s": start_time,
         }

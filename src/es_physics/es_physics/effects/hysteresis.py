@@ -66,7 +66,7 @@ class Hysteresis(Effect):
         return None
 
     def compensation_values(
-        self, fit: FittedEffect, reported: dict[str, float]
+        self, reported: dict[str, float], start_time: float
     ) -> dict[str, float]:
         """Invert the fitted blend."""
         return {

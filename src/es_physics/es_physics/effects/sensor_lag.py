@@ -43,7 +43,7 @@ class SensorLag(Effect):
         return None
 
     def compensation_values(
-        self, fit: FittedEffect, reported: dict[str, float]
+        self, reported: dict[str, float], start_time: float
     ) -> dict[str, float]:
         """Lead the measured temperature by the fitted lag."""
         return {"temperature_lead_s": reported["tau_s"]}

@@ -55,7 +55,7 @@ class ThermalExpansion(Effect):
         return None
 
     def compensation_values(
-        self, fit: FittedEffect, reported: dict[str, float]
+        self, reported: dict[str, float], start_time: float
     ) -> dict[str, float]:
         """Subtract the fitted expansion."""
         return {
