@@ -18,7 +18,6 @@ from es_feedforward.calibration.model import CANDIDATES, FloatArray
 from es_feedforward.calibration.residual import ResidualStructure, analyse
 from es_feedforward.calibration.search import (
     ModelState,
-    RoundRecord,
     Workspace,
     base_state,
     choose_stamp_convention,
@@ -26,8 +25,8 @@ from es_feedforward.calibration.search import (
     heldout_residual,
     refit_full,
     screen_block,
-    search_effects,
 )
+from es_feedforward.calibration.selection import RoundRecord, search_effects
 from es_physics.effects import get
 
 #: Actuators whose full-rate held-out residual is analysed (spectra, correlations).
@@ -40,13 +39,18 @@ NOISE_RATIO_LIMIT: Final = 1.2
 
 @dataclass
 class AcceptedEffect:
-    """An effect the search added, with its full-grid held-out RMS before and after."""
+    """An effect the search added, with its full-grid held-out RMS before and after.
+
+    ``share`` is its part of the mean-square error that all accepted effects removed,
+    (before^2 - after^2) / (base^2 - final^2): the shares of a calibration sum to 1.
+    """
 
     name: str
     parameters: dict[str, float]
     uncertainties: dict[str, float]
     rms_before_m: float
     rms_after_m: float
+    share: float = 0.0
 
 
 @dataclass
@@ -195,6 +199,10 @@ def calibrate(measured: MeasuredData, candidates: tuple[str, ...] = CANDIDATES) 
                 state.heldout_rms,
             )
         )
+    removed = base_full.heldout_rms**2 - final.heldout_rms**2
+    for e in effects:
+        cut = e.rms_before_m**2 - e.rms_after_m**2
+        e.share = float(cut / removed) if removed > 0 else 0.0
     inputs = {k: v for k, (_, v) in analysis.regressors().items()}
     return Calibration(
         aligned=aligned,

@@ -1,10 +1,10 @@
 """``calibration.json`` and the feedforward parameters YAML written from a :class:`Calibration`.
 
-calibration.json (schema version 1; SI units, degC; "1-sigma" uncertainties inflated for the
+calibration.json (schema version 2; SI units, degC; "1-sigma" uncertainties inflated for the
 residual's autocorrelation)::
 
     {
-      "schema_version": 1,
+      "schema_version": 2,
       "grid": {"rows": R, "cols": C},
       "data": {"start_time_s", "duration_s", "sample_rate_hz", "command_period_s",
                "temperature_topic", "samples", "training_samples", "heldout_samples",
@@ -13,9 +13,12 @@ residual's autocorrelation)::
       "law": {"L", "Tm" (fixed), "m1", "m2", "m3", "k1", "k2", "k3": row-major lists of R*C,
               "uncertainty": {same names: lists of R*C 1-sigma values}},
       "effects": [{"name": canonical name, "parameters": {...}, "uncertainties": {...},
-                   "rms_before_m", "rms_after_m"}],          # accepted, in the order added
-      "candidates": [[{"name", "rms_before_m", "rms_after_m", "delta_bic", "accepted",
-                       "reason", "parameters"}], ...],       # every round of the search
+                   "rms_before_m", "rms_after_m",
+                   "share": part of the mean-square error all effects removed (sum 1)}],
+      "candidates": [[{"name", "step", "rms_before_m", "rms_after_m", "delta_bic",
+                       "accepted", "reason", "parameters"}], ...],  # every round
+      # step "forward": adding the candidate; "backward": removing an accepted effect
+      # (rms_before_m without it, rms_after_m with it, accepted = it stays)
       "heldout_rms_before_m", "heldout_rms_after_m",         # whole grid, held-out rows
       "heldout_max_before_m", "heldout_max_after_m",         # analysed actuators, full rate
       "noise_floor_m": white measurement noise estimated from the final residual,
@@ -23,8 +26,9 @@ residual's autocorrelation)::
       "timings_s": {step: seconds}
     }
 
-Effect parameters use the names of docs/architecture.md ("Effects beyond the basic model");
-the YAML carries them as ``compensation.*`` (and law.m3/k3 for temperature_curvature).
+Effect parameters use the names the effects declare (:mod:`es_physics.effects`); the YAML
+carries them as each effect's ``compensation.*`` parameters (and law.m3/k3 for the ``LAW``
+effect's per-actuator coefficients).
 """
 
 from __future__ import annotations
@@ -43,7 +47,7 @@ from es_feedforward.param_file import write_params_file
 from es_physics.effects import get
 from es_physics.params import ActuatorParams
 
-SCHEMA_VERSION: Final = 1
+SCHEMA_VERSION: Final = 2
 
 
 def fitted_params(cal: Calibration) -> ActuatorParams:
@@ -131,6 +135,7 @@ def calibration_document(cal: Calibration) -> dict[str, Any]:
                 "uncertainties": e.uncertainties,
                 "rms_before_m": e.rms_before_m,
                 "rms_after_m": e.rms_after_m,
+                "share": e.share,
             }
             for e in cal.effects
         ],
@@ -138,6 +143,7 @@ def calibration_document(cal: Calibration) -> dict[str, Any]:
             [
                 {
                     "name": s.name,
+                    "step": r.step,
                     "rms_before_m": s.rms_before_m,
                     "rms_after_m": s.rms_after_m,
                     "delta_bic": s.delta_ic,

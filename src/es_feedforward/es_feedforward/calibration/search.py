@@ -1,25 +1,20 @@
-"""Fit the law, then add candidate effects greedily while the held-out data say they help.
+"""Fitted model states, the workspace of one calibration run, and each candidate's fit.
 
 Every candidate is refitted jointly with the per-actuator law on training rows and scored on
-held-out rows with a Bayesian information criterion whose sample count is the *effective*
-number of independent held-out residuals (n / integrated autocorrelation time), so that a
-correlated residual cannot buy a spurious effect. A candidate is accepted only when it lowers
-that criterion, cuts the held-out RMS by at least ``MIN_RELATIVE_GAIN`` and has physical
-parameter values (e.g. a positive lag). The best passing candidate is added and the search
-repeats until none passes.
-
-Candidates are screened on a contiguous block of at most ``SCREEN_SIZE`` x ``SCREEN_SIZE``
-actuators at the grid's corner (edges and interior; the coupling needs neighbours); the
-accepted model is then refitted on the whole grid. Parameters with no closed-form Jacobian
-are searched on grids: the delay on whole command periods (a zero-order-hold command makes
-finer delays unobservable) and the hysteresis threshold on a logarithmic grid of the command
-range, refined by golden section.
+held-out rows (which candidates are kept: :mod:`.selection`). Candidates are screened on a
+contiguous block of at most ``SCREEN_SIZE`` x ``SCREEN_SIZE`` actuators at the grid's corner
+(edges and interior; the coupling needs neighbours); the accepted model is then refitted on
+the whole grid. Parameters with no closed-form Jacobian are searched on grids: the command
+shift (role ``INPUT_SHIFT``) on whole command periods (a zero-order-hold command makes finer
+delays unobservable) and the play threshold (role ``PLAY``) on a logarithmic grid of the
+command range, refined between the best one's neighbours. Every other effect is fitted from
+each of its own starting points (:meth:`es_physics.effects.Effect.starts`).
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from typing import Final
 
 import numpy as np
@@ -27,21 +22,17 @@ import numpy as np
 from es_feedforward.calibration.align import AlignedData, IndexArray, select_rows
 from es_feedforward.calibration.fit import FitResult, levenberg_marquardt
 from es_feedforward.calibration.model import (
-    CANDIDATES,
     CompositeModel,
     FitInputs,
     FloatArray,
     play_operator,
 )
-from es_feedforward.calibration.residual import integrated_autocorrelation_time
 from es_physics.effects import Effect, FittedEffect, Role, get
 from es_physics.params import ActuatorParams
 
 SCREEN_SIZE: Final = 8
-#: Smallest relative cut of the held-out RMS that counts as an improvement.
+#: A threshold is refined only when the best coarse one cuts the training cost by this much.
 MIN_RELATIVE_GAIN: Final = 0.01
-#: Held-out RMS below which nothing is worth explaining [m] (far below interferometer noise).
-RESOLUTION_FLOOR_M: Final = 1e-12
 #: Longest delay searched [s] and in command periods.
 MAX_DELAY_S: Final = 0.1
 MAX_DELAY_PERIODS: Final = 40
@@ -76,27 +67,6 @@ class ModelState:
     def play_threshold(self) -> float | None:
         """Return the play threshold [V] when the model has a play effect, else None."""
         return self.threshold_v if self.model.play else None
-
-
-@dataclass
-class CandidateScore:
-    """One candidate's outcome in one round of the search."""
-
-    name: str
-    rms_before_m: float
-    rms_after_m: float
-    delta_ic: float
-    accepted: bool
-    reason: str
-    parameters: dict[str, float] = field(default_factory=dict)
-
-
-@dataclass
-class RoundRecord:
-    """All candidates tried in one round and the one added (if any)."""
-
-    scores: list[CandidateScore]
-    added: str | None
 
 
 class Workspace:
@@ -254,12 +224,13 @@ def _extend_local(state: ModelState, model: CompositeModel) -> FloatArray:
     return local
 
 
-def _extend_global(state: ModelState, model: CompositeModel, new: dict[str, float]) -> FloatArray:
+def extend_global(state: ModelState, model: CompositeModel, new: dict[str, float]) -> FloatArray:
+    """Return ``model``'s global start: ``state``'s values, else ``new``'s, else 0."""
     old = dict(zip(state.model.global_names, state.fit.glob, strict=True))
     return np.array([old.get(n, new.get(n, 0.0)) for n in model.global_names], np.float64)
 
 
-def _candidate_states(
+def candidate_states(
     ws: Workspace, state: ModelState, name: str, duration: float
 ) -> list[ModelState]:
     """Return fitted states of ``state`` plus effect ``name`` (several starts or grid points)."""
@@ -277,7 +248,7 @@ def _candidate_states(
             train,
             held,
             local0,
-            _extend_global(state, model, {f"{name}.{k}": v for k, v in start.items()}),
+            extend_global(state, model, {f"{name}.{k}": v for k, v in start.items()}),
             delay_s=state.delay_s,
             threshold_v=state.threshold_v,
         )
@@ -316,7 +287,7 @@ def _shift_states(
                 train,
                 held,
                 local0,
-                _extend_global(state, model, {}),
+                extend_global(state, model, {}),
                 delay_s=j * period,
                 threshold_v=state.threshold_v,
                 max_iter=15,
@@ -330,7 +301,7 @@ def _play_states(
 ) -> list[ModelState]:
     """Scan play thresholds on a logarithmic grid of the command range, then refine."""
     span = float(np.ptp(ws.aligned.command[:, ws.actuators]))
-    glob0 = _extend_global(state, model, {})
+    glob0 = extend_global(state, model, {})
     coarse = [max(f * span, 1e-6) for f in THRESHOLD_FRACTIONS]
     best = _best_threshold(ws, state, model, (local0, glob0), coarse)
     if best.fit.total_cost > (1.0 - MIN_RELATIVE_GAIN) ** 2 * state.fit.total_cost:
@@ -403,78 +374,6 @@ def effect_parameters(state: ModelState, name: str, aligned: AlignedData) -> dic
     """Return the physical parameters of effect ``name`` in ``state``."""
     effect = get(name)
     return effect.reported(fitted_effect(state, effect, aligned))
-
-
-def information_delta(
-    sse_before: float, sse_after: float, n_effective: float, n_added: int
-) -> float:
-    """Return the BIC change of adding ``n_added`` parameters (negative favours the addition)."""
-    n = max(n_effective, 2.0)
-    return float(n * np.log(max(sse_after, 1e-300) / max(sse_before, 1e-300)) + n_added * np.log(n))
-
-
-def effective_count(ws: Workspace, state: ModelState, heldout: FitInputs) -> float:
-    """Return the number of independent held-out residuals of ``state`` on the score rows."""
-    resid = heldout_residual(state, heldout)
-    stride = max(1, int(np.median(np.diff(ws.score_rows))))
-    tau = integrated_autocorrelation_time(resid, contiguous=np.diff(ws.score_rows) == stride)
-    return float(state.heldout_count / max(tau, 1.0))
-
-
-def search_effects(
-    ws: Workspace, base: ModelState, candidates: Sequence[str] = CANDIDATES
-) -> tuple[ModelState, list[tuple[str, ModelState, ModelState]], list[RoundRecord]]:
-    """Greedy forward selection; return (final state, [(effect, before, after)], rounds)."""
-    state = base
-    added: list[tuple[str, ModelState, ModelState]] = []
-    rounds: list[RoundRecord] = []
-    duration = float(ws.aligned.t[-1])
-    A = len(ws.actuators)
-    while True:
-        remaining = [c for c in candidates if not state.model.has(c)]
-        if not remaining:
-            break
-        _, held = ws.input_pair(state.delay_s, state.play_threshold)
-        n_eff = effective_count(ws, state, held)
-        scores: list[CandidateScore] = []
-        best: tuple[float, str, ModelState] | None = None
-        for name in remaining:
-            effect = get(name)
-            if effect.role is Role.SPATIAL and A < 2:
-                continue
-            tried = _candidate_states(ws, state, name, duration)
-            new = min(tried, key=lambda s: s.fit.total_cost)
-            params = effect_parameters(new, name, ws.aligned)
-            delta = information_delta(
-                state.heldout_sse, new.heldout_sse, n_eff, effect.added_parameters(A)
-            )
-            gain = 1.0 - new.heldout_rms / max(state.heldout_rms, 1e-300)
-            problem = effect.problem(params)
-            reason = "passes"
-            if problem:
-                reason = f"unphysical: {problem}"
-            elif state.heldout_rms < RESOLUTION_FLOOR_M:
-                reason = "residual already below resolution"
-            elif delta >= 0:
-                reason = f"information criterion does not improve (dBIC = {delta:+.1f})"
-            elif gain < MIN_RELATIVE_GAIN:
-                reason = f"held-out RMS cut {100 * gain:.2f} % < {100 * MIN_RELATIVE_GAIN:.0f} %"
-            ok = reason == "passes"
-            scores.append(
-                CandidateScore(name, state.heldout_rms, new.heldout_rms, delta, ok, reason, params)
-            )
-            if ok and (best is None or delta < best[0]):
-                best = (delta, name, new)
-        if best is None:
-            rounds.append(RoundRecord(scores, None))
-            break
-        _, name, new = best
-        for s in scores:
-            s.accepted = s.name == name
-        rounds.append(RoundRecord(scores, name))
-        added.append((name, state, new))
-        state = new
-    return state, added, rounds
 
 
 def screen_block(grid: tuple[int, int]) -> tuple[IndexArray, tuple[int, int]]:

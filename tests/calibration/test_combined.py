@@ -1,0 +1,62 @@
+"""Two effects at once, on data written here with numpy (no es_physics forward model)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from es_feedforward.calibration.align import MeasuredData
+from es_feedforward.calibration.pipeline import calibrate
+from es_feedforward.calibration.schema import calibration_document
+
+RATE = 100.0
+NOISE = 0.3e-9
+
+
+def law(V: np.ndarray, T: np.ndarray) -> np.ndarray:
+    """The thesis's hyperbolic law with its linear M(T*), k(T*), written out."""
+    Ts = T - 38.0
+    M = 1504e-18 - 41.5e-18 * Ts
+    k = 1167.5e-9 - 17.375e-9 * Ts
+    L = 0.2e-3
+    return M * L / k**2 * np.tanh(k * V / L) ** 2
+
+
+def stand(delay_samples: int = 0, alpha: float = 0.0, seed: int = 3) -> MeasuredData:
+    """A 1 x 1 test stand at 100 Hz for 90 s: multi-sine drive, temperature 42 -> 50 degC."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, 90.0, 1.0 / RATE)
+    V = 150.0 + 70.0 * np.sin(2 * np.pi * 0.9 * t) + 50.0 * np.sin(2 * np.pi * 2.3 * t + 1.0)
+    T = 46.0 - 4.0 * np.cos(2 * np.pi * t / 90.0)
+    applied = np.concatenate([np.full(delay_samples, V[0]), V[: V.size - delay_samples]])
+    z = law(applied, T) + alpha * (T - 44.0) + NOISE * rng.standard_normal(t.size)
+    grid = lambda x: x[:, None, None]  # noqa: E731
+    return MeasuredData(t, grid(V), t + 0.001, grid(z), t[::10], grid(T[::10]))
+
+
+@pytest.mark.slow
+def test_two_effects_are_found_together_with_shares_that_add_up() -> None:
+    cal = calibrate(stand(delay_samples=3, alpha=0.4e-9))
+    names = sorted(e.name for e in cal.effects)
+    assert names == ["delay", "thermal_expansion"], cal.rounds
+    found = {e.name: e.parameters for e in cal.effects}
+    assert abs(found["delay"]["delay_s"] - 0.03) <= 1.0 / RATE
+    assert found["thermal_expansion"]["alpha_m_per_degc"] == pytest.approx(0.4e-9, rel=0.1)
+    assert sum(e.share for e in cal.effects) == pytest.approx(1.0, abs=1e-9)
+    assert all(e.share > 0.0 for e in cal.effects)
+    assert cal.final.heldout_rms <= 1.2 * NOISE
+    doc = calibration_document(cal)
+    assert doc["schema_version"] == 2
+    assert [e["share"] for e in doc["effects"]] == [e.share for e in cal.effects]
+    steps = {c["step"] for r in doc["candidates"] for c in r}
+    assert steps == {"forward", "backward"}  # two effects: the backward check ran
+    backward = [r for r in cal.rounds if r.step == "backward"]
+    assert backward[-1].removed is None
+    assert all(s.accepted for s in backward[-1].scores)
+
+
+@pytest.mark.slow
+def test_clean_stand_gets_no_effect() -> None:
+    cal = calibrate(stand(seed=11))
+    assert cal.effects == []
+    assert all(r.step == "forward" for r in cal.rounds)
