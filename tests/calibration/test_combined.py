@@ -60,3 +60,27 @@ def test_clean_stand_gets_no_effect() -> None:
     cal = calibrate(stand(seed=11))
     assert cal.effects == []
     assert all(r.step == "forward" for r in cal.rounds)
+
+
+def fractional_stand(delay_periods: float, rate: float, seed: int = 5) -> MeasuredData:
+    """A stand whose command reaches the actuator ``delay_periods`` later, interpolated."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, 40.0, 1.0 / rate)
+    V = 150.0 + 90.0 * np.sin(2 * np.pi * 7.0 * t) + 30.0 * np.sin(2 * np.pi * 19.0 * t)
+    T = 46.0 - 3.0 * np.cos(2 * np.pi * t / 40.0)
+    applied = np.interp(t - delay_periods / rate, t, V, left=V[0])
+    z = law(applied, T) + NOISE * rng.standard_normal(t.size)
+    grid = lambda x: x[:, None, None]  # noqa: E731
+    return MeasuredData(t, grid(V), t.copy(), grid(z), t[::25], grid(T[::25]))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("periods", "rate"), [(1.2, 500.0), (3.45, 250.0)])
+def test_fractional_delay_is_resolved_to_a_twentieth_of_a_period(
+    periods: float, rate: float
+) -> None:
+    cal = calibrate(fractional_stand(periods, rate), ("delay", "hysteresis", "sensor_lag"))
+    assert [e.name for e in cal.effects] == ["delay"], cal.rounds
+    found = cal.effects[0].parameters["delay_s"] * rate
+    assert abs(found - periods) <= 0.05, found
+    assert cal.final.heldout_rms <= 1.2 * NOISE

@@ -5,10 +5,11 @@ held-out rows (which candidates are kept: :mod:`.selection`). Candidates are scr
 contiguous block of at most ``SCREEN_SIZE`` x ``SCREEN_SIZE`` actuators at the grid's corner
 (edges and interior; the coupling needs neighbours); the accepted model is then refitted on
 the whole grid. Parameters with no closed-form Jacobian are searched on grids: the command
-shift (role ``INPUT_SHIFT``) on whole command periods (a zero-order-hold command makes finer
-delays unobservable) and the play threshold (role ``PLAY``) on a logarithmic grid of the
-command range, refined between the best one's neighbours. Every other effect is fitted from
-each of its own starting points (:meth:`es_physics.effects.Effect.starts`).
+shift (role ``INPUT_SHIFT``) on whole command periods, then on ``DELAY_STEP`` fractions of a
+period (the command interpolated between neighbouring commands); the play threshold (role
+``PLAY``) on a logarithmic grid of the command range, refined between the best one's
+neighbours. Every other effect is fitted from each of its own starting points
+(:meth:`es_physics.effects.Effect.starts`).
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ import numpy as np
 from es_feedforward.calibration.align import AlignedData, IndexArray, select_rows
 from es_feedforward.calibration.fit import FitResult, levenberg_marquardt
 from es_feedforward.calibration.model import (
+    BoolArray,
     CompositeModel,
     FitInputs,
     FloatArray,
@@ -36,6 +38,8 @@ MIN_RELATIVE_GAIN: Final = 0.01
 #: Longest delay searched [s] and in command periods.
 MAX_DELAY_S: Final = 0.1
 MAX_DELAY_PERIODS: Final = 40
+#: Resolution of the delay scan, in command periods.
+DELAY_STEP: Final = 0.05
 #: Hysteresis thresholds tried, as fractions of the command's range.
 THRESHOLD_FRACTIONS: Final = (0.005, 0.01, 0.02, 0.04, 0.08, 0.16, 0.3)
 #: Thresholds tried between the best coarse threshold's neighbours.
@@ -129,15 +133,34 @@ class Workspace:
             }
         return self._static_cache[key]
 
+    def split_delay(self, delay_s: float) -> tuple[float, float]:
+        """Return (whole command periods [s], fraction of a period) of a delay."""
+        period = self.aligned.command_period
+        periods = delay_s / period
+        whole = float(np.floor(periods + 1e-9))
+        return whole * period, max(periods - whole, 0.0)
+
     def inputs(self, rows: IndexArray, delay_s: float, play: FloatArray | None) -> FitInputs:
-        """Return model inputs at ``rows`` with the command ``delay_s`` earlier."""
+        """Return model inputs at ``rows`` with the command ``delay_s`` earlier.
+
+        A delay of j + f command periods gives the command interpolated between the ones in
+        effect j and j + 1 periods earlier, (1 - f) u_j + f u_(j+1) (fractional delay).
+        """
         a = self.aligned
         static = self._static(rows)
-        ci = a.command_index(rows, delay_s)
-        voltage = a.command[np.ix_(np.maximum(ci, 0), self.actuators)].T
-        valid = static["finite"] & np.isfinite(voltage) & (ci >= 0)[None, :]
-        if not a.command_finite_all:
-            valid &= a.command_finite[np.ix_(np.maximum(ci, 0), self.actuators)].T
+        whole_s, frac = self.split_delay(delay_s)
+        shifts = [(whole_s, 1.0 - frac)]
+        if frac > 1e-9:
+            shifts.append((whole_s + a.command_period, frac))
+        voltage: FloatArray = np.zeros(static["displacement"].shape)
+        valid: BoolArray = np.array(static["finite"], dtype=bool)
+        for shift, weight in shifts:
+            ci = a.command_index(rows, shift)
+            u = a.command[np.ix_(np.maximum(ci, 0), self.actuators)].T
+            valid &= np.isfinite(u) & (ci >= 0)[None, :]
+            if not a.command_finite_all:
+                valid &= a.command_finite[np.ix_(np.maximum(ci, 0), self.actuators)].T
+            voltage = np.asarray(voltage + weight * u, np.float64)
         return FitInputs(
             t=static["t"],
             voltage=voltage,
@@ -259,7 +282,12 @@ def candidate_states(
 def _shift_states(
     ws: Workspace, state: ModelState, model: CompositeModel, local0: FloatArray
 ) -> list[ModelState]:
-    """Scan whole command-period shifts with the current law, then refit around the best."""
+    """Scan command shifts with the current law, then refit around the best one.
+
+    Whole command periods first (1 to ``MAX_DELAY_PERIODS``), then fractions of a period in
+    steps of ``DELAY_STEP`` within a period either side of the best whole shift; the best
+    fractional shift and its two neighbours are refitted.
+    """
     a = ws.aligned
     threshold = state.play_threshold
     period = a.command_period
@@ -267,20 +295,25 @@ def _shift_states(
     play = None
     if threshold is not None:
         play = ws.play_pair([threshold], state.delay_s)[0][:, 0, :]
-    costs = []
-    for j in range(1, n_max + 1):
-        shifted = ws.inputs(ws.fit_rows, j * period, play)
-        pred = state.model.evaluate(state.fit.local, state.fit.glob, shifted, False)
-        costs.append(
-            float(np.sum(np.where(shifted.valid, shifted.displacement - pred.prediction, 0.0) ** 2))
-        )
-    best_j = int(np.argmin(costs)) + 1
-    shifts = {max(1, best_j - 1), best_j, min(n_max, best_j + 1)}
-    if costs[best_j - 1] > state.fit.total_cost:
-        shifts = {best_j}  # every shift fits worse than none: one refit to score it
+
+    def cost(periods: float) -> float:
+        shifted = ws.inputs(ws.fit_rows, periods * period, play)
+        pred = state.model.evaluate(state.fit.local, state.fit.glob, shifted, False).prediction
+        return float(np.sum(np.where(shifted.valid, shifted.displacement - pred, 0.0) ** 2))
+
+    whole = np.arange(1, n_max + 1, dtype=np.float64)
+    best_j = float(whole[int(np.argmin([cost(j) for j in whole]))])
+    steps = round(1.0 / DELAY_STEP)
+    fine = best_j + DELAY_STEP * np.arange(-steps, steps + 1)
+    fine = fine[(fine >= DELAY_STEP) & (fine <= n_max)]
+    fine_costs = [cost(d) for d in fine]
+    i = int(np.argmin(fine_costs))
+    chosen = [float(fine[i])]
+    if fine_costs[i] <= state.fit.total_cost:  # worth refitting the neighbours too
+        chosen = [float(d) for d in fine[max(i - 1, 0) : i + 2]]
     out = []
-    for j in sorted(shifts):
-        train, held = ws.input_pair(j * period, threshold)
+    for d in chosen:
+        train, held = ws.input_pair(d * period, threshold)
         out.append(
             fit_state(
                 model,
@@ -288,7 +321,7 @@ def _shift_states(
                 held,
                 local0,
                 extend_global(state, model, {}),
-                delay_s=j * period,
+                delay_s=d * period,
                 threshold_v=state.threshold_v,
                 max_iter=15,
             )
@@ -356,7 +389,11 @@ def fitted_effect(state: ModelState, effect: Effect, aligned: AlignedData) -> Fi
     for i, p in enumerate(effect.fit_parameters):
         j = model.global_names.index(model.key(effect, i))
         values[p], sigma[p] = float(state.fit.glob[j]), float(sig_g[j])
-    scanned = {Role.INPUT_SHIFT: state.delay_s, Role.PLAY: state.threshold_v}
+    # with equal command and displacement stamps and the command not yet in effect at its own
+    # stamp, a shift of d is a delay of d + one command period from the command's stamp
+    late = aligned.has_same_stamps and not aligned.include_same_stamp
+    offset = aligned.command_period if late else 0.0
+    scanned = {Role.INPUT_SHIFT: state.delay_s + offset, Role.PLAY: state.threshold_v}
     for p in effect.searched:
         values[p] = scanned[effect.role]
     local: dict[str, FloatArray] = {}

@@ -1,9 +1,10 @@
 """Transport delay: the actuator responds to the command of ``delay_s`` earlier.
 
 Plant: the applied voltage is the command delayed, resolved to the plant's internal step.
-Calibration: the command is shifted by whole command periods (a zero-order-hold command
-makes finer shifts unobservable); a shift of j periods covers delays in (j, j + 1] periods,
-so the middle is reported. Feedforward: the set point is predicted ``delay_s`` ahead.
+Calibration: the command shifted by j + f command periods, interpolated between the
+commands in effect j and j + 1 periods earlier, (1 - f) u_j + f u_(j+1) (a fractional delay;
+f scanned in steps of 0.05, so the resolution is 0.05 command periods); the shift is
+reported. Feedforward: the set point is predicted ``delay_s`` ahead.
 """
 
 from __future__ import annotations
@@ -31,12 +32,12 @@ class Delay(Effect):
     )
 
     def reported(self, fit: FittedEffect) -> dict[str, float]:
-        """Return ``delay_s``: the scanned shift plus half a command period."""
-        return {"delay_s": float(fit.values["delay_s"]) + 0.5 * fit.command_period}
+        """Return ``delay_s``: the scanned shift [s]."""
+        return {"delay_s": float(fit.values["delay_s"])}
 
     def uncertainties(self, fit: FittedEffect) -> dict[str, float]:
-        """Return the scan's resolution: half a command period."""
-        return {"delay_s": 0.5 * fit.command_period}
+        """Return half the scan's step, 0.025 command periods [s]."""
+        return {"delay_s": 0.025 * fit.command_period}
 
     def compensation_values(
         self, reported: dict[str, float], start_time: float
