@@ -28,7 +28,7 @@ def _inputs(rng: np.random.Generator, A: int = 6, n: int = 400, grid=(2, 3)) -> 
     return FitInputs(
         t=t,
         voltage=V,
-        play=V + rng.uniform(-5, 5, V.shape),
+        play=(V + rng.uniform(-5, 5, V.shape))[None],
         temperature=T,
         temperature_rate=np.gradient(T, t, axis=1),
         displacement=np.zeros_like(V),

@@ -214,9 +214,7 @@ class Feedforward:
                 comp.temperature_lead_s, comp.temperature_lead_filter_s
             )
             self._delay = previous._delay.retuned(comp.delay_s)
-            self._hysteresis = previous._hysteresis.retuned(
-                comp.hysteresis_weight, comp.hysteresis_threshold_v
-            )
+            self._hysteresis = previous._hysteresis.retuned(*comp.hysteresis_operators())
             self._integral = previous._integral
             self._last_voltage = previous._last_voltage
             self._last_status = previous._last_status
@@ -228,13 +226,11 @@ class Feedforward:
             if previous.config.mode is not Mode.OBSERVER:
                 self._integral = np.array(self._last_voltage)
             if not previous._hysteresis.active:
-                self._hysteresis.play = np.array(self._last_voltage)
+                self._hysteresis.start_from(np.array(self._last_voltage))
         else:
             self._lead = TemperatureLead(comp.temperature_lead_s, comp.temperature_lead_filter_s)
             self._delay = DelayPredictor(comp.delay_s)
-            self._hysteresis = HysteresisInverse(
-                comp.hysteresis_weight, comp.hysteresis_threshold_v, shape
-            )
+            self._hysteresis = HysteresisInverse(*comp.hysteresis_operators(), shape)
             self._integral = np.zeros(shape)
             self._last_voltage = np.zeros(shape)
             self._last_status = np.zeros(shape, np.int8)

@@ -54,7 +54,7 @@ class FitInputs:
     Attributes:
         t: seconds since the start of the data, shape (n,).
         voltage: command in effect at each sample (after any delay), shape (A, n) [V].
-        play: play operator of the (delayed) command, shape (A, n) [V], or None.
+        play: play operators of the (delayed) command, shape (K, A, n) [V], or None.
         temperature: measured temperature, shape (A, n) [degC].
         temperature_rate: its time derivative, shape (A, n) [degC/s].
         displacement: measured displacement, shape (A, n) [m].
@@ -87,8 +87,12 @@ class Evaluation:
 class CompositeModel:
     """Hyperbolic law with a set of effects switched on; see the module docstring."""
 
-    def __init__(self, effects: Sequence[str], base: ActuatorParams | None = None) -> None:
+    def __init__(
+        self, effects: Sequence[str], base: ActuatorParams | None = None, operators: int = 1
+    ) -> None:
         """Build the model for ``effects`` (canonical names); L and Tm come from ``base``.
+
+        ``operators`` is the number of play operators of the ``PLAY`` effect.
 
         Raises:
             UnknownEffectError: a name no registered effect has.
@@ -111,10 +115,15 @@ class CompositeModel:
         self.gain = with_role(Role.GAIN, self.effects)
         self.spatial = with_role(Role.SPATIAL, self.effects)
         self.additive: tuple[Effect, ...] = tuple(e for e in chosen if e.role is Role.ADDITIVE)
+        self.operators = operators if self.play else 0
         self.local_names = LINEAR_LAW + (self.law.local_parameters if self.law else ())
         self.global_names: tuple[str, ...] = tuple(
-            f"{e.name}.{p}" for e in chosen for p in e.fit_parameters
+            f"{e.name}.{p}" for e in chosen for p in self.parameter_names(e)
         )
+
+    def parameter_names(self, effect: Effect) -> tuple[str, ...]:
+        """Return the effect's shared unknowns in this model (the play's: one per operator)."""
+        return effect.fit_names(self.operators if effect is self.play else 1)
 
     def has(self, effect: str) -> bool:
         """Return whether ``effect`` is switched on."""
@@ -123,10 +132,9 @@ class CompositeModel:
     def _global(self, g: FloatArray, effect: Effect, index: int = 0) -> float:
         return float(g[self.global_names.index(self.key(effect, index))])
 
-    @staticmethod
-    def key(effect: Effect, index: int = 0) -> str:
+    def key(self, effect: Effect, index: int = 0) -> str:
         """Return the global name of the effect's ``index``-th fit parameter."""
-        return f"{effect.name}.{effect.fit_parameters[index]}"
+        return f"{effect.name}.{self.parameter_names(effect)[index]}"
 
     def evaluate(
         self, local: FloatArray, g: FloatArray, data: FitInputs, jacobian: bool = True
@@ -150,12 +158,12 @@ class CompositeModel:
         if self.play:
             if data.play is None:
                 raise ValueError(f"{self.play.name} needs the play operator in the inputs")
-            weight = self._global(g, self.play)
             a_T = np.exp(-(Ta - data.mean_temperature) / HYSTERESIS_DECAY)
-            gap = data.play - V
-            V = V + weight * a_T * gap
-            dV_dweight = a_T * gap
-            dV_dTa = -weight * a_T * gap / HYSTERESIS_DECAY
+            gaps = data.play - V  # (K, A, n)
+            mix = sum(self._global(g, self.play, i) * gaps[i] for i in range(self.operators))
+            V = V + a_T * mix
+            dV_dweights = [a_T * gaps[i] for i in range(self.operators)]
+            dV_dTa = -a_T * mix / HYSTERESIS_DECAY
 
         Ts = Ta - self.Tm
         m2, m1, k2, k1 = (local[:, i : i + 1] for i in range(4))
@@ -184,7 +192,8 @@ class CompositeModel:
 
         scale: FloatArray | float = 1.0  # d(prediction)/dH
         if self.play and jacobian:
-            jac_g[self.key(self.play)] = dH_dV * dV_dweight
+            for i, dV in enumerate(dV_dweights):
+                jac_g[self.key(self.play, i)] = dH_dV * dV
         F = H
         if self.gain:
             frac = self._global(g, self.gain, 0)
@@ -203,7 +212,9 @@ class CompositeModel:
                 jac_g[self.key(self.gain, 1)] = frac * e * nu * s * H
                 jac_g[self.key(self.gain, 2)] = -frac * e * s * log_ratio * nu * H
                 if self.play:
-                    jac_g[self.key(self.play)] = jac_g[self.key(self.play)] * gain
+                    for i in range(self.operators):
+                        key = self.key(self.play, i)
+                        jac_g[key] = jac_g[key] * gain
             scale = gain
         # d F / d T_a, for the sensor lag (before the coupling spreads it to the neighbours)
         if self.lead and jacobian:
@@ -220,7 +231,7 @@ class CompositeModel:
             scale = scale * (1.0 - c * neighbour_count(data.grid))
         Ta_rel = Ta - data.mean_temperature
         for effect in self.additive:
-            values = {p: self._global(g, effect, i) for i, p in enumerate(effect.fit_parameters)}
+            values = {p: self._global(g, effect, i) for i, p in enumerate(effect.fit_names())}
             term = effect.additive(values, data.t, Ta_rel)
             Z = Z + term.value
             for i, column in enumerate(term.columns):

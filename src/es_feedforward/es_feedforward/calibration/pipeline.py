@@ -90,7 +90,7 @@ class _Analysis:
         self.contiguous = np.diff(rows) == 1
 
     def residual(self, state: ModelState) -> FloatArray:
-        _, held = self.ws.input_pair(state.delay_s, state.play_threshold)
+        _, held = self.ws.input_pair(state.delay_s, state.play_thresholds)
         return heldout_residual(state, held)[self.keep]
 
     def regressors(self) -> dict[str, tuple[str, FloatArray]]:

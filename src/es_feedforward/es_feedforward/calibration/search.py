@@ -1,15 +1,9 @@
-"""Fitted model states, the workspace of one calibration run, and each candidate's fit.
+"""Fitted model states and the workspace of one calibration run (rows, inputs, caches).
 
-Every candidate is refitted jointly with the per-actuator law on training rows and scored on
-held-out rows (which candidates are kept: :mod:`.selection`). Candidates are screened on a
-contiguous block of at most ``SCREEN_SIZE`` x ``SCREEN_SIZE`` actuators at the grid's corner
-(edges and interior; the coupling needs neighbours); the accepted model is then refitted on
-the whole grid. Parameters with no closed-form Jacobian are searched on grids: the command
-shift (role ``INPUT_SHIFT``) on whole command periods, then on ``DELAY_STEP`` fractions of a
-period (the command interpolated between neighbouring commands); the play threshold (role
-``PLAY``) on a logarithmic grid of the command range, refined between the best one's
-neighbours. Every other effect is fitted from each of its own starting points
-(:meth:`es_physics.effects.Effect.starts`).
+Candidates are screened on a contiguous block of at most ``SCREEN_SIZE`` x ``SCREEN_SIZE``
+actuators at the grid's corner (edges and interior; the coupling needs neighbours); the
+accepted model is then refitted on the whole grid (:func:`refit_full`). How each candidate
+is fitted: :mod:`.scans`; which are kept: :mod:`.selection`.
 """
 
 from __future__ import annotations
@@ -29,21 +23,11 @@ from es_feedforward.calibration.model import (
     FloatArray,
     play_operator,
 )
+from es_feedforward.calibration.residual import integrated_autocorrelation_time
 from es_physics.effects import Effect, FittedEffect, Role, get
 from es_physics.params import ActuatorParams
 
 SCREEN_SIZE: Final = 8
-#: A threshold is refined only when the best coarse one cuts the training cost by this much.
-MIN_RELATIVE_GAIN: Final = 0.01
-#: Longest delay searched [s] and in command periods.
-MAX_DELAY_S: Final = 0.1
-MAX_DELAY_PERIODS: Final = 40
-#: Resolution of the delay scan, in command periods.
-DELAY_STEP: Final = 0.05
-#: Hysteresis thresholds tried, as fractions of the command's range.
-THRESHOLD_FRACTIONS: Final = (0.005, 0.01, 0.02, 0.04, 0.08, 0.16, 0.3)
-#: Thresholds tried between the best coarse threshold's neighbours.
-FINE_THRESHOLDS: Final = 5
 #: Samples per actuator used for fits and held-out scores (capped by sample-actuator totals).
 FIT_SAMPLES: Final = 6000
 FIT_BUDGET: Final = 2_000_000
@@ -57,7 +41,7 @@ class ModelState:
 
     model: CompositeModel
     delay_s: float
-    threshold_v: float
+    thresholds: tuple[float, ...]
     fit: FitResult
     heldout_sse: float = 0.0
     heldout_count: int = 0
@@ -68,9 +52,9 @@ class ModelState:
         return float(np.sqrt(self.heldout_sse / max(self.heldout_count, 1)))
 
     @property
-    def play_threshold(self) -> float | None:
-        """Return the play threshold [V] when the model has a play effect, else None."""
-        return self.threshold_v if self.model.play else None
+    def play_thresholds(self) -> tuple[float, ...] | None:
+        """Return the play thresholds [V] when the model has a play effect, else None."""
+        return self.thresholds if self.model.play else None
 
 
 class Workspace:
@@ -143,6 +127,8 @@ class Workspace:
     def inputs(self, rows: IndexArray, delay_s: float, play: FloatArray | None) -> FitInputs:
         """Return model inputs at ``rows`` with the command ``delay_s`` earlier.
 
+        ``play`` holds the play operators at ``rows``, (len(rows), K, A), or is None.
+
         A delay of j + f command periods gives the command interpolated between the ones in
         effect j and j + 1 periods earlier, (1 - f) u_j + f u_(j+1) (fractional delay).
         """
@@ -164,7 +150,7 @@ class Workspace:
         return FitInputs(
             t=static["t"],
             voltage=voltage,
-            play=None if play is None else np.ascontiguousarray(play.T),
+            play=None if play is None else np.ascontiguousarray(play.transpose(1, 2, 0)),
             temperature=static["temperature"],
             temperature_rate=static["temperature_rate"],
             displacement=np.where(valid, static["displacement"], 0.0),
@@ -173,11 +159,13 @@ class Workspace:
             mean_temperature=a.mean_temperature,
         )
 
-    def input_pair(self, delay_s: float, threshold_v: float | None) -> tuple[FitInputs, FitInputs]:
-        """Return (training, held-out) inputs for a delay and optional play threshold."""
+    def input_pair(
+        self, delay_s: float, thresholds: Sequence[float] | None
+    ) -> tuple[FitInputs, FitInputs]:
+        """Return (training, held-out) inputs for a delay and optional play thresholds."""
         fit_play = score_play = None
-        if threshold_v is not None:
-            fit_play, score_play = (p[:, 0, :] for p in self.play_pair([threshold_v], delay_s))
+        if thresholds is not None:
+            fit_play, score_play = self.play_pair(thresholds, delay_s)
         return (
             self.inputs(self.fit_rows, delay_s, fit_play),
             self.inputs(self.score_rows, delay_s, score_play),
@@ -208,7 +196,7 @@ def fit_state(
     glob0: FloatArray,
     *,
     delay_s: float,
-    threshold_v: float,
+    thresholds: tuple[float, ...],
     inflation: float = 1.0,
     max_iter: int = 40,
 ) -> ModelState:
@@ -227,11 +215,27 @@ def fit_state(
     return ModelState(
         model,
         delay_s,
-        threshold_v,
+        thresholds,
         result,
         float(np.sum(resid * resid)),
         int(heldout.valid.sum()),
     )
+
+
+def information_delta(
+    sse_before: float, sse_after: float, n_effective: float, n_added: int
+) -> float:
+    """Return the BIC change of adding ``n_added`` parameters (negative favours the addition)."""
+    n = max(n_effective, 2.0)
+    return float(n * np.log(max(sse_after, 1e-300) / max(sse_before, 1e-300)) + n_added * np.log(n))
+
+
+def effective_count(ws: Workspace, state: ModelState, heldout: FitInputs) -> float:
+    """Return the number of independent held-out residuals of ``state`` on the score rows."""
+    resid = heldout_residual(state, heldout)
+    stride = max(1, int(np.median(np.diff(ws.score_rows))))
+    tau = integrated_autocorrelation_time(resid, contiguous=np.diff(ws.score_rows) == stride)
+    return float(state.heldout_count / max(tau, 1.0))
 
 
 def heldout_residual(state: ModelState, heldout: FitInputs) -> FloatArray:
@@ -240,7 +244,8 @@ def heldout_residual(state: ModelState, heldout: FitInputs) -> FloatArray:
     return np.where(heldout.valid, heldout.displacement - pred, np.nan)
 
 
-def _extend_local(state: ModelState, model: CompositeModel) -> FloatArray:
+def extend_local(state: ModelState, model: CompositeModel) -> FloatArray:
+    """Return ``model``'s local start: ``state``'s law, with zero curvature terms if new."""
     local = state.fit.local
     if len(model.local_names) > local.shape[1]:
         local = np.concatenate([local, np.zeros((local.shape[0], 2))], axis=1)
@@ -253,149 +258,23 @@ def extend_global(state: ModelState, model: CompositeModel, new: dict[str, float
     return np.array([old.get(n, new.get(n, 0.0)) for n in model.global_names], np.float64)
 
 
-def candidate_states(
-    ws: Workspace, state: ModelState, name: str, duration: float
-) -> list[ModelState]:
-    """Return fitted states of ``state`` plus effect ``name`` (several starts or grid points)."""
-    model = CompositeModel((*state.model.effects, name))
-    local0 = _extend_local(state, model)
-    role = get(name).role
-    if role is Role.INPUT_SHIFT:
-        return _shift_states(ws, state, model, local0)
-    if role is Role.PLAY:
-        return _play_states(ws, state, model, local0)
-    train, held = ws.input_pair(state.delay_s, state.play_threshold)
-    return [
-        fit_state(
-            model,
-            train,
-            held,
-            local0,
-            extend_global(state, model, {f"{name}.{k}": v for k, v in start.items()}),
-            delay_s=state.delay_s,
-            threshold_v=state.threshold_v,
-        )
-        for start in get(name).starts(duration)
-    ]
-
-
-def _shift_states(
-    ws: Workspace, state: ModelState, model: CompositeModel, local0: FloatArray
-) -> list[ModelState]:
-    """Scan command shifts with the current law, then refit around the best one.
-
-    Whole command periods first (1 to ``MAX_DELAY_PERIODS``), then fractions of a period in
-    steps of ``DELAY_STEP`` within a period either side of the best whole shift; the best
-    fractional shift and its two neighbours are refitted.
-    """
-    a = ws.aligned
-    threshold = state.play_threshold
-    period = a.command_period
-    n_max = int(min(MAX_DELAY_PERIODS, max(1, MAX_DELAY_S / period)))
-    play = None
-    if threshold is not None:
-        play = ws.play_pair([threshold], state.delay_s)[0][:, 0, :]
-
-    def cost(periods: float) -> float:
-        shifted = ws.inputs(ws.fit_rows, periods * period, play)
-        pred = state.model.evaluate(state.fit.local, state.fit.glob, shifted, False).prediction
-        return float(np.sum(np.where(shifted.valid, shifted.displacement - pred, 0.0) ** 2))
-
-    whole = np.arange(1, n_max + 1, dtype=np.float64)
-    best_j = float(whole[int(np.argmin([cost(j) for j in whole]))])
-    steps = round(1.0 / DELAY_STEP)
-    fine = best_j + DELAY_STEP * np.arange(-steps, steps + 1)
-    fine = fine[(fine >= DELAY_STEP) & (fine <= n_max)]
-    fine_costs = [cost(d) for d in fine]
-    i = int(np.argmin(fine_costs))
-    chosen = [float(fine[i])]
-    if fine_costs[i] <= state.fit.total_cost:  # worth refitting the neighbours too
-        chosen = [float(d) for d in fine[max(i - 1, 0) : i + 2]]
-    out = []
-    for d in chosen:
-        train, held = ws.input_pair(d * period, threshold)
-        out.append(
-            fit_state(
-                model,
-                train,
-                held,
-                local0,
-                extend_global(state, model, {}),
-                delay_s=d * period,
-                threshold_v=state.threshold_v,
-                max_iter=15,
-            )
-        )
-    return out
-
-
-def _play_states(
-    ws: Workspace, state: ModelState, model: CompositeModel, local0: FloatArray
-) -> list[ModelState]:
-    """Scan play thresholds on a logarithmic grid of the command range, then refine."""
-    span = float(np.ptp(ws.aligned.command[:, ws.actuators]))
-    glob0 = extend_global(state, model, {})
-    coarse = [max(f * span, 1e-6) for f in THRESHOLD_FRACTIONS]
-    best = _best_threshold(ws, state, model, (local0, glob0), coarse)
-    if best.fit.total_cost > (1.0 - MIN_RELATIVE_GAIN) ** 2 * state.fit.total_cost:
-        return [best]  # no threshold helps even on training data: no need to refine
-    i = coarse.index(best.threshold_v)
-    lo, hi = coarse[max(i - 1, 0)], coarse[min(i + 1, len(coarse) - 1)]
-    fine = [float(r) for r in np.geomspace(lo, hi, FINE_THRESHOLDS + 2)[1:-1]]
-    refined = _best_threshold(ws, state, model, (best.fit.local, best.fit.glob), fine)
-    best = refined if refined.fit.total_cost < best.fit.total_cost else best
-    train, held = ws.input_pair(state.delay_s, best.threshold_v)
-    return [
-        fit_state(
-            model,
-            train,
-            held,
-            best.fit.local,
-            best.fit.glob,
-            delay_s=state.delay_s,
-            threshold_v=best.threshold_v,
-        )
-    ]
-
-
-def _best_threshold(
-    ws: Workspace,
-    state: ModelState,
-    model: CompositeModel,
-    start: tuple[FloatArray, FloatArray],
-    thresholds: list[float],
-) -> ModelState:
-    """Fit the hysteresis model at each play threshold (one pass of the play for all)."""
-    local0, glob0 = start
-    fit_play, score_play = ws.play_pair(thresholds, state.delay_s)
-    trials = []
-    for i, r in enumerate(thresholds):
-        train = ws.inputs(ws.fit_rows, state.delay_s, fit_play[:, i, :])
-        held = ws.inputs(ws.score_rows, state.delay_s, score_play[:, i, :])
-        trials.append(
-            fit_state(
-                model, train, held, local0, glob0, delay_s=state.delay_s, threshold_v=r, max_iter=10
-            )
-        )
-    return min(trials, key=lambda s: s.fit.total_cost)
-
-
 def fitted_effect(state: ModelState, effect: Effect, aligned: AlignedData) -> FittedEffect:
     """Return ``effect``'s unknowns in ``state`` in the effect's own parameter names."""
     model = state.model
     sig_g = np.sqrt(np.maximum(np.diag(state.fit.cov_global), 0.0))
     values: dict[str, float] = {}
     sigma: dict[str, float] = {}
-    for i, p in enumerate(effect.fit_parameters):
+    for i, p in enumerate(model.parameter_names(effect)):
         j = model.global_names.index(model.key(effect, i))
         values[p], sigma[p] = float(state.fit.glob[j]), float(sig_g[j])
     # with equal command and displacement stamps and the command not yet in effect at its own
     # stamp, a shift of d is a delay of d + one command period from the command's stamp
     late = aligned.has_same_stamps and not aligned.include_same_stamp
     offset = aligned.command_period if late else 0.0
-    scanned = {Role.INPUT_SHIFT: state.delay_s + offset, Role.PLAY: state.threshold_v}
-    for p in effect.searched:
-        values[p] = scanned[effect.role]
+    order = model.operators if effect is model.play else 1
+    scanned = {Role.INPUT_SHIFT: (state.delay_s + offset,), Role.PLAY: state.thresholds}
+    for p, value in zip(effect.searched_names(order), scanned.get(effect.role, ()), strict=True):
+        values[p] = value
     local: dict[str, FloatArray] = {}
     local_sigma: dict[str, FloatArray] = {}
     for p in effect.local_parameters:
@@ -426,7 +305,7 @@ def base_state(ws: Workspace) -> ModelState:
     train, held = ws.input_pair(0.0, None)
     model = CompositeModel(())
     return fit_state(
-        model, train, held, initial_law(train), np.zeros(0), delay_s=0.0, threshold_v=0.0
+        model, train, held, initial_law(train), np.zeros(0), delay_s=0.0, thresholds=()
     )
 
 
@@ -452,7 +331,7 @@ def refit_full(
     """Refit a screened model on the whole grid, starting from its global parameters."""
     idx = np.arange(aligned.n_actuators, dtype=np.intp)
     ws = Workspace(aligned, idx, aligned.grid)
-    train, held = ws.input_pair(screened.delay_s, screened.play_threshold)
+    train, held = ws.input_pair(screened.delay_s, screened.play_thresholds)
     local0 = initial_law(train) if start is None else start.fit.local
     if len(screened.model.local_names) > local0.shape[1]:
         local0 = np.concatenate([local0, np.zeros((local0.shape[0], 2))], axis=1)
@@ -464,7 +343,7 @@ def refit_full(
             local0,
             screened.fit.glob,
             delay_s=screened.delay_s,
-            threshold_v=screened.threshold_v,
+            thresholds=screened.thresholds,
         ),
         ws,
     )

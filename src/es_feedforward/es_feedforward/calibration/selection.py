@@ -21,18 +21,16 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Final
 
-import numpy as np
-
-from es_feedforward.calibration.model import CANDIDATES, CompositeModel, FitInputs
-from es_feedforward.calibration.residual import integrated_autocorrelation_time
+from es_feedforward.calibration.model import CANDIDATES, CompositeModel
+from es_feedforward.calibration.scans import candidate_states
 from es_feedforward.calibration.search import (
     ModelState,
     Workspace,
-    candidate_states,
     effect_parameters,
+    effective_count,
     extend_global,
     fit_state,
-    heldout_residual,
+    information_delta,
 )
 from es_physics.effects import Role, get
 
@@ -75,28 +73,12 @@ class RoundRecord:
     removed: str | None = None
 
 
-def information_delta(
-    sse_before: float, sse_after: float, n_effective: float, n_added: int
-) -> float:
-    """Return the BIC change of adding ``n_added`` parameters (negative favours the addition)."""
-    n = max(n_effective, 2.0)
-    return float(n * np.log(max(sse_after, 1e-300) / max(sse_before, 1e-300)) + n_added * np.log(n))
-
-
-def effective_count(ws: Workspace, state: ModelState, heldout: FitInputs) -> float:
-    """Return the number of independent held-out residuals of ``state`` on the score rows."""
-    resid = heldout_residual(state, heldout)
-    stride = max(1, int(np.median(np.diff(ws.score_rows))))
-    tau = integrated_autocorrelation_time(resid, contiguous=np.diff(ws.score_rows) == stride)
-    return float(state.heldout_count / max(tau, 1.0))
-
-
 def subset_state(ws: Workspace, state: ModelState, keep: Sequence[str]) -> ModelState:
     """Refit ``state``'s model reduced to the effects ``keep``, from its current values."""
-    model = CompositeModel(tuple(keep))
+    model = CompositeModel(tuple(keep), operators=state.model.operators or 1)
     delay = state.delay_s if model.shift else 0.0
-    threshold = state.threshold_v if model.play else 0.0
-    train, held = ws.input_pair(delay, threshold if model.play else None)
+    thresholds = state.thresholds if model.play else ()
+    train, held = ws.input_pair(delay, thresholds if model.play else None)
     local = state.fit.local[:, : len(model.local_names)]
     return fit_state(
         model,
@@ -105,8 +87,15 @@ def subset_state(ws: Workspace, state: ModelState, keep: Sequence[str]) -> Model
         local,
         extend_global(state, model, {}),
         delay_s=delay,
-        threshold_v=threshold,
+        thresholds=thresholds,
     )
+
+
+def _unknowns(state: ModelState, name: str, n_actuators: int) -> int:
+    """Return how many unknowns effect ``name`` has in ``state`` (play: per operator)."""
+    effect = get(name)
+    order = state.model.operators if effect is state.model.play else 1
+    return effect.added_parameters(n_actuators, order)
 
 
 def _verdict(
@@ -132,7 +121,7 @@ def _forward_round(
     """Try every remaining candidate on top of ``state``; return the record and the best."""
     duration = float(ws.aligned.t[-1])
     A = len(ws.actuators)
-    _, held = ws.input_pair(state.delay_s, state.play_threshold)
+    _, held = ws.input_pair(state.delay_s, state.play_thresholds)
     n_eff = effective_count(ws, state, held)
     scores: list[CandidateScore] = []
     best: tuple[float, str, ModelState] | None = None
@@ -143,7 +132,7 @@ def _forward_round(
         new = min(candidate_states(ws, state, name, duration), key=lambda s: s.fit.total_cost)
         params = effect_parameters(new, name, ws.aligned)
         delta = information_delta(
-            state.heldout_sse, new.heldout_sse, n_eff, effect.added_parameters(A)
+            state.heldout_sse, new.heldout_sse, n_eff, _unknowns(new, name, A)
         )
         reason = _verdict(name, params, state, new, delta)
         ok = reason == "passes"
@@ -162,7 +151,7 @@ def _forward_round(
 def _backward_round(ws: Workspace, state: ModelState) -> tuple[RoundRecord, ModelState | None]:
     """Take each effect of ``state`` out in turn; return the record and the reduced state."""
     A = len(ws.actuators)
-    _, held = ws.input_pair(state.delay_s, state.play_threshold)
+    _, held = ws.input_pair(state.delay_s, state.play_thresholds)
     n_eff = effective_count(ws, state, held)
     scores: list[CandidateScore] = []
     drop: tuple[float, str, ModelState] | None = None
@@ -171,7 +160,7 @@ def _backward_round(ws: Workspace, state: ModelState) -> tuple[RoundRecord, Mode
         without = subset_state(ws, state, keep)
         params = effect_parameters(state, name, ws.aligned)
         delta = information_delta(
-            without.heldout_sse, state.heldout_sse, n_eff, get(name).added_parameters(A)
+            without.heldout_sse, state.heldout_sse, n_eff, _unknowns(state, name, A)
         )
         reason = _verdict(name, params, without, state, delta)
         needed = reason == "passes"

@@ -179,10 +179,23 @@ class Effect(ABC):
         """Whether the calibration may add the effect."""
         return self.role is not Role.PLANT_ONLY
 
-    def added_parameters(self, n_actuators: int) -> int:
+    #: Most operators (terms of the same kind) the calibration may give the effect.
+    max_order: ClassVar[int] = 1
+
+    def fit_names(self, order: int = 1) -> tuple[str, ...]:
+        """Return the shared unknowns with ``order`` operators (default: fit_parameters)."""
+        return self.fit_parameters
+
+    def searched_names(self, order: int = 1) -> tuple[str, ...]:
+        """Return the scanned unknowns with ``order`` operators (default: searched)."""
+        return self.searched
+
+    def added_parameters(self, n_actuators: int, order: int = 1) -> int:
         """Return how many unknowns the effect adds to a fit of ``n_actuators`` actuators."""
         return (
-            len(self.fit_parameters) + len(self.searched) + n_actuators * len(self.local_parameters)
+            len(self.fit_names(order))
+            + len(self.searched_names(order))
+            + n_actuators * len(self.local_parameters)
         )
 
     def starts(self, duration_s: float) -> list[dict[str, float]]:

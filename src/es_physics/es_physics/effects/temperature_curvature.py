@@ -26,10 +26,6 @@ class TemperatureCurvature(Effect):
     )
     local_parameters: ClassVar[tuple[str, ...]] = ("m3", "k3")
 
-    def added_parameters(self, n_actuators: int) -> int:
-        """Two per actuator."""
-        return 2 * n_actuators
-
     def reported(self, fit: FittedEffect) -> dict[str, float]:
         """Return the grid's median ``m3`` and ``k3``."""
         return {k: float(np.median(fit.local[k])) for k in self.local_parameters}

@@ -1,0 +1,216 @@
+"""How each candidate effect is fitted on top of a model state.
+
+Every candidate is refitted jointly with the per-actuator law on training rows and scored on
+held-out rows. Unknowns with no closed-form Jacobian are scanned: the command shift (role
+``INPUT_SHIFT``) on whole command periods, then on ``DELAY_STEP`` fractions of a period (the
+command interpolated between neighbouring commands); the play thresholds (role ``PLAY``) on a
+logarithmic grid of the command range, refined between the best one's neighbours, one
+operator after the other. Every other effect is fitted from each of its own starting points
+(:meth:`es_physics.effects.Effect.starts`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Final
+
+import numpy as np
+
+from es_feedforward.calibration.model import CompositeModel, FloatArray
+from es_feedforward.calibration.search import (
+    ModelState,
+    Workspace,
+    effective_count,
+    extend_global,
+    extend_local,
+    fit_state,
+    information_delta,
+)
+from es_physics.effects import Role, get, with_role
+
+#: Longest delay searched [s] and in command periods.
+MAX_DELAY_S: Final = 0.1
+MAX_DELAY_PERIODS: Final = 40
+#: Resolution of the delay scan, in command periods.
+DELAY_STEP: Final = 0.05
+#: Hysteresis thresholds tried, as fractions of the command's range.
+THRESHOLD_FRACTIONS: Final = (0.005, 0.01, 0.02, 0.04, 0.08, 0.16, 0.3)
+#: Thresholds tried between the best coarse threshold's neighbours.
+FINE_THRESHOLDS: Final = 5
+#: Smallest relative cut of a cost that counts as an improvement.
+MIN_RELATIVE_GAIN: Final = 0.01
+#: Coarse thresholds closer than this factor to a fixed operator's are not tried again.
+THRESHOLD_SEPARATION: Final = 1.25
+
+
+def candidate_states(
+    ws: Workspace, state: ModelState, name: str, duration: float
+) -> list[ModelState]:
+    """Return fitted states of ``state`` plus effect ``name`` (several starts or grid points)."""
+    model = CompositeModel((*state.model.effects, name), operators=state.model.operators or 1)
+    local0 = extend_local(state, model)
+    role = get(name).role
+    if role is Role.INPUT_SHIFT:
+        return _shift_states(ws, state, model, local0)
+    if role is Role.PLAY:
+        return _play_states(ws, state, local0)
+    train, held = ws.input_pair(state.delay_s, state.play_thresholds)
+    return [
+        fit_state(
+            model,
+            train,
+            held,
+            local0,
+            extend_global(state, model, {f"{name}.{k}": v for k, v in start.items()}),
+            delay_s=state.delay_s,
+            thresholds=state.thresholds,
+        )
+        for start in get(name).starts(duration)
+    ]
+
+
+def _shift_states(
+    ws: Workspace, state: ModelState, model: CompositeModel, local0: FloatArray
+) -> list[ModelState]:
+    """Scan command shifts with the current law, then refit around the best one.
+
+    Whole command periods first (1 to ``MAX_DELAY_PERIODS``), then fractions of a period in
+    steps of ``DELAY_STEP`` within a period either side of the best whole shift; the best
+    fractional shift and its two neighbours are refitted.
+    """
+    period = ws.aligned.command_period
+    thresholds = state.play_thresholds
+    n_max = int(min(MAX_DELAY_PERIODS, max(1, MAX_DELAY_S / period)))
+    play = None if thresholds is None else ws.play_pair(thresholds, state.delay_s)[0]
+
+    def cost(periods: float) -> float:
+        shifted = ws.inputs(ws.fit_rows, periods * period, play)
+        pred = state.model.evaluate(state.fit.local, state.fit.glob, shifted, False).prediction
+        return float(np.sum(np.where(shifted.valid, shifted.displacement - pred, 0.0) ** 2))
+
+    whole = np.arange(1, n_max + 1, dtype=np.float64)
+    best_j = float(whole[int(np.argmin([cost(j) for j in whole]))])
+    steps = round(1.0 / DELAY_STEP)
+    fine = best_j + DELAY_STEP * np.arange(-steps, steps + 1)
+    fine = fine[(fine >= DELAY_STEP) & (fine <= n_max)]
+    fine_costs = [cost(d) for d in fine]
+    i = int(np.argmin(fine_costs))
+    chosen = [float(fine[i])]
+    if fine_costs[i] <= state.fit.total_cost:  # worth refitting the neighbours too
+        chosen = [float(d) for d in fine[max(i - 1, 0) : i + 2]]
+    out = []
+    for d in chosen:
+        train, held = ws.input_pair(d * period, thresholds)
+        out.append(
+            fit_state(
+                model,
+                train,
+                held,
+                local0,
+                extend_global(state, model, {}),
+                delay_s=d * period,
+                thresholds=state.thresholds,
+                max_iter=15,
+            )
+        )
+    return out
+
+
+def _play_states(ws: Workspace, state: ModelState, local0: FloatArray) -> list[ModelState]:
+    """Fit 1 to ``max_order`` play operators; return the number the held-out BIC prefers.
+
+    Operator k's threshold is scanned on a logarithmic grid of the command range with the
+    first k - 1 operators' thresholds fixed, refined between the best one's neighbours, and
+    all weights refitted jointly with the law (the new one started from 0). Operator k is
+    kept only when it lowers the held-out BIC (effective sample count) and cuts the held-out
+    RMS by ``MIN_RELATIVE_GAIN``.
+    """
+    span = float(np.ptp(ws.aligned.command[:, ws.actuators]))
+    coarse = [max(f * span, 1e-6) for f in THRESHOLD_FRACTIONS]
+    effects = (*state.model.effects, _play_name())
+    max_order = get(_play_name()).max_order
+    best: ModelState | None = None
+    for order in range(1, max_order + 1):
+        model = CompositeModel(effects, operators=order)
+        base = state if best is None else best
+        start = (local0 if best is None else best.fit.local, extend_global(base, model, {}))
+        fixed = () if best is None else best.thresholds
+        free = [r for r in coarse if all(max(r / f, f / r) > THRESHOLD_SEPARATION for f in fixed)]
+        if not free:
+            break
+        new = _best_threshold(ws, state, model, start, fixed=fixed, thresholds=free)
+        if new.fit.total_cost > (1.0 - MIN_RELATIVE_GAIN) ** 2 * base.fit.total_cost:
+            if best is None:
+                return [new]  # no threshold helps even on training data: nothing to refine
+            break
+        i = free.index(new.thresholds[-1])
+        lo, hi = free[max(i - 1, 0)], free[min(i + 1, len(free) - 1)]
+        fine = [float(r) for r in np.geomspace(lo, hi, FINE_THRESHOLDS + 2)[1:-1]]
+        refined = _best_threshold(
+            ws, state, model, (new.fit.local, new.fit.glob), fixed=fixed, thresholds=fine
+        )
+        new = refined if refined.fit.total_cost < new.fit.total_cost else new
+        train, held = ws.input_pair(state.delay_s, new.thresholds)
+        new = fit_state(
+            model,
+            train,
+            held,
+            new.fit.local,
+            new.fit.glob,
+            delay_s=state.delay_s,
+            thresholds=new.thresholds,
+        )
+        if best is not None and not _operator_pays(ws, best, new):
+            break
+        best = new
+    assert best is not None  # order 1 either returned early or set it
+    return [best]
+
+
+def _play_name() -> str:
+    """Return the name of the registry's play effect."""
+    effect = with_role(Role.PLAY)
+    assert effect is not None  # _play_states is only reached for a PLAY candidate
+    return effect.name
+
+
+def _operator_pays(ws: Workspace, fewer: ModelState, more: ModelState) -> bool:
+    """Return whether one more play operator (weight and threshold) pays on held-out data."""
+    _, held = ws.input_pair(fewer.delay_s, fewer.play_thresholds)
+    n_eff = effective_count(ws, fewer, held)
+    delta = information_delta(fewer.heldout_sse, more.heldout_sse, n_eff, 2)
+    gain = 1.0 - more.heldout_rms / max(fewer.heldout_rms, 1e-300)
+    return delta < 0 and gain >= MIN_RELATIVE_GAIN
+
+
+def _best_threshold(
+    ws: Workspace,
+    state: ModelState,
+    model: CompositeModel,
+    start: tuple[FloatArray, FloatArray],
+    *,
+    fixed: tuple[float, ...],
+    thresholds: Sequence[float],
+) -> ModelState:
+    """Fit the model with operators ``fixed`` + r for each r (one play pass for all)."""
+    local0, glob0 = start
+    fit_play, score_play = ws.play_pair([*fixed, *thresholds], state.delay_s)
+    k = len(fixed)
+    trials = []
+    for i, r in enumerate(thresholds):
+        pick = [*range(k), k + i]
+        train = ws.inputs(ws.fit_rows, state.delay_s, fit_play[:, pick, :])
+        held = ws.inputs(ws.score_rows, state.delay_s, score_play[:, pick, :])
+        trials.append(
+            fit_state(
+                model,
+                train,
+                held,
+                local0,
+                glob0,
+                delay_s=state.delay_s,
+                thresholds=(*fixed, r),
+                max_iter=10,
+            )
+        )
+    return min(trials, key=lambda s: s.fit.total_cost)
