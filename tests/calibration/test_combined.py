@@ -84,3 +84,42 @@ def test_fractional_delay_is_resolved_to_a_twentieth_of_a_period(
     found = cal.effects[0].parameters["delay_s"] * rate
     assert abs(found - periods) <= 0.05, found
     assert cal.final.heldout_rms <= 1.2 * NOISE
+
+
+def pi_stand(
+    weights: tuple[float, ...], thresholds: tuple[float, ...], seed: int = 8
+) -> MeasuredData:
+    """A stand whose drive passes a Prandtl-Ishlinskii operator with constant weights."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, 60.0, 1.0 / RATE)
+    V = 160.0 + 80.0 * np.sin(2 * np.pi * 0.7 * t) + 40.0 * np.sin(2 * np.pi * 1.9 * t + 0.5)
+    T = 46.0 - 3.0 * np.cos(2 * np.pi * t / 60.0)
+    states = np.zeros(len(weights))
+    r = np.asarray(thresholds)
+    v_eff = np.empty_like(V)
+    for i, v in enumerate(V):
+        states = np.clip(states, v - r, v + r)
+        v_eff[i] = (1.0 - sum(weights)) * v + float(np.dot(weights, states))
+    z = law(v_eff, T) + NOISE * rng.standard_normal(t.size)
+    grid = lambda x: x[:, None, None]  # noqa: E731
+    return MeasuredData(t, grid(V), t + 0.001, grid(z), t[::10], grid(T[::10]))
+
+
+@pytest.mark.slow
+def test_drive_side_hysteresis_with_constant_weight_alone() -> None:
+    cal = calibrate(pi_stand((0.2,), (25.0,)))
+    assert [e.name for e in cal.effects] == ["hysteresis"], cal.rounds
+    p = cal.effects[0].parameters
+    assert p["weight"] == pytest.approx(0.2, rel=0.1)
+    assert p["threshold_v"] == pytest.approx(25.0, rel=0.15)
+    assert abs(p["decay_per_degc"]) < 0.05  # the weight does not follow the temperature
+    assert cal.final.heldout_rms <= 1.2 * NOISE
+
+
+@pytest.mark.slow
+def test_three_operator_hysteresis_gets_more_than_one_operator() -> None:
+    cal = calibrate(pi_stand((0.1, 0.15, 0.1), (4.0, 20.0, 60.0)))
+    assert [e.name for e in cal.effects] == ["hysteresis"], cal.rounds
+    p = cal.effects[0].parameters
+    assert "weight_2" in p, p
+    assert cal.final.heldout_rms <= 1.2 * NOISE, (cal.final.heldout_rms, p)

@@ -81,6 +81,7 @@ def test_jacobians_match_finite_differences(coupled: bool) -> None:
     values = {
         "sensor_lag.tau_s": 3.0,
         "hysteresis.weight": 0.05,
+        "hysteresis.decay_per_degc": 0.2,
         "coupling.coefficient": 0.04,
         "thermal_expansion.alpha_m_per_degc": 4e-10,
         "thermal_expansion.offset_m": 1e-9,

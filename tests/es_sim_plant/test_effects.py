@@ -78,6 +78,19 @@ def test_hysteresis_loop_area_grows_towards_tm() -> None:
     assert areas["near_tm"] > 2.0 * areas["hot"]
 
 
+def test_prandtl_ishlinskii_operators_add_up() -> None:
+    t = np.arange(300) / 100.0
+    volts = 150.0 + 100.0 * np.sin(2 * np.pi * t)
+    one = {"enabled": True, "weight": 0.2, "threshold_v": 30.0}
+    _, single = run(bench({"hysteresis": one}), volts)
+    _, unused = run(bench({"hysteresis": {**one, "threshold_v_2": 10.0}}), volts)
+    _, two = run(bench({"hysteresis": {**one, "weight_2": 0.1, "threshold_v_2": 10.0}}), volts)
+    np.testing.assert_array_equal(unused.displacement, single.displacement)  # weight_2 = 0
+    period = slice(200, 300)
+    area = lambda r: loop_area(volts[period], r.displacement[period, 0, 0])  # noqa: E731
+    assert area(two) > 1.2 * area(single)
+
+
 def test_delay_found_by_cross_correlation() -> None:
     rng = np.random.default_rng(5)
     volts = rng.uniform(50.0, 250.0, 300)

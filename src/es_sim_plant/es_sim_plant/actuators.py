@@ -25,7 +25,12 @@ import numpy.typing as npt
 
 from es_physics.effects.coupling import grid_laplacian
 from es_physics.effects.drift import drift_factor
-from es_physics.effects.hysteresis import hysteresis_weight, play
+from es_physics.effects.hysteresis import (
+    MAX_OPERATORS,
+    hysteresis_weight,
+    operator_names,
+    play,
+)
 from es_physics.laws import DEFAULT_V_LIMIT, hyperbolic_forward
 from es_physics.params import ActuatorParams
 from es_sim_plant.effects import Effects
@@ -145,7 +150,13 @@ class ActuatorGrid:
         # A delay of m internal steps = q whole plant steps and r internal steps.
         self._delay_whole, self._switch = divmod(delay_steps, self.substeps)
         self._history = np.zeros((self._delay_whole + 2, *shape))
-        self._play = np.zeros(shape)
+        hyst = effects.hysteresis
+        self._operators = [
+            (getattr(hyst, w), getattr(hyst, r))
+            for k, (w, r) in enumerate(operator_names(i) for i in range(MAX_OPERATORS))
+            if k == 0 or getattr(hyst, w) > 0.0
+        ]
+        self._play = np.zeros((len(self._operators), *shape))
         self._mean_voltage = np.zeros(shape)
         self._mean_decay = float(np.exp(-dt / effects.self_heating.mean_window_s))
         self.command = np.zeros(shape)
@@ -199,12 +210,17 @@ class ActuatorGrid:
         V = np.where(before_switch, self.voltage_before, self.voltage_after)
         hyst = self.effects.hysteresis
         if hyst.enabled:
-            first = play(self._play, self.voltage_before, hyst.threshold_v)
-            second = play(first, self.voltage_after, hyst.threshold_v)
-            played = np.where(before_switch, first, second)
-            self._play = second
-            a = hysteresis_weight(T, self.params.Tm, hyst.weight)
-            V = (1.0 - a) * V + a * played
+            # Prandtl-Ishlinskii: operator 1 always, further ones where their weight is > 0
+            total: FloatArray | float = 0.0
+            mix: FloatArray | float = 0.0
+            for k, (weight, threshold) in enumerate(self._operators):
+                first = play(self._play[k], self.voltage_before, threshold)
+                second = play(first, self.voltage_after, threshold)
+                self._play[k] = second
+                a = hysteresis_weight(T, self.params.Tm, weight)
+                played = np.where(before_switch, first, second)
+                total, mix = (a, a * played) if k == 0 else (total + a, mix + a * played)
+            V = (1.0 - total) * V + mix
         z = hyperbolic_forward(V, T, self.params)
         if self.effects.drift.enabled:
             times = np.asarray(t_start + ends * (self.dt / n), np.float64)

@@ -8,8 +8,9 @@ effect registry (:mod:`es_physics.effects`); each effect acts in one stage (its
 
 - ``TEMPERATURE``: T_a = T + tau dT/dt (the actuator leads the sensor by a first-order lag);
 - ``INPUT_SHIFT``: V(t - d), applied when the inputs are built (see ``FitInputs``);
-- ``PLAY``: V_eff = (1 - a(T_a)) V + a(T_a) play_r(V),
-  a(T_a) = weight exp(-(T_a - T_mean) / 4 degC); play_r is applied when the inputs are built;
+- ``PLAY``: V_eff = V + a(T_a) sum_i weight_i (play_(r_i)(V) - V),
+  a(T_a) = exp(-beta (T_a - T_mean)) with beta fitted too; the play operators are applied
+  when the inputs are built;
 - ``LAW``: quadratic T* terms m3, k3 in M(T*) and k(T*) (two more local coefficients);
 - ``GAIN``: M_eff = M (1 - f (1 - exp(-(t / tau)^nu))), t from the start of the data;
 - ``SPATIAL``: z = z_free + c lap(z_free), 4-neighbour Laplacian, edges use only existing
@@ -36,7 +37,6 @@ import numpy.typing as npt
 from es_physics.effects import Effect, EffectError, Role, candidates, get, with_role
 from es_physics.effects.coupling import neighbour_count, neighbour_laplacian
 from es_physics.effects.drift import DRIFT_LOG_NU_LIMIT
-from es_physics.effects.hysteresis import HYSTERESIS_DECAY
 from es_physics.params import ActuatorParams
 
 FloatArray = npt.NDArray[np.float64]
@@ -158,12 +158,16 @@ class CompositeModel:
         if self.play:
             if data.play is None:
                 raise ValueError(f"{self.play.name} needs the play operator in the inputs")
-            a_T = np.exp(-(Ta - data.mean_temperature) / HYSTERESIS_DECAY)
+            # the last play parameter is the weights' temperature slope beta [1/degC]
+            beta = self._global(g, self.play, self.operators)
+            dT = Ta - data.mean_temperature
+            a_T = np.exp(-beta * dT)
             gaps = data.play - V  # (K, A, n)
             mix = sum(self._global(g, self.play, i) * gaps[i] for i in range(self.operators))
             V = V + a_T * mix
             dV_dweights = [a_T * gaps[i] for i in range(self.operators)]
-            dV_dTa = -a_T * mix / HYSTERESIS_DECAY
+            dV_dweights.append(-dT * a_T * mix)
+            dV_dTa = -beta * a_T * mix
 
         Ts = Ta - self.Tm
         m2, m1, k2, k1 = (local[:, i : i + 1] for i in range(4))
@@ -212,7 +216,7 @@ class CompositeModel:
                 jac_g[self.key(self.gain, 1)] = frac * e * nu * s * H
                 jac_g[self.key(self.gain, 2)] = -frac * e * s * log_ratio * nu * H
                 if self.play:
-                    for i in range(self.operators):
+                    for i in range(len(self.parameter_names(self.play))):
                         key = self.key(self.play, i)
                         jac_g[key] = jac_g[key] * gain
             scale = gain

@@ -40,7 +40,9 @@ FINE_THRESHOLDS: Final = 5
 #: Smallest relative cut of a cost that counts as an improvement.
 MIN_RELATIVE_GAIN: Final = 0.01
 #: Coarse thresholds closer than this factor to a fixed operator's are not tried again.
-THRESHOLD_SEPARATION: Final = 1.25
+THRESHOLD_SEPARATION: Final = 1.5
+#: Times the threshold grid is refined around the best one.
+REFINEMENTS: Final = 4
 
 
 def candidate_states(
@@ -120,36 +122,39 @@ def _play_states(ws: Workspace, state: ModelState, local0: FloatArray) -> list[M
     """Fit 1 to ``max_order`` play operators; return the number the held-out BIC prefers.
 
     Operator k's threshold is scanned on a logarithmic grid of the command range with the
-    first k - 1 operators' thresholds fixed, refined between the best one's neighbours, and
-    all weights refitted jointly with the law (the new one started from 0). Operator k is
-    kept only when it lowers the held-out BIC (effective sample count) and cuts the held-out
-    RMS by ``MIN_RELATIVE_GAIN``.
+    other operators' thresholds fixed and zoomed in between the best one's neighbours; with
+    two or more operators every threshold is then zoomed again with the others fixed (one
+    coordinate pass). The weights are refitted jointly with the law at every trial (a new
+    one started from 0). Operator k is kept only when it lowers the held-out BIC (effective
+    sample count) and cuts the held-out RMS by ``MIN_RELATIVE_GAIN``.
     """
     span = float(np.ptp(ws.aligned.command[:, ws.actuators]))
     coarse = [max(f * span, 1e-6) for f in THRESHOLD_FRACTIONS]
-    effects = (*state.model.effects, _play_name())
-    max_order = get(_play_name()).max_order
+    effect = with_role(Role.PLAY)
+    assert effect is not None  # reached only for the PLAY candidate
+    effects = (*state.model.effects, effect.name)
+    first = {f"{effect.name}.{k}": v for k, v in effect.starts(0.0)[0].items()}
     best: ModelState | None = None
-    for order in range(1, max_order + 1):
+    for order in range(1, effect.max_order + 1):
         model = CompositeModel(effects, operators=order)
         base = state if best is None else best
-        start = (local0 if best is None else best.fit.local, extend_global(base, model, {}))
+        start = (local0 if best is None else best.fit.local, extend_global(base, model, first))
         fixed = () if best is None else best.thresholds
-        free = [r for r in coarse if all(max(r / f, f / r) > THRESHOLD_SEPARATION for f in fixed)]
+        free = [r for r in coarse if _apart(r, fixed)]
         if not free:
             break
-        new = _best_threshold(ws, state, model, start, fixed=fixed, thresholds=free)
+        new = _trials(ws, state, model, start, [(*fixed, r) for r in free])
         if new.fit.total_cost > (1.0 - MIN_RELATIVE_GAIN) ** 2 * base.fit.total_cost:
             if best is None:
                 return [new]  # no threshold helps even on training data: nothing to refine
             break
         i = free.index(new.thresholds[-1])
-        lo, hi = free[max(i - 1, 0)], free[min(i + 1, len(free) - 1)]
-        fine = [float(r) for r in np.geomspace(lo, hi, FINE_THRESHOLDS + 2)[1:-1]]
-        refined = _best_threshold(
-            ws, state, model, (new.fit.local, new.fit.glob), fixed=fixed, thresholds=fine
+        new = _zoom(
+            ws, state, new, order - 1, (free[max(i - 1, 0)], free[min(i + 1, len(free) - 1)])
         )
-        new = refined if refined.fit.total_cost < new.fit.total_cost else new
+        for k in range(order if order > 1 else 0):
+            r = new.thresholds[k]
+            new = _zoom(ws, state, new, k, (r / THRESHOLD_SEPARATION, r * THRESHOLD_SEPARATION))
         train, held = ws.input_pair(state.delay_s, new.thresholds)
         new = fit_state(
             model,
@@ -167,11 +172,29 @@ def _play_states(ws: Workspace, state: ModelState, local0: FloatArray) -> list[M
     return [best]
 
 
-def _play_name() -> str:
-    """Return the name of the registry's play effect."""
-    effect = with_role(Role.PLAY)
-    assert effect is not None  # _play_states is only reached for a PLAY candidate
-    return effect.name
+def _apart(r: float, others: Sequence[float]) -> bool:
+    """Return whether threshold ``r`` is at least ``THRESHOLD_SEPARATION`` from ``others``."""
+    return all(max(r / f, f / r) > THRESHOLD_SEPARATION for f in others)
+
+
+def _zoom(
+    ws: Workspace, state: ModelState, current: ModelState, k: int, bounds: tuple[float, float]
+) -> ModelState:
+    """Refine operator ``k``'s threshold within ``bounds``, the others fixed."""
+    lo, hi = bounds
+    for _ in range(REFINEMENTS):
+        r_k = current.thresholds[k]
+        others = current.thresholds[:k] + current.thresholds[k + 1 :]
+        grid = sorted({*np.geomspace(lo, hi, FINE_THRESHOLDS + 2).tolist(), r_k})
+        inner = [r for r in grid if r != r_k and lo < r < hi and _apart(r, others)]
+        if not inner:
+            break
+        tuples = [(*current.thresholds[:k], r, *current.thresholds[k + 1 :]) for r in inner]
+        trial = _trials(ws, state, current.model, (current.fit.local, current.fit.glob), tuples)
+        current = trial if trial.fit.total_cost < current.fit.total_cost else current
+        i = grid.index(current.thresholds[k])
+        lo, hi = grid[max(i - 1, 0)], grid[min(i + 1, len(grid) - 1)]
+    return current
 
 
 def _operator_pays(ws: Workspace, fewer: ModelState, more: ModelState) -> bool:
@@ -183,22 +206,20 @@ def _operator_pays(ws: Workspace, fewer: ModelState, more: ModelState) -> bool:
     return delta < 0 and gain >= MIN_RELATIVE_GAIN
 
 
-def _best_threshold(
+def _trials(
     ws: Workspace,
     state: ModelState,
     model: CompositeModel,
     start: tuple[FloatArray, FloatArray],
-    *,
-    fixed: tuple[float, ...],
-    thresholds: Sequence[float],
+    tuples: Sequence[tuple[float, ...]],
 ) -> ModelState:
-    """Fit the model with operators ``fixed`` + r for each r (one play pass for all)."""
+    """Fit the model at each tuple of play thresholds; return the best (one play pass)."""
     local0, glob0 = start
-    fit_play, score_play = ws.play_pair([*fixed, *thresholds], state.delay_s)
-    k = len(fixed)
+    unique = sorted({r for t in tuples for r in t})
+    fit_play, score_play = ws.play_pair(unique, state.delay_s)
     trials = []
-    for i, r in enumerate(thresholds):
-        pick = [*range(k), k + i]
+    for thresholds in tuples:
+        pick = [unique.index(r) for r in thresholds]
         train = ws.inputs(ws.fit_rows, state.delay_s, fit_play[:, pick, :])
         held = ws.inputs(ws.score_rows, state.delay_s, score_play[:, pick, :])
         trials.append(
@@ -209,7 +230,7 @@ def _best_threshold(
                 local0,
                 glob0,
                 delay_s=state.delay_s,
-                thresholds=(*fixed, r),
+                thresholds=thresholds,
                 max_iter=10,
             )
         )

@@ -23,6 +23,8 @@ HYSTERESIS_ONSET: Final = 2.0
 HYSTERESIS_DECAY: Final = 4.0
 #: Most play operators the simulator, the calibration and the compensation use.
 MAX_OPERATORS: Final = 3
+#: Steepest temperature law of the weights the calibration accepts [1/degC].
+MAX_DECAY_PER_DEGC: Final = 2.0
 
 
 def hysteresis_weight(T: FloatArray, Tm: float | FloatArray, weight: float) -> FloatArray:
@@ -123,7 +125,7 @@ class Hysteresis(Effect):
     role: ClassVar[Role] = Role.PLAY
     simulated: ClassVar[bool] = True
     plant: ClassVar[tuple[Parameter, ...]] = _operator_parameters("", 1.0, 1e4)
-    fit_parameters: ClassVar[tuple[str, ...]] = ("weight",)
+    fit_parameters: ClassVar[tuple[str, ...]] = ("weight", "decay_per_degc")
     searched: ClassVar[tuple[str, ...]] = ("threshold_v",)
     max_order: ClassVar[int] = MAX_OPERATORS
     compensation: ClassVar[tuple[Parameter, ...]] = _operator_parameters(
@@ -131,8 +133,16 @@ class Hysteresis(Effect):
     )
 
     def fit_names(self, order: int = 1) -> tuple[str, ...]:
-        """Return ``weight``, ``weight_2``, ... for ``order`` operators."""
-        return tuple(operator_names(i)[0] for i in range(order))
+        """Return ``weight``, ``weight_2``, ... for ``order`` operators, then ``decay_per_degc``.
+
+        ``decay_per_degc`` is beta of the weights' temperature law exp(-beta (T - T_mean))
+        (the simulator's is 1 / HYSTERESIS_DECAY; a stand's hysteresis may not vary at all).
+        """
+        return (*(operator_names(i)[0] for i in range(order)), "decay_per_degc")
+
+    def starts(self, duration_s: float) -> list[dict[str, float]]:
+        """Start beta at the simulator's value (the weights start at 0)."""
+        return [{"decay_per_degc": 1.0 / HYSTERESIS_DECAY}]
 
     def searched_names(self, order: int = 1) -> tuple[str, ...]:
         """Return ``threshold_v``, ``threshold_v_2``, ... for ``order`` operators."""
@@ -147,7 +157,9 @@ class Hysteresis(Effect):
         return {k: float(v) for k, v in fit.sigma.items() if k.startswith("weight")}
 
     def problem(self, reported: dict[str, float]) -> str | None:
-        """Reject weights outside (0, 1) or summing to 1 or more."""
+        """Reject weights outside (0, 1) or summing to 1 or more, or a steep beta."""
+        if abs(reported["decay_per_degc"]) > MAX_DECAY_PER_DEGC:
+            return f"decay_per_degc {reported['decay_per_degc']:.3g} beyond +-{MAX_DECAY_PER_DEGC}"
         weights = {k: v for k, v in reported.items() if k.startswith("weight")}
         for k, v in weights.items():
             if not 0.0 < v < 1.0:
@@ -159,5 +171,5 @@ class Hysteresis(Effect):
     def compensation_values(
         self, reported: dict[str, float], start_time: float
     ) -> dict[str, float]:
-        """Invert the fitted operator."""
-        return {f"hysteresis_{k}": v for k, v in reported.items()}
+        """Invert the fitted operator (weights at the data's mean temperature)."""
+        return {f"hysteresis_{k}": v for k, v in reported.items() if k != "decay_per_degc"}
