@@ -123,6 +123,12 @@ class CompensationParams:
 RANGES: Final[dict[str, tuple[float, float]]] = {
     p.name: (p.low, p.high) for effect in registry().values() for p in effect.compensation
 }
+#: One line per compensation parameter: the declaring effect, what it is, its unit.
+DESCRIPTIONS: Final[dict[str, str]] = {
+    p.name: f"{effect.name}: {p.doc}" + (f" [{p.unit}]" if p.unit else "")
+    for effect in registry().values()
+    for p in effect.compensation
+}
 
 
 class TemperatureLead:

@@ -21,6 +21,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from std_msgs.msg import Float64MultiArray
 
+from es_feedforward.compensation import DESCRIPTIONS as COMPENSATION_DESCRIPTIONS
 from es_feedforward.compensation import PREFIX as COMPENSATION_PREFIX
 from es_feedforward.compensation import RANGES as COMPENSATION_RANGES
 from es_feedforward.compensation import CompensationParams
@@ -165,7 +166,7 @@ def parameter_specs() -> list[ParameterSpec]:
         ParameterSpec(
             COMPENSATION_PREFIX + name,
             float(getattr(compensation_defaults, name)),
-            f"Effect compensation {name} (see README).",
+            f"Effect compensation, {COMPENSATION_DESCRIPTIONS[name]}.",
             low,
             high,
         )
