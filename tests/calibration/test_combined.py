@@ -123,3 +123,30 @@ def test_three_operator_hysteresis_gets_more_than_one_operator() -> None:
     p = cal.effects[0].parameters
     assert "weight_2" in p, p
     assert cal.final.heldout_rms <= 1.2 * NOISE, (cal.final.heldout_rms, p)
+
+
+def delayed_pi_stand(delay_periods: float, weight: float, threshold: float) -> MeasuredData:
+    """500 Hz: the command reaches the actuator later (interpolated), then a play operator."""
+    rng = np.random.default_rng(1)
+    rate = 500.0
+    t = np.arange(0.0, 60.0, 1.0 / rate)
+    V = 160.0 + 80.0 * np.sin(2 * np.pi * 0.7 * t) + 40.0 * np.sin(2 * np.pi * 1.9 * t + 0.5)
+    V = V + 15.0 * np.sin(2 * np.pi * 7.3 * t)
+    T = 46.0 - 3.0 * np.cos(2 * np.pi * t / 60.0)
+    applied = np.interp(t - delay_periods / rate, t, V, left=V[0])
+    state, v_eff = 0.0, np.empty_like(V)
+    for i, v in enumerate(applied):
+        state = min(max(state, v - threshold), v + threshold)
+        v_eff[i] = (1.0 - weight) * v + weight * state
+    z = law(v_eff, T) + NOISE * rng.standard_normal(t.size)
+    grid = lambda x: x[:, None, None]  # noqa: E731
+    return MeasuredData(t, grid(V), t + 1e-4, grid(z), t[::50], grid(T[::50]))
+
+
+@pytest.mark.slow
+def test_fractional_delay_and_hysteresis_together() -> None:
+    cal = calibrate(delayed_pi_stand(1.2, 0.2, 25.0), ("delay", "hysteresis", "sensor_lag"))
+    assert sorted(e.name for e in cal.effects) == ["delay", "hysteresis"], cal.rounds
+    found = {e.name: e.parameters for e in cal.effects}
+    assert abs(found["delay"]["delay_s"] * 500.0 - 1.2) <= 0.1
+    assert cal.final.heldout_rms <= 1.2 * NOISE

@@ -20,6 +20,7 @@ from es_feedforward.calibration.model import CompositeModel, FloatArray
 from es_feedforward.calibration.search import (
     ModelState,
     Workspace,
+    effect_parameters,
     effective_count,
     extend_global,
     extend_local,
@@ -33,6 +34,8 @@ MAX_DELAY_S: Final = 0.1
 MAX_DELAY_PERIODS: Final = 40
 #: Resolution of the delay scan, in command periods.
 DELAY_STEP: Final = 0.05
+#: A shift found earlier is scanned again this many command periods either side.
+RESCAN_PERIODS: Final = 2.5
 #: Hysteresis thresholds tried, as fractions of the command's range.
 THRESHOLD_FRACTIONS: Final = (0.005, 0.01, 0.02, 0.04, 0.08, 0.16, 0.3)
 #: Thresholds tried between the best coarse threshold's neighbours.
@@ -53,22 +56,65 @@ def candidate_states(
     local0 = extend_local(state, model)
     role = get(name).role
     if role is Role.INPUT_SHIFT:
-        return _shift_states(ws, state, model, local0)
-    if role is Role.PLAY:
-        return _play_states(ws, state, local0)
-    train, held = ws.input_pair(state.delay_s, state.play_thresholds)
-    return [
-        fit_state(
-            model,
-            train,
-            held,
-            local0,
-            extend_global(state, model, {f"{name}.{k}": v for k, v in start.items()}),
-            delay_s=state.delay_s,
-            thresholds=state.thresholds,
-        )
-        for start in get(name).starts(duration)
-    ]
+        out = _shift_states(ws, state, model, local0)
+    elif role is Role.PLAY:
+        out = _play_states(ws, state, local0)
+    else:
+        train, held = ws.input_pair(state.delay_s, state.play_thresholds)
+        out = [
+            fit_state(
+                model,
+                train,
+                held,
+                local0,
+                extend_global(state, model, {f"{name}.{k}": v for k, v in start.items()}),
+                delay_s=state.delay_s,
+                thresholds=state.thresholds,
+            )
+            for start in get(name).starts(duration)
+        ]
+    if model.shift is not None and len(model.effects) > 1:
+        # the shift was scanned with a model that lacked the other effects (a play operator's
+        # phase lag looks like a delay): scan it again with the whole refitted model
+        out.append(_rescan_shift(ws, min(out, key=lambda s: s.fit.total_cost)))
+    return out
+
+
+def _rescan_shift(ws: Workspace, state: ModelState) -> ModelState:
+    """Scan ``state``'s shift again within ``RESCAN_PERIODS`` of it; refit at the best one.
+
+    The play operators are taken at the whole shift below each trial (one play pass per
+    whole shift); the refit uses them at the exact shift.
+    """
+    period = ws.aligned.command_period
+    thresholds = state.play_thresholds
+    plays: dict[float, FloatArray] = {}
+
+    def cost(periods: float) -> float:
+        whole = float(np.floor(periods + 1e-9))
+        if thresholds is not None and whole not in plays:
+            plays[whole] = ws.play_pair(thresholds, whole * period)[0]
+        shifted = ws.inputs(ws.fit_rows, periods * period, plays.get(whole))
+        pred = state.model.evaluate(state.fit.local, state.fit.glob, shifted, False).prediction
+        return float(np.sum(np.where(shifted.valid, shifted.displacement - pred, 0.0) ** 2))
+
+    center = state.delay_s / period
+    steps = round(RESCAN_PERIODS / DELAY_STEP)
+    grid = center + DELAY_STEP * np.arange(-steps, steps + 1)
+    grid = grid[grid >= DELAY_STEP - 1e-9]
+    best = float(grid[int(np.argmin([cost(d) for d in grid]))])
+    if abs(best - center) < 0.5 * DELAY_STEP:
+        return state
+    train, held = ws.input_pair(best * period, thresholds)
+    return fit_state(
+        state.model,
+        train,
+        held,
+        state.fit.local,
+        state.fit.glob,
+        delay_s=best * period,
+        thresholds=state.thresholds,
+    )
 
 
 def _shift_states(
@@ -165,8 +211,11 @@ def _play_states(ws: Workspace, state: ModelState, local0: FloatArray) -> list[M
             delay_s=state.delay_s,
             thresholds=new.thresholds,
         )
-        if best is not None and not _operator_pays(ws, best, new):
-            break
+        if best is not None and (
+            effect.problem(effect_parameters(new, effect.name, ws.aligned)) is not None
+            or not _operator_pays(ws, best, new)
+        ):
+            break  # a further operator must have physical weights and pay on held-out data
         best = new
     assert best is not None  # order 1 either returned early or set it
     return [best]
