@@ -41,8 +41,9 @@ NOISE_RATIO_LIMIT: Final = 1.2
 class AcceptedEffect:
     """An effect the search added, with its full-grid held-out RMS before and after.
 
-    ``share`` is its part of the mean-square error that all accepted effects removed,
-    (before^2 - after^2) / (base^2 - final^2): the shares of a calibration sum to 1.
+    ``parameters`` and ``uncertainties`` are those of the final model (all accepted effects
+    fitted together). ``share`` is its part of the mean-square error that all accepted
+    effects removed, (before^2 - after^2) / (base^2 - final^2): the shares sum to 1.
     """
 
     name: str
@@ -189,7 +190,8 @@ def calibrate(measured: MeasuredData, candidates: tuple[str, ...] = CANDIDATES) 
     effects = []
     for (name, _, _), prev, state in zip(added, prefix_states[:-1], prefix_states[1:], strict=True):
         effect = get(name)
-        fitted = fitted_effect(state, effect, aligned)
+        # parameters from the final model: every effect refitted with all the others
+        fitted = fitted_effect(final, effect, aligned)
         effects.append(
             AcceptedEffect(
                 name,

@@ -77,7 +77,28 @@ def candidate_states(
         # the shift was scanned with a model that lacked the other effects (a play operator's
         # phase lag looks like a delay): scan it again with the whole refitted model
         out.append(_rescan_shift(ws, min(out, key=lambda s: s.fit.total_cost)))
+    if role is Role.INPUT_SHIFT and model.play is not None:
+        # and the play thresholds were scanned without the shift: scan them again with it
+        out.extend(_replay(ws, min(out, key=lambda s: s.fit.total_cost)))
     return out
+
+
+def _replay(ws: Workspace, state: ModelState) -> list[ModelState]:
+    """Return ``state`` with its play operators scanned again from none (shift kept)."""
+    play = state.model.play
+    assert play is not None  # called only for a model with a play effect
+    reduced = CompositeModel(tuple(e for e in state.model.effects if e != play.name))
+    train, held = ws.input_pair(state.delay_s, None)
+    without = fit_state(
+        reduced,
+        train,
+        held,
+        state.fit.local,
+        extend_global(state, reduced, {}),
+        delay_s=state.delay_s,
+        thresholds=(),
+    )
+    return _play_states(ws, without, without.fit.local)
 
 
 def _rescan_shift(ws: Workspace, state: ModelState) -> ModelState:
