@@ -23,9 +23,9 @@ from pathlib import Path
 import numpy as np
 
 from es_feedforward.calibrate import run
-from es_feedforward.models import hyperbolic_forward
-from es_feedforward.params import ActuatorParams
 from es_msgs_py.bag import FLOAT64_MULTI_ARRAY, BagWriter, encode_float64_multi_array
+from es_physics.laws import hyperbolic_forward
+from es_physics.params import ActuatorParams
 
 BLOCK_STEPS = 5000
 EXPANSION_M_PER_DEGC = 0.4e-9

@@ -31,8 +31,8 @@ from functools import partial
 import numpy as np
 
 from es_feedforward.feedforward import Feedforward, FeedforwardConfig, Mode
-from es_feedforward.models import DEFAULT_V_LIMIT, CompiledLaws
-from es_feedforward.params import ActuatorParams
+from es_physics.laws import DEFAULT_V_LIMIT, CompiledLaws
+from es_physics.params import ActuatorParams
 
 DEFAULT_SIZES = (1, 144, 1024, 4096, 16384)
 #: CPU time of this thread: time the process waits for a core (other load) does not count.

@@ -427,10 +427,10 @@ class DdsClient:
         import rclpy
         from std_msgs.msg import Float64MultiArray
 
-        from es_feedforward.models import z_sat
-        from es_feedforward.params import ActuatorParams
         from es_msgs_py.arrays import grid_to_msg
         from es_msgs_py.topics import COMMAND, SETPOINT, TEMPERATURE, qos_for
+        from es_physics.laws import z_sat
+        from es_physics.params import ActuatorParams
 
         self.shape = shape
         self.context = rclpy.Context()

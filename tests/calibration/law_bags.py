@@ -16,9 +16,9 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-from es_feedforward.models import hyperbolic_forward
-from es_feedforward.params import ActuatorParams
 from es_msgs_py.bag import write_array_bag
+from es_physics.laws import hyperbolic_forward
+from es_physics.params import ActuatorParams
 
 RATE = 250.0
 TEMPERATURE_RATE = 10.0

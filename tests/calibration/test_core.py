@@ -15,9 +15,10 @@ from es_feedforward.calibration.model import (
     play_operator,
 )
 from es_feedforward.calibration.residual import integrated_autocorrelation_time, noise_floor
-from es_feedforward.models import hyperbolic_forward
-from es_feedforward.params import ActuatorParams
-from es_sim_plant.effects import grid_laplacian, play
+from es_physics.effects.coupling import grid_laplacian
+from es_physics.effects.hysteresis import play
+from es_physics.laws import hyperbolic_forward
+from es_physics.params import ActuatorParams
 
 
 def _inputs(rng: np.random.Generator, A: int = 6, n: int = 400, grid=(2, 3)) -> FitInputs:
@@ -27,7 +28,7 @@ def _inputs(rng: np.random.Generator, A: int = 6, n: int = 400, grid=(2, 3)) -> 
     return FitInputs(
         t=t,
         voltage=V,
-        play=V + rng.uniform(-5, 5, V.shape),
+        play=(V + rng.uniform(-5, 5, V.shape))[None],
         temperature=T,
         temperature_rate=np.gradient(T, t, axis=1),
         displacement=np.zeros_like(V),
@@ -80,6 +81,7 @@ def test_jacobians_match_finite_differences(coupled: bool) -> None:
     values = {
         "sensor_lag.tau_s": 3.0,
         "hysteresis.weight": 0.05,
+        "hysteresis.decay_per_degc": 0.2,
         "coupling.coefficient": 0.04,
         "thermal_expansion.alpha_m_per_degc": 4e-10,
         "thermal_expansion.offset_m": 1e-9,

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from es_feedforward.params import ActuatorParams, FloatArray
+from es_physics.params import ActuatorParams, FloatArray
 
 
 def laplacian_of(z: FloatArray) -> FloatArray:

@@ -13,7 +13,7 @@ from es_feedforward.compensation import (
     drift_factor,
 )
 from es_feedforward.feedforward import Feedforward, FeedforwardConfig
-from es_feedforward.models import hyperbolic_forward
+from es_physics.laws import hyperbolic_forward
 
 from .plantlike import drift_gain, grid_params, laplacian_of, play
 
@@ -102,7 +102,7 @@ def test_hysteresis_inverse_branches() -> None:
     # play at 0: 0 stays; 20 pushes the play up (V = V_eff + a r); 4 stays inside (V = 2 V_eff)
     np.testing.assert_allclose(voltage, [0.0, 25.0, 8.0])
     inverse.apply(voltage)
-    np.testing.assert_allclose(inverse.play, [0.0, 15.0, 0.0])
+    np.testing.assert_allclose(inverse.play, [[0.0, 15.0, 0.0]])
 
 
 def test_delay_is_predicted_on_a_ramp() -> None:
@@ -140,3 +140,22 @@ def test_unknown_or_out_of_range_compensation_parameters_are_rejected() -> None:
         CompensationParams.from_mapping({"compensation.hysteresis_weight": 0.95})
     ok = CompensationParams.from_mapping({"compensation.delay_s": 0.0024, "coupling": 0.01})
     assert (ok.delay_s, ok.coupling) == (0.0024, 0.01)
+
+
+def test_three_operator_hysteresis_is_inverted_exactly() -> None:
+    weights, thresholds = (0.15, 0.1, 0.2), (5.0, 20.0, 45.0)
+    inverse = HysteresisInverse(weights, thresholds, (4,))
+    rng = np.random.default_rng(9)
+    states = np.zeros((3, 4))  # the forward operator, written out here
+    wanted = 150.0 + np.cumsum(rng.normal(0.0, 12.0, (300, 4)), axis=0)
+    worst = 0.0
+    for v_eff in wanted:
+        voltage = inverse.invert(v_eff)
+        inverse.apply(voltage)
+        for k, r in enumerate(thresholds):
+            states[k] = np.clip(states[k], voltage - r, voltage + r)
+        played = sum(w * s for w, s in zip(weights, states, strict=True))
+        got = (1 - sum(weights)) * voltage + played
+        worst = max(worst, float(np.max(np.abs(got - v_eff))))
+    assert worst < 1e-9
+    np.testing.assert_allclose(inverse.play, states)

@@ -16,14 +16,14 @@ from es_feedforward.feedforward import (
     ObserverGains,
     linearization_error_bound,
 )
-from es_feedforward.models import (
+from es_physics.laws import (
     CompiledLaws,
     Status,
     hyperbolic_forward,
     quadratic_forward,
     z_sat,
 )
-from es_feedforward.params import ActuatorParams
+from es_physics.params import ActuatorParams
 
 from .plantlike import grid_params
 

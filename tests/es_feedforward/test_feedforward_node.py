@@ -19,12 +19,12 @@ from support.ros import NodeProcess, node_process, spin_until
 from support.ros import test_node as ros_node
 
 from es_feedforward.feedforward import FeedforwardConfig, Mode
-from es_feedforward.models import hyperbolic_forward, quadratic_forward
 from es_feedforward.param_file import write_params_file
 from es_msgs_py import topics
 from es_msgs_py.arrays import grid_to_msg, msg_to_grid
 from es_msgs_py.diagnostics import Level, level_of
 from es_msgs_py.topics import COMMAND, DIAGNOSTICS, SETPOINT, qos_for
+from es_physics.laws import hyperbolic_forward, quadratic_forward
 
 from .plantlike import grid_params
 

@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.optimize import minimize_scalar
 
-from es_feedforward.models import (
+from es_physics.laws import (
     DEFAULT_V_LIMIT,
     CompiledLaws,
     Status,
@@ -23,7 +23,7 @@ from es_feedforward.models import (
     v_max,
     z_sat,
 )
-from es_feedforward.params import THESIS_INTERVALS_95, ActuatorParams
+from es_physics.params import THESIS_INTERVALS_95, ActuatorParams
 
 THESIS = ActuatorParams.thesis()
 # the operating band: every law inside the 95 % intervals stays positive there

@@ -7,8 +7,6 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from es_feedforward.models import Status, hyperbolic_forward, hyperbolic_slope, z_sat
-from es_feedforward.params import ActuatorParams
 from es_feedforward.polynomial import (
     MAX_ORDER,
     peak_s,
@@ -17,6 +15,8 @@ from es_feedforward.polynomial import (
     polynomial_slope,
     series_coefficients,
 )
+from es_physics.laws import Status, hyperbolic_forward, hyperbolic_slope, z_sat
+from es_physics.params import ActuatorParams
 
 THESIS = ActuatorParams.thesis()
 ORDERS = list(range(2, MAX_ORDER + 1, 2))

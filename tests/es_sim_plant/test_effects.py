@@ -7,8 +7,10 @@ from typing import Any
 import numpy as np
 import pytest
 
-from es_feedforward.models import hyperbolic_forward
-from es_sim_plant.effects import EFFECT_NAMES, Effects, drift_factor, grid_laplacian
+from es_physics.effects.coupling import grid_laplacian
+from es_physics.effects.drift import drift_factor
+from es_physics.laws import hyperbolic_forward
+from es_sim_plant.effects import EFFECT_NAMES, Effects
 from es_sim_plant.plant import Plant, simulate
 from es_sim_plant.scenario import Scenario
 
@@ -76,6 +78,19 @@ def test_hysteresis_loop_area_grows_towards_tm() -> None:
     assert areas["near_tm"] > 2.0 * areas["hot"]
 
 
+def test_prandtl_ishlinskii_operators_add_up() -> None:
+    t = np.arange(300) / 100.0
+    volts = 150.0 + 100.0 * np.sin(2 * np.pi * t)
+    one = {"enabled": True, "weight": 0.2, "threshold_v": 30.0}
+    _, single = run(bench({"hysteresis": one}), volts)
+    _, unused = run(bench({"hysteresis": {**one, "threshold_v_2": 10.0}}), volts)
+    _, two = run(bench({"hysteresis": {**one, "weight_2": 0.1, "threshold_v_2": 10.0}}), volts)
+    np.testing.assert_array_equal(unused.displacement, single.displacement)  # weight_2 = 0
+    period = slice(200, 300)
+    area = lambda r: loop_area(volts[period], r.displacement[period, 0, 0])  # noqa: E731
+    assert area(two) > 1.2 * area(single)
+
+
 def test_delay_found_by_cross_correlation() -> None:
     rng = np.random.default_rng(5)
     volts = rng.uniform(50.0, 250.0, 300)
@@ -125,7 +140,8 @@ def test_drift_scales_the_gain_over_time() -> None:
     _, ref = run(bench(), volts)
     ratio = res.displacement[:, 0, 0] / ref.displacement[:, 0, 0]
     t_end = res.time + 0.01
-    np.testing.assert_allclose(ratio, drift_factor(t_end, scenario.effects.drift), rtol=1e-12)
+    expected = drift_factor(t_end, 0.05, 1.0, 0.7)
+    np.testing.assert_allclose(ratio, expected, rtol=1e-12)
     assert ratio[-1] < 0.97
 
 

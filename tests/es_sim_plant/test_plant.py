@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from es_feedforward.models import hyperbolic_inverse
+from es_physics.laws import hyperbolic_inverse
 from es_sim_plant.plant import Observation, Plant, simulate
 from es_sim_plant.scenario import available_scenarios, load_scenario
 

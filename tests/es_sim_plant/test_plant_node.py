@@ -13,11 +13,11 @@ from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Float64MultiArray
 from support import ros
 
-from es_feedforward.models import hyperbolic_forward
-from es_feedforward.params import ActuatorParams
 from es_msgs_py import topics
 from es_msgs_py.arrays import grid_to_msg, msg_to_grid, sensors_to_msg
 from es_msgs_py.diagnostics import Level, level_of
+from es_physics.laws import hyperbolic_forward
+from es_physics.params import ActuatorParams
 
 pytestmark = pytest.mark.dds
 

@@ -28,9 +28,9 @@ from rclpy.parameter import Parameter
 from rosgraph_msgs.msg import Clock as ClockMsg
 from std_msgs.msg import Float64MultiArray
 
-from es_feedforward.models import DEFAULT_V_LIMIT
 from es_msgs_py import topics
 from es_msgs_py.arrays import LayoutError, msg_to_grid
+from es_physics.laws import DEFAULT_V_LIMIT
 
 #: Estimates outside this range [degC] are nonsense for a mirror (the thermal node's sensor
 #: range is -20..120 degC by default).

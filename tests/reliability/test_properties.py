@@ -22,13 +22,6 @@ from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
 from es_feedforward.compensation import CompensationParams
 from es_feedforward.feedforward import Feedforward, FeedforwardConfig, Mode
-from es_feedforward.models import (
-    DEFAULT_V_LIMIT,
-    Status,
-    hyperbolic_inverse,
-    quadratic_inverse,
-)
-from es_feedforward.params import ActuatorParams
 from es_msgs_py.arrays import (
     LayoutError,
     grid_to_msg,
@@ -36,6 +29,13 @@ from es_msgs_py.arrays import (
     msg_to_sensors,
     sensors_to_msg,
 )
+from es_physics.laws import (
+    DEFAULT_V_LIMIT,
+    Status,
+    hyperbolic_inverse,
+    quadratic_inverse,
+)
+from es_physics.params import ActuatorParams
 from es_sim_plant.plant import Plant
 from es_sim_plant.scenario import load_scenario
 from es_thermal.estimator import EstimatorConfig, TemperatureEstimator

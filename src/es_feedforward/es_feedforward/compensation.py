@@ -9,11 +9,13 @@ around the model inverse:
 3. thermal expansion: alpha (T_used - T_ref) subtracted from the set point;
 4. drift: set point divided by 1 - a (1 - exp(-(t / tau)^nu)) (z is proportional to M);
 5. coupling: (I + c lap) z_free = z_ref solved with a sparse LU factorised once per grid;
-6. hysteresis: analytic inverse of V_eff = (1 - a) V + a play_r(V), per-actuator play state.
+6. hysteresis: exact inverse of the Prandtl-Ishlinskii operator
+   V_eff = (1 - sum a_i) V + sum a_i play_(r_i)(V), per-actuator play states.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, fields
 from typing import Final
 
@@ -21,7 +23,9 @@ import numpy as np
 from scipy.sparse import csc_matrix, diags, identity
 from scipy.sparse.linalg import splu
 
-from es_feedforward.params import FloatArray
+from es_physics.effects import registry
+from es_physics.effects.hysteresis import pi_inverse
+from es_physics.params import FloatArray
 
 #: Name prefix of the compensation parameters (ROS parameters and parameter files).
 PREFIX: Final = "compensation."
@@ -31,12 +35,19 @@ PREFIX: Final = "compensation."
 class CompensationParams:
     """The ``compensation.*`` parameters; every effect is off at its default.
 
+    The fields are the typed face of the compensation parameters that the effects of
+    :mod:`es_physics.effects` declare (names, ranges and defaults are theirs; a test checks
+    that the two agree).
+
     Attributes:
         temperature_lead_s: sensor lag tau to undo [s] (0 = off).
         temperature_lead_filter_s: time constant of the derivative's low-pass [s].
         delay_s: transport delay to predict over [s] (0 = off).
         hysteresis_weight: weight a of the play operator, in [0, 0.9] (0 = off).
         hysteresis_threshold_v: half-width r of the play operator [V].
+        hysteresis_weight_2, hysteresis_threshold_v_2, hysteresis_weight_3,
+        hysteresis_threshold_v_3: the second and third operators of a Prandtl-Ishlinskii
+            hysteresis (weight 0 = unused).
         coupling: coefficient c of the 4-neighbour Laplacian coupling (0 = off).
         thermal_expansion: expansion coefficient alpha [m/degC] (0 = off).
         expansion_reference_temperature: temperature of zero expansion [degC].
@@ -52,6 +63,10 @@ class CompensationParams:
     delay_s: float = 0.0
     hysteresis_weight: float = 0.0
     hysteresis_threshold_v: float = 0.0
+    hysteresis_weight_2: float = 0.0
+    hysteresis_threshold_v_2: float = 0.0
+    hysteresis_weight_3: float = 0.0
+    hysteresis_threshold_v_3: float = 0.0
     coupling: float = 0.0
     thermal_expansion: float = 0.0
     expansion_reference_temperature: float = 46.0
@@ -89,24 +104,30 @@ class CompensationParams:
                 return f"{PREFIX}{name}={value!r} is outside [{low}, {high}]"
         if self.drift_fraction > 0.0 and self.drift_tau_s <= 0.0:
             return f"{PREFIX}drift_tau_s must be > 0 when drift_fraction > 0"
+        if sum(self.hysteresis_operators()[0]) > 0.9:
+            return f"{PREFIX}hysteresis weights sum to more than 0.9"
         return None
 
+    def hysteresis_operators(self) -> tuple[tuple[float, ...], tuple[float, ...]]:
+        """Return the (weights, thresholds [V]) of the hysteresis operators in use."""
+        pairs = [
+            (self.hysteresis_weight, self.hysteresis_threshold_v),
+            (self.hysteresis_weight_2, self.hysteresis_threshold_v_2),
+            (self.hysteresis_weight_3, self.hysteresis_threshold_v_3),
+        ]
+        used = [(w, r) for w, r in pairs if w > 0.0]
+        return tuple(w for w, _ in used), tuple(r for _, r in used)
 
-#: Accepted range of every compensation parameter (inclusive).
+
+#: Accepted range of every compensation parameter (inclusive), from the effect registry.
 RANGES: Final[dict[str, tuple[float, float]]] = {
-    "temperature_lead_s": (0.0, 3600.0),
-    "temperature_lead_filter_s": (0.0, 3600.0),
-    "delay_s": (0.0, 1.0),
-    "hysteresis_weight": (0.0, 0.9),
-    "hysteresis_threshold_v": (0.0, 1000.0),
-    # I + c lap stays positive definite for c < 1/8 (lap's eigenvalues lie in [-8, 0])
-    "coupling": (-0.12, 0.12),
-    "thermal_expansion": (-1e-8, 1e-8),
-    "expansion_reference_temperature": (-50.0, 150.0),
-    "drift_fraction": (0.0, 0.5),
-    "drift_tau_s": (1e-3, 1e9),
-    "drift_nu": (0.05, 5.0),
-    "drift_epoch_s": (0.0, 1e12),
+    p.name: (p.low, p.high) for effect in registry().values() for p in effect.compensation
+}
+#: One line per compensation parameter: the declaring effect, what it is, its unit.
+DESCRIPTIONS: Final[dict[str, str]] = {
+    p.name: f"{effect.name}: {p.doc}" + (f" [{p.unit}]" if p.unit else "")
+    for effect in registry().values()
+    for p in effect.compensation
 }
 
 
@@ -220,43 +241,60 @@ class CouplingInverse:
 
 
 class HysteresisInverse:
-    """Inverse of V_eff = (1 - a) V + a play_r(V), one play operator per actuator.
+    """Exact inverse of V_eff = (1 - sum a_i) V + sum a_i play_(r_i)(V) on a grid.
 
-    The play output p follows V within +-r. Given the wanted V_eff: if p stays, V =
-    (V_eff - a p) / (1 - a); if the play is pushed up, V = V_eff + a r; pushed down,
-    V = V_eff - a r. The state is updated with the voltage actually applied.
+    One play state per operator and actuator, (K, *shape); the inverse is
+    :func:`es_physics.effects.hysteresis.pi_inverse` (with one operator: if the play stays,
+    V = (V_eff - a p) / (1 - a); pushed up, V = V_eff + a r; pushed down, V = V_eff - a r).
+    The states are updated with the voltage actually applied.
     """
 
-    def __init__(self, weight: float, threshold_v: float, shape: tuple[int, ...]) -> None:
-        self.weight = weight
-        self.threshold_v = threshold_v
-        self.play = np.zeros(shape)
+    def __init__(
+        self,
+        weights: float | Sequence[float],
+        thresholds: float | Sequence[float],
+        shape: tuple[int, ...],
+    ) -> None:
+        w = np.atleast_1d(np.asarray(weights, np.float64))
+        r = np.atleast_1d(np.asarray(thresholds, np.float64))
+        use = w > 0.0
+        self.weights, self.thresholds = w[use], r[use]
+        self.shape = shape
+        self.play = np.zeros((self.weights.size, *shape))
 
     @property
     def active(self) -> bool:
         """Whether the operator does anything."""
-        return self.weight > 0.0
+        return self.weights.size > 0
 
-    def retuned(self, weight: float, threshold_v: float) -> HysteresisInverse:
-        """Return a copy with new parameters and this one's play state (this one unchanged)."""
-        other = HysteresisInverse(weight, threshold_v, self.play.shape)
-        other.play = self.play
+    def retuned(
+        self, weights: float | Sequence[float], thresholds: float | Sequence[float]
+    ) -> HysteresisInverse:
+        """Return a copy with new parameters and this one's play states (this one unchanged).
+
+        Operators carry their state by position; a new operator starts from the first one's
+        state (or 0).
+        """
+        other = HysteresisInverse(weights, thresholds, self.shape)
+        for k in range(other.weights.size):
+            if k < self.weights.size:
+                other.play[k] = self.play[k]
+            elif self.weights.size:
+                other.play[k] = self.play[0]
         return other
+
+    def start_from(self, voltage: FloatArray) -> None:
+        """Set every play state to ``voltage`` (bumpless start)."""
+        self.play = np.broadcast_to(voltage, self.play.shape).copy()
 
     def invert(self, v_eff: FloatArray) -> FloatArray:
         """Return the voltage that makes the operator output ``v_eff``."""
         if not self.active:
             return v_eff
-        a, r, p = self.weight, self.threshold_v, self.play
-        still = (v_eff - a * p) / (1.0 - a)
-        up = still - p > r
-        down = still - p < -r
-        return np.asarray(
-            np.where(up, v_eff + a * r, np.where(down, v_eff - a * r, still)), np.float64
-        )
+        return pi_inverse(v_eff, self.play, self.weights, self.thresholds)
 
     def apply(self, voltage: FloatArray) -> None:
-        """Advance the play state with the voltage that was actually sent."""
+        """Advance the play states with the voltage that was actually sent."""
         if self.active:
-            r = self.threshold_v
+            r = self.thresholds.reshape((-1,) + (1,) * voltage.ndim)
             self.play = np.clip(self.play, voltage - r, voltage + r)

@@ -39,7 +39,7 @@ from es_feedforward.compensation import (
     TemperatureLead,
     drift_factor,
 )
-from es_feedforward.models import (
+from es_physics.laws import (
     CODE_CLIPPED_HIGH,
     CODE_CLIPPED_LOW,
     CODE_INVALID,
@@ -51,7 +51,7 @@ from es_feedforward.models import (
     StatusArray,
     limit_voltages,
 )
-from es_feedforward.params import ActuatorParams, FloatArray
+from es_physics.params import ActuatorParams, FloatArray
 
 #: Middle of the thesis's 40-52 degC range: where "uncompensated" evaluates the model.
 DEFAULT_REFERENCE_TEMPERATURE: Final = 46.0
@@ -214,9 +214,7 @@ class Feedforward:
                 comp.temperature_lead_s, comp.temperature_lead_filter_s
             )
             self._delay = previous._delay.retuned(comp.delay_s)
-            self._hysteresis = previous._hysteresis.retuned(
-                comp.hysteresis_weight, comp.hysteresis_threshold_v
-            )
+            self._hysteresis = previous._hysteresis.retuned(*comp.hysteresis_operators())
             self._integral = previous._integral
             self._last_voltage = previous._last_voltage
             self._last_status = previous._last_status
@@ -228,13 +226,11 @@ class Feedforward:
             if previous.config.mode is not Mode.OBSERVER:
                 self._integral = np.array(self._last_voltage)
             if not previous._hysteresis.active:
-                self._hysteresis.play = np.array(self._last_voltage)
+                self._hysteresis.start_from(np.array(self._last_voltage))
         else:
             self._lead = TemperatureLead(comp.temperature_lead_s, comp.temperature_lead_filter_s)
             self._delay = DelayPredictor(comp.delay_s)
-            self._hysteresis = HysteresisInverse(
-                comp.hysteresis_weight, comp.hysteresis_threshold_v, shape
-            )
+            self._hysteresis = HysteresisInverse(*comp.hysteresis_operators(), shape)
             self._integral = np.zeros(shape)
             self._last_voltage = np.zeros(shape)
             self._last_status = np.zeros(shape, np.int8)

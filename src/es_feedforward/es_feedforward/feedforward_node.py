@@ -21,6 +21,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from std_msgs.msg import Float64MultiArray
 
+from es_feedforward.compensation import DESCRIPTIONS as COMPENSATION_DESCRIPTIONS
 from es_feedforward.compensation import PREFIX as COMPENSATION_PREFIX
 from es_feedforward.compensation import RANGES as COMPENSATION_RANGES
 from es_feedforward.compensation import CompensationParams
@@ -33,14 +34,12 @@ from es_feedforward.feedforward import (
     Mode,
     ObserverGains,
 )
-from es_feedforward.models import DEFAULT_V_LIMIT, Status
 from es_feedforward.param_file import (
     LAW_FIELDS,
     LAW_PREFIX,
     OBSERVER_PREFIX,
     config_from_parameters,
 )
-from es_feedforward.params import ActuatorParams
 from es_msgs_py.arrays import LayoutError, grid_to_msg, msg_to_grid
 from es_msgs_py.diagnostics import Level, make_array, make_status
 from es_msgs_py.node_main import EXECUTOR_PARAMETER, EXECUTORS, run_node
@@ -53,6 +52,8 @@ from es_msgs_py.topics import (
     TEMPERATURE,
     qos_for,
 )
+from es_physics.laws import DEFAULT_V_LIMIT, Status
+from es_physics.params import ActuatorParams
 
 NODE_NAME: Final = "feedforward"
 #: How many of the worst actuators the diagnostics name.
@@ -165,7 +166,7 @@ def parameter_specs() -> list[ParameterSpec]:
         ParameterSpec(
             COMPENSATION_PREFIX + name,
             float(getattr(compensation_defaults, name)),
-            f"Effect compensation {name} (see README).",
+            f"Effect compensation, {COMPENSATION_DESCRIPTIONS[name]}.",
             low,
             high,
         )

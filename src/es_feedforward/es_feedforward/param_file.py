@@ -22,7 +22,7 @@ import yaml
 from es_feedforward.compensation import PREFIX as COMPENSATION_PREFIX
 from es_feedforward.compensation import CompensationParams
 from es_feedforward.feedforward import FeedforwardConfig, Mode, ObserverGains
-from es_feedforward.params import ActuatorParams
+from es_physics.params import ActuatorParams
 
 LAW_PREFIX: Final = "law."
 OBSERVER_PREFIX: Final = "observer."

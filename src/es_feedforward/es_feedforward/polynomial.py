@@ -17,7 +17,7 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
-from es_feedforward.models import (
+from es_physics.laws import (
     CODE_CLIPPED_HIGH,
     DEFAULT_V_LIMIT,
     RATIO_CAP,
@@ -28,7 +28,7 @@ from es_feedforward.models import (
     laws_at,
     limit_voltages,
 )
-from es_feedforward.params import ActuatorParams, FloatArray
+from es_physics.params import ActuatorParams, FloatArray
 
 #: Highest supported order (power of V) of the truncated series.
 MAX_ORDER: Final = 20

@@ -1,7 +1,7 @@
 """The actuator grid: per-actuator hyperbolic model, manufacturing spread, amplifier, effects.
 
 Each actuator follows z = (M L / k^2) tanh^2(k V / L) with M(T), k(T) from
-:mod:`es_feedforward.params` / :mod:`es_feedforward.models` (the same library the
+:mod:`es_physics.params` / :mod:`es_physics.laws` (the same library the
 feedforward inverts). The nominal parameters get a seeded relative spread per actuator
 (manufacturing scatter; default 2 % on m2, 1 % on k2, so gains scatter by ~2 %).
 
@@ -23,9 +23,17 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from es_feedforward.models import DEFAULT_V_LIMIT, hyperbolic_forward
-from es_feedforward.params import ActuatorParams
-from es_sim_plant.effects import Effects, drift_factor, grid_laplacian, hysteresis_weight, play
+from es_physics.effects.coupling import grid_laplacian
+from es_physics.effects.drift import drift_factor
+from es_physics.effects.hysteresis import (
+    MAX_OPERATORS,
+    hysteresis_weight,
+    operator_names,
+    play,
+)
+from es_physics.laws import DEFAULT_V_LIMIT, hyperbolic_forward
+from es_physics.params import ActuatorParams
+from es_sim_plant.effects import Effects
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -142,7 +150,13 @@ class ActuatorGrid:
         # A delay of m internal steps = q whole plant steps and r internal steps.
         self._delay_whole, self._switch = divmod(delay_steps, self.substeps)
         self._history = np.zeros((self._delay_whole + 2, *shape))
-        self._play = np.zeros(shape)
+        hyst = effects.hysteresis
+        self._operators = [
+            (getattr(hyst, w), getattr(hyst, r))
+            for k, (w, r) in enumerate(operator_names(i) for i in range(MAX_OPERATORS))
+            if k == 0 or getattr(hyst, w) > 0.0
+        ]
+        self._play = np.zeros((len(self._operators), *shape))
         self._mean_voltage = np.zeros(shape)
         self._mean_decay = float(np.exp(-dt / effects.self_heating.mean_window_s))
         self.command = np.zeros(shape)
@@ -196,16 +210,22 @@ class ActuatorGrid:
         V = np.where(before_switch, self.voltage_before, self.voltage_after)
         hyst = self.effects.hysteresis
         if hyst.enabled:
-            first = play(self._play, self.voltage_before, hyst.threshold_v)
-            second = play(first, self.voltage_after, hyst.threshold_v)
-            played = np.where(before_switch, first, second)
-            self._play = second
-            a = hysteresis_weight(T, self.params.Tm, hyst.weight)
-            V = (1.0 - a) * V + a * played
+            # Prandtl-Ishlinskii: operator 1 always, further ones where their weight is > 0
+            total: FloatArray | float = 0.0
+            mix: FloatArray | float = 0.0
+            for k, (weight, threshold) in enumerate(self._operators):
+                first = play(self._play[k], self.voltage_before, threshold)
+                second = play(first, self.voltage_after, threshold)
+                self._play[k] = second
+                a = hysteresis_weight(T, self.params.Tm, weight)
+                played = np.where(before_switch, first, second)
+                total, mix = (a, a * played) if k == 0 else (total + a, mix + a * played)
+            V = (1.0 - total) * V + mix
         z = hyperbolic_forward(V, T, self.params)
         if self.effects.drift.enabled:
             times = np.asarray(t_start + ends * (self.dt / n), np.float64)
-            z = z * drift_factor(times, self.effects.drift)[:, None, None]
+            drift = self.effects.drift
+            z = z * drift_factor(times, drift.fraction, drift.tau_s, drift.nu)[:, None, None]
         if self.effects.coupling.enabled:
             z = z + self.effects.coupling.coefficient * grid_laplacian(z)
         if self.effects.thermal_expansion.enabled:

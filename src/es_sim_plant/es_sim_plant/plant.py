@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from es_feedforward.params import ActuatorParams
+from es_physics.params import ActuatorParams
 from es_sim_plant.actuators import ActuatorGrid
 from es_sim_plant.reference import ExcitationGenerator, SetpointGenerator
 from es_sim_plant.resonance import ResonanceSensor

@@ -22,7 +22,7 @@ A scenario is a YAML mapping (all keys optional except ``name``; SI units, degC)
       schedule: {start_s: 0, exposure_s: 20, swap_s: 8, count: 0}   # times physical
     sensors: {positions: null, noise_sd: 0.02, resolution: 0.01, offset_sd: 0, offsets: null}
     actuators:
-      params: {m2: 1504e-18, ...}          # es_feedforward.params.ActuatorParams fields
+      params: {m2: 1504e-18, ...}          # es_physics.params.ActuatorParams fields
       spread: {m2: 0.02, k2: 0.01}         # relative standard deviation per field
       v_limit: 350.0
       substeps: 10                         # internal steps per plant step

@@ -2,23 +2,27 @@
 
 One evaluation predicts the displacement of a block of actuators at a set of samples together
 with its Jacobians: per-actuator ("local") law coefficients and effect parameters shared by
-all actuators ("global"). Effects follow docs/architecture.md, "Effects beyond the basic
-model"; every symbol below is that table's:
+all actuators ("global"). Which effects exist and what their unknowns are come from the
+effect registry (:mod:`es_physics.effects`); each effect acts in one stage (its
+:class:`~es_physics.effects.Role`), in this order:
 
-- ``sensor_lag``: T_a = T + tau dT/dt (the actuator leads the sensor by a first-order lag);
-- ``delay``: V(t - d), applied when the inputs are built (see ``FitInputs``);
-- ``hysteresis``: V_eff = (1 - a(T_a)) V + a(T_a) play_r(V),
-  a(T_a) = weight exp(-(T_a - T_mean) / 4 degC); play_r is applied when the inputs are built;
-- ``coupling``: z = z_free + c lap(z_free), 4-neighbour Laplacian, edges use only existing
+- ``TEMPERATURE``: T_a = T + tau dT/dt (the actuator leads the sensor by a first-order lag);
+- ``INPUT_SHIFT``: V(t - d), applied when the inputs are built (see ``FitInputs``);
+- ``PLAY``: V_eff = V + a(T_a) sum_i weight_i (play_(r_i)(V) - V),
+  a(T_a) = exp(-beta (T_a - T_mean)) with beta fitted too; the play operators are applied
+  when the inputs are built;
+- ``LAW``: quadratic T* terms m3, k3 in M(T*) and k(T*) (two more local coefficients);
+- ``GAIN``: M_eff = M (1 - f (1 - exp(-(t / tau)^nu))), t from the start of the data;
+- ``SPATIAL``: z = z_free + c lap(z_free), 4-neighbour Laplacian, edges use only existing
   neighbours;
-- ``thermal_expansion``: z += alpha (T_a - T_ref), fitted as alpha (T_a - T_mean) + offset;
-- ``drift``: M_eff = M (1 - f (1 - exp(-(t / tau)^nu))), t from the start of the data;
-- ``temperature_curvature``: quadratic T* terms m3, k3 in M(T*) and k(T*).
+- ``ADDITIVE``: any number of terms added to z, each the effect's own
+  :meth:`~es_physics.effects.Effect.additive` (e.g. alpha (T_a - T_mean) + offset).
 
-Local coefficients are ``[m2, m1, k2, k1]`` (+ ``[m3, k3]`` with curvature); L and Tm are fixed
+Local coefficients are ``[m2, m1, k2, k1]`` (+ the ``LAW`` effect's); L and Tm are fixed
 (they are not separately identifiable from displacement data). The coupling Jacobian keeps only
 each actuator's own law coefficients (neighbours' cross terms are of order c and dropped), which
 still converges to the least-squares fit for the small coefficients a face sheet produces.
+Global parameters are named ``<effect>.<parameter>``.
 """
 
 from __future__ import annotations
@@ -30,38 +34,17 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
-from es_feedforward.params import ActuatorParams
+from es_physics.effects import Effect, EffectError, Role, candidates, get, with_role
+from es_physics.effects.coupling import neighbour_count, neighbour_laplacian
+from es_physics.effects.drift import DRIFT_LOG_NU_LIMIT
+from es_physics.params import ActuatorParams
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
 
-#: Canonical effect names, in the order candidates are listed.
-CANDIDATES: Final = (
-    "sensor_lag",
-    "delay",
-    "hysteresis",
-    "coupling",
-    "thermal_expansion",
-    "drift",
-    "temperature_curvature",
-)
-#: Temperature scale of the hysteresis weight's growth towards Tm [degC] (plant definition).
-HYSTERESIS_TEMPERATURE_SCALE: Final = 4.0
-#: The drift exponent nu is kept within exp(+-DRIFT_LOG_NU_LIMIT).
-DRIFT_LOG_NU_LIMIT: Final = float(np.log(5.0))
-
-#: Global (shared) parameters each effect adds to the Gauss-Newton problem, in order.
-GLOBAL_PARAMETERS: Final[dict[str, tuple[str, ...]]] = {
-    "sensor_lag": ("tau_s",),
-    "delay": (),
-    "hysteresis": ("weight",),
-    "coupling": ("coefficient",),
-    "thermal_expansion": ("alpha_m_per_degc", "offset_m"),
-    "drift": ("fraction", "log_tau_s", "log_nu"),
-    "temperature_curvature": (),
-}
+#: Canonical names of the candidate effects (the registry's), in the order they are listed.
+CANDIDATES: Final = candidates()
 LINEAR_LAW: Final = ("m2", "m1", "k2", "k1")
-QUADRATIC_LAW: Final = ("m2", "m1", "k2", "k1", "m3", "k3")
 
 
 @dataclass(frozen=True)
@@ -71,7 +54,7 @@ class FitInputs:
     Attributes:
         t: seconds since the start of the data, shape (n,).
         voltage: command in effect at each sample (after any delay), shape (A, n) [V].
-        play: play operator of the (delayed) command, shape (A, n) [V], or None.
+        play: play operators of the (delayed) command, shape (K, A, n) [V], or None.
         temperature: measured temperature, shape (A, n) [degC].
         temperature_rate: its time derivative, shape (A, n) [degC/s].
         displacement: measured displacement, shape (A, n) [m].
@@ -101,53 +84,57 @@ class Evaluation:
     jac_global: FloatArray
 
 
-def neighbour_laplacian(values: FloatArray, grid: tuple[int, int]) -> FloatArray:
-    """Return the 4-neighbour Laplacian sum_j (x_j - x_i) of (A, n) values on a row-major grid."""
-    rows, cols = grid
-    x = values.reshape(rows, cols, -1)
-    total = np.zeros_like(x)
-    count = np.zeros((rows, cols, 1))
-    total[1:] += x[:-1]
-    total[:-1] += x[1:]
-    total[:, 1:] += x[:, :-1]
-    total[:, :-1] += x[:, 1:]
-    count[1:] += 1.0
-    count[:-1] += 1.0
-    count[:, 1:] += 1.0
-    count[:, :-1] += 1.0
-    return np.asarray((total - count * x).reshape(values.shape), np.float64)
-
-
-def neighbour_count(grid: tuple[int, int]) -> FloatArray:
-    """Return the number of existing 4-neighbours of each actuator, shape (A, 1)."""
-    rows, cols = grid
-    ones = np.ones((rows * cols, 1))
-    return -neighbour_laplacian(ones, grid)
-
-
 class CompositeModel:
     """Hyperbolic law with a set of effects switched on; see the module docstring."""
 
-    def __init__(self, effects: Sequence[str], base: ActuatorParams | None = None) -> None:
-        """Build the model for ``effects`` (canonical names); L and Tm come from ``base``."""
-        unknown = set(effects) - set(CANDIDATES)
-        if unknown:
-            raise ValueError(f"unknown effects: {sorted(unknown)}")
+    def __init__(
+        self, effects: Sequence[str], base: ActuatorParams | None = None, operators: int = 1
+    ) -> None:
+        """Build the model for ``effects`` (canonical names); L and Tm come from ``base``.
+
+        ``operators`` is the number of play operators of the ``PLAY`` effect.
+
+        Raises:
+            UnknownEffectError: a name no registered effect has.
+            EffectError: an effect that is no calibration candidate.
+
+        """
+        chosen = [get(name) for name in effects]
+        for effect in chosen:
+            if not effect.candidate:
+                raise EffectError(f"effect {effect.name} has no calibration model")
         self.effects: tuple[str, ...] = tuple(effects)
         base = base or ActuatorParams()
         self.L = float(np.asarray(base.L).ravel()[0])
         self.Tm = float(np.asarray(base.Tm).ravel()[0])
-        self.local_names = QUADRATIC_LAW if "temperature_curvature" in self.effects else LINEAR_LAW
+        self.lead = with_role(Role.TEMPERATURE, self.effects)
+        #: the effect that shifts the command in time, and the play effect (or None)
+        self.shift = with_role(Role.INPUT_SHIFT, self.effects)
+        self.play = with_role(Role.PLAY, self.effects)
+        self.law = with_role(Role.LAW, self.effects)
+        self.gain = with_role(Role.GAIN, self.effects)
+        self.spatial = with_role(Role.SPATIAL, self.effects)
+        self.additive: tuple[Effect, ...] = tuple(e for e in chosen if e.role is Role.ADDITIVE)
+        self.operators = operators if self.play else 0
+        self.local_names = LINEAR_LAW + (self.law.local_parameters if self.law else ())
         self.global_names: tuple[str, ...] = tuple(
-            f"{name}.{p}" for name in self.effects for p in GLOBAL_PARAMETERS[name]
+            f"{e.name}.{p}" for e in chosen for p in self.parameter_names(e)
         )
+
+    def parameter_names(self, effect: Effect) -> tuple[str, ...]:
+        """Return the effect's shared unknowns in this model (the play's: one per operator)."""
+        return effect.fit_names(self.operators if effect is self.play else 1)
 
     def has(self, effect: str) -> bool:
         """Return whether ``effect`` is switched on."""
         return effect in self.effects
 
-    def _global(self, g: FloatArray, name: str) -> float:
-        return float(g[self.global_names.index(name)])
+    def _global(self, g: FloatArray, effect: Effect, index: int = 0) -> float:
+        return float(g[self.global_names.index(self.key(effect, index))])
+
+    def key(self, effect: Effect, index: int = 0) -> str:
+        """Return the global name of the effect's ``index``-th fit parameter."""
+        return f"{effect.name}.{self.parameter_names(effect)[index]}"
 
     def evaluate(
         self, local: FloatArray, g: FloatArray, data: FitInputs, jacobian: bool = True
@@ -155,28 +142,36 @@ class CompositeModel:
         """Return the prediction and Jacobians for local (A, P) and global (G,) parameters.
 
         With ``jacobian=False`` only the prediction is computed (the Jacobians are empty).
+
+        Raises:
+            ValueError: a play effect is on but the inputs carry no play operator.
+
         """
         names = self.global_names
         jac_g: dict[str, FloatArray] = {}
         T = data.temperature
-        tau = self._global(g, "sensor_lag.tau_s") if self.has("sensor_lag") else 0.0
+        tau = self._global(g, self.lead) if self.lead else 0.0
         Ta = T + tau * data.temperature_rate if tau else T
 
         V = data.voltage
         dV_dTa: FloatArray | None = None
-        if self.has("hysteresis"):
+        if self.play:
             if data.play is None:
-                raise ValueError("hysteresis needs the play operator in the inputs")
-            weight = self._global(g, "hysteresis.weight")
-            a_T = np.exp(-(Ta - data.mean_temperature) / HYSTERESIS_TEMPERATURE_SCALE)
-            gap = data.play - V
-            V = V + weight * a_T * gap
-            dV_dweight = a_T * gap
-            dV_dTa = -weight * a_T * gap / HYSTERESIS_TEMPERATURE_SCALE
+                raise ValueError(f"{self.play.name} needs the play operator in the inputs")
+            # the last play parameter is the weights' temperature slope beta [1/degC]
+            beta = self._global(g, self.play, self.operators)
+            dT = Ta - data.mean_temperature
+            a_T = np.exp(-beta * dT)
+            gaps = data.play - V  # (K, A, n)
+            mix = sum(self._global(g, self.play, i) * gaps[i] for i in range(self.operators))
+            V = V + a_T * mix
+            dV_dweights = [a_T * gaps[i] for i in range(self.operators)]
+            dV_dweights.append(-dT * a_T * mix)
+            dV_dTa = -beta * a_T * mix
 
         Ts = Ta - self.Tm
         m2, m1, k2, k1 = (local[:, i : i + 1] for i in range(4))
-        curved = len(self.local_names) == 6
+        curved = self.law is not None
         m3 = local[:, 4:5] if curved else 0.0
         k3 = local[:, 5:6] if curved else 0.0
         M = m2 + Ts * (m1 + Ts * m3)
@@ -194,26 +189,22 @@ class CompositeModel:
             columns = [dH_dM, dH_dM * Ts, dH_dk, dH_dk * Ts]
             if curved:
                 columns += [dH_dM * Ts * Ts, dH_dk * Ts * Ts]
-            if self.has("sensor_lag"):
+            if self.lead:
                 dH_dT = dH_dM * (m1 + 2.0 * m3 * Ts) + dH_dk * (k1 + 2.0 * k3 * Ts)
                 if dV_dTa is not None:
                     dH_dT = dH_dT + dH_dV * dV_dTa
 
         scale: FloatArray | float = 1.0  # d(prediction)/dH
-        if self.has("hysteresis") and jacobian:
-            jac_g["hysteresis.weight"] = dH_dV * dV_dweight
+        if self.play and jacobian:
+            for i, dV in enumerate(dV_dweights):
+                jac_g[self.key(self.play, i)] = dH_dV * dV
         F = H
-        if self.has("drift"):
-            frac = self._global(g, "drift.fraction")
-            d_tau = float(np.exp(self._global(g, "drift.log_tau_s")))
+        if self.gain:
+            frac = self._global(g, self.gain, 0)
+            d_tau = float(np.exp(self._global(g, self.gain, 1)))
             # nu beyond [1/5, 5] makes a step or a flat line, not an aging law
-            nu = float(
-                np.exp(
-                    np.clip(
-                        self._global(g, "drift.log_nu"), -DRIFT_LOG_NU_LIMIT, DRIFT_LOG_NU_LIMIT
-                    )
-                )
-            )
+            log_nu = self._global(g, self.gain, 2)
+            nu = float(np.exp(np.clip(log_nu, -DRIFT_LOG_NU_LIMIT, DRIFT_LOG_NU_LIMIT)))
             ratio = np.maximum(data.t, 0.0) / d_tau
             s = np.minimum(ratio, 1e6) ** nu
             e = np.exp(-s)
@@ -221,35 +212,37 @@ class CompositeModel:
             log_ratio = np.log(np.where(ratio > 0.0, ratio, 1.0))
             F = H * gain
             if jacobian:
-                jac_g["drift.fraction"] = -(1.0 - e) * H
-                jac_g["drift.log_tau_s"] = frac * e * nu * s * H
-                jac_g["drift.log_nu"] = -frac * e * s * log_ratio * nu * H
-                if "hysteresis.weight" in jac_g:
-                    jac_g["hysteresis.weight"] = jac_g["hysteresis.weight"] * gain
+                jac_g[self.key(self.gain, 0)] = -(1.0 - e) * H
+                jac_g[self.key(self.gain, 1)] = frac * e * nu * s * H
+                jac_g[self.key(self.gain, 2)] = -frac * e * s * log_ratio * nu * H
+                if self.play:
+                    for i in range(len(self.parameter_names(self.play))):
+                        key = self.key(self.play, i)
+                        jac_g[key] = jac_g[key] * gain
             scale = gain
         # d F / d T_a, for the sensor lag (before the coupling spreads it to the neighbours)
-        if self.has("sensor_lag") and jacobian:
-            jac_g["sensor_lag.tau_s"] = scale * dH_dT * data.temperature_rate
+        if self.lead and jacobian:
+            jac_g[self.key(self.lead)] = scale * dH_dT * data.temperature_rate
         Z = F
-        if self.has("coupling"):
-            c = self._global(g, "coupling.coefficient")
+        if self.spatial:
+            c = self._global(g, self.spatial)
             lap_F = neighbour_laplacian(F, data.grid)
             Z = F + c * lap_F
             # shared parameters move every actuator: (I + c lap) of their columns is exact
             for key, column in jac_g.items():
                 jac_g[key] = column + c * neighbour_laplacian(column, data.grid)
-            jac_g["coupling.coefficient"] = lap_F
+            jac_g[self.key(self.spatial)] = lap_F
             scale = scale * (1.0 - c * neighbour_count(data.grid))
-        if self.has("thermal_expansion"):
-            alpha = self._global(g, "thermal_expansion.alpha_m_per_degc")
-            offset = self._global(g, "thermal_expansion.offset_m")
-            Z = Z + alpha * (Ta - data.mean_temperature) + offset
-            jac_g["thermal_expansion.alpha_m_per_degc"] = Ta - data.mean_temperature
-            jac_g["thermal_expansion.offset_m"] = np.ones(1)
-            if self.has("sensor_lag") and jacobian:
-                jac_g["sensor_lag.tau_s"] = (
-                    jac_g["sensor_lag.tau_s"] + alpha * data.temperature_rate
-                )
+        Ta_rel = Ta - data.mean_temperature
+        for effect in self.additive:
+            values = {p: self._global(g, effect, i) for i, p in enumerate(effect.fit_names())}
+            term = effect.additive(values, data.t, Ta_rel)
+            Z = Z + term.value
+            for i, column in enumerate(term.columns):
+                jac_g[self.key(effect, i)] = column
+            if self.lead and jacobian:
+                lead_key = self.key(self.lead)
+                jac_g[lead_key] = jac_g[lead_key] + term.d_temperature * data.temperature_rate
         A, n = Z.shape
         if not jacobian:
             return Evaluation(np.asarray(Z, np.float64), np.zeros((A, n, 0)), np.zeros((A, n, 0)))

@@ -19,16 +19,16 @@ from es_feedforward.calibration.model import CANDIDATES, FloatArray
 from es_feedforward.calibration.residual import ResidualStructure, analyse
 from es_feedforward.calibration.search import (
     ModelState,
-    RoundRecord,
     Workspace,
     base_state,
     choose_stamp_convention,
-    effect_parameters,
+    fitted_effect,
     heldout_residual,
     refit_full,
     screen_block,
-    search_effects,
 )
+from es_feedforward.calibration.selection import RoundRecord, search_effects
+from es_physics.effects import get
 
 #: Actuators whose full-rate held-out residual is analysed (spectra, correlations).
 ANALYSIS_ACTUATORS: Final = 16
@@ -40,13 +40,19 @@ NOISE_RATIO_LIMIT: Final = 1.2
 
 @dataclass
 class AcceptedEffect:
-    """An effect the search added, with its full-grid held-out RMS before and after."""
+    """An effect the search added, with its full-grid held-out RMS before and after.
+
+    ``parameters`` and ``uncertainties`` are those of the final model (all accepted effects
+    fitted together). ``share`` is its part of the mean-square error that all accepted
+    effects removed, (before^2 - after^2) / (base^2 - final^2): the shares sum to 1.
+    """
 
     name: str
     parameters: dict[str, float]
     uncertainties: dict[str, float]
     rms_before_m: float
     rms_after_m: float
+    share: float = 0.0
 
 
 @dataclass
@@ -86,8 +92,7 @@ class _Analysis:
         self.contiguous = aligned.linked(rows)
 
     def residual(self, state: ModelState) -> FloatArray:
-        threshold = state.threshold_v if state.model.has("hysteresis") else None
-        _, held = self.ws.input_pair(state.delay_s, threshold)
+        _, held = self.ws.input_pair(state.delay_s, state.play_thresholds)
         return heldout_residual(state, held)[self.keep]
 
     def regressors(self) -> dict[str, tuple[str, FloatArray]]:
@@ -119,37 +124,6 @@ class _Analysis:
         z = self.ws.aligned.displacement[np.ix_(self.rows, self.ws.actuators[self.keep])].T
         structure.drive_gain_m_per_v = unexplained.drive_gain(voltage, z)
         return structure, resid
-
-
-def _uncertainties(state: ModelState, name: str, command_period: float) -> dict[str, float]:
-    """Return 1-sigma uncertainties of an effect's parameters (delay: half a command period)."""
-    names = state.model.global_names
-    sig = np.sqrt(np.maximum(np.diag(state.fit.cov_global), 0.0))
-    g = dict(zip(names, state.fit.glob, strict=True))
-    s = dict(zip(names, sig, strict=True))
-    if name == "sensor_lag":
-        return {"tau_s": s["sensor_lag.tau_s"]}
-    if name == "delay":
-        return {"delay_s": 0.5 * command_period}
-    if name == "hysteresis":
-        return {"weight": s["hysteresis.weight"]}
-    if name == "coupling":
-        return {"coefficient": s["coupling.coefficient"]}
-    if name == "thermal_expansion":
-        return {"alpha_m_per_degc": s["thermal_expansion.alpha_m_per_degc"]}
-    if name == "drift":
-        return {
-            "fraction": s["drift.fraction"],
-            "tau_s": float(np.exp(g["drift.log_tau_s"])) * s["drift.log_tau_s"],
-            "nu": float(np.exp(g["drift.log_nu"])) * s["drift.log_nu"],
-        }
-    if name == "temperature_curvature":
-        cov = state.fit.cov_local
-        return {
-            "m3": float(np.median(np.sqrt(np.maximum(cov[:, 4, 4], 0)))),
-            "k3": float(np.median(np.sqrt(np.maximum(cov[:, 5, 5], 0)))),
-        }
-    return {}
 
 
 def _unexplained(after: ResidualStructure, final_rms: float) -> list[str]:
@@ -203,18 +177,24 @@ def calibrate(measured: MeasuredData, candidates: tuple[str, ...] = CANDIDATES) 
         )
     timings["refit and analysis"] = time.perf_counter() - clock
 
-    period = aligned.command_period
     effects = []
     for (name, _, _), prev, state in zip(added, prefix_states[:-1], prefix_states[1:], strict=True):
+        effect = get(name)
+        # parameters from the final model: every effect refitted with all the others
+        fitted = fitted_effect(final, effect, aligned)
         effects.append(
             AcceptedEffect(
                 name,
-                effect_parameters(state, name, aligned),
-                _uncertainties(state, name, period),
+                effect.reported(fitted),
+                effect.uncertainties(fitted),
                 prev.heldout_rms,
                 state.heldout_rms,
             )
         )
+    removed = base_full.heldout_rms**2 - final.heldout_rms**2
+    for e in effects:
+        cut = e.rms_before_m**2 - e.rms_after_m**2
+        e.share = float(cut / removed) if removed > 0 else 0.0
     inputs = {k: v for k, (_, v) in analysis.regressors().items()}
     return Calibration(
         aligned=aligned,

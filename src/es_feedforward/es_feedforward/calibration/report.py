@@ -15,7 +15,7 @@ from es_feedforward.calibration.gaps import COMMAND_SETTLING_S, GAP_FACTOR
 from es_feedforward.calibration.pipeline import NOISE_RATIO_LIMIT, Calibration
 from es_feedforward.calibration.residual import ResidualStructure
 from es_feedforward.calibration.schema import law_uncertainty
-from es_feedforward.params import THESIS_INTERVALS_95
+from es_physics.params import THESIS_INTERVALS_95
 
 NM = 1e9
 
@@ -233,19 +233,33 @@ def write_report(cal: Calibration, out: Path, notes: list[str]) -> Path:
         "",
         "Each candidate is refitted jointly with the law on training blocks and scored on "
         "held-out blocks (BIC with the effective number of independent residuals; an accepted "
-        "effect must also cut the held-out RMS by >= 1 % with physical parameter values).",
+        "effect must also cut the held-out RMS by >= 1 % with physical parameter values). "
+        "With two or more effects accepted, a backward check takes each out again and drops "
+        "those the same criterion no longer needs.",
         "",
     ]
     for i, rnd in enumerate(cal.rounds, 1):
-        text += [
-            f"Round {i}: " + (f"added **{rnd.added}**" if rnd.added else "nothing added"),
-            "",
-            "| candidate | RMS before [nm] | RMS after [nm] | dBIC | verdict | parameters |",
-            "|---|---|---|---|---|---|",
-        ]
+        if rnd.step == "backward":
+            title = f"removed **{rnd.removed}**" if rnd.removed else "every effect still needed"
+            text += [
+                f"Round {i}, backward check: {title}",
+                "",
+                "| effect | RMS without [nm] | RMS with [nm] | dBIC | verdict | parameters |",
+                "|---|---|---|---|---|---|",
+            ]
+        else:
+            title = f"added **{rnd.added}**" if rnd.added else "nothing added"
+            text += [
+                f"Round {i}: {title}",
+                "",
+                "| candidate | RMS before [nm] | RMS after [nm] | dBIC | verdict | parameters |",
+                "|---|---|---|---|---|---|",
+            ]
         for s in rnd.scores:
             params = ", ".join(f"{k} = {_fmt(v)}" for k, v in s.parameters.items())
-            verdict = "accepted" if s.accepted else s.reason
+            verdict = (
+                s.reason if rnd.step == "backward" else ("accepted" if s.accepted else s.reason)
+            )
             text.append(
                 f"| {s.name} | {_fmt(s.rms_before_m * NM)} | {_fmt(s.rms_after_m * NM)} "
                 f"| {s.delta_ic:+.1f} | {verdict} | {params} |"
@@ -255,8 +269,8 @@ def write_report(cal: Calibration, out: Path, notes: list[str]) -> Path:
     if cal.effects:
         text += [
             "| effect | parameters (1-sigma) | held-out RMS before -> after [nm] | "
-            "after / noise floor |",
-            "|---|---|---|---|",
+            "share of the error removed | after / noise floor |",
+            "|---|---|---|---|---|",
         ]
         for e in cal.effects:
             params = ", ".join(
@@ -266,7 +280,8 @@ def write_report(cal: Calibration, out: Path, notes: list[str]) -> Path:
             )
             text.append(
                 f"| {e.name} | {params} | {_fmt(e.rms_before_m * NM)} -> "
-                f"{_fmt(e.rms_after_m * NM)} | {e.rms_after_m / floor:.2f} |"
+                f"{_fmt(e.rms_after_m * NM)} | {100 * e.share:.0f} % | "
+                f"{e.rms_after_m / floor:.2f} |"
             )
     else:
         text.append("No candidate passed: the basic law is kept.")

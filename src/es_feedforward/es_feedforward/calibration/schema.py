@@ -1,10 +1,10 @@
 """``calibration.json`` and the feedforward parameters YAML written from a :class:`Calibration`.
 
-calibration.json (schema version 1; SI units, degC; "1-sigma" uncertainties inflated for the
+calibration.json (schema version 2; SI units, degC; "1-sigma" uncertainties inflated for the
 residual's autocorrelation)::
 
     {
-      "schema_version": 1,
+      "schema_version": 2,
       "grid": {"rows": R, "cols": C},
       "data": {"start_time_s", "duration_s", "sample_rate_hz", "command_period_s",
                "temperature_topic", "samples", "training_samples", "heldout_samples",
@@ -15,9 +15,12 @@ residual's autocorrelation)::
       "law": {"L", "Tm" (fixed), "m1", "m2", "m3", "k1", "k2", "k3": row-major lists of R*C,
               "uncertainty": {same names: lists of R*C 1-sigma values}},
       "effects": [{"name": canonical name, "parameters": {...}, "uncertainties": {...},
-                   "rms_before_m", "rms_after_m"}],          # accepted, in the order added
-      "candidates": [[{"name", "rms_before_m", "rms_after_m", "delta_bic", "accepted",
-                       "reason", "parameters"}], ...],       # every round of the search
+                   "rms_before_m", "rms_after_m",
+                   "share": part of the mean-square error all effects removed (sum 1)}],
+      "candidates": [[{"name", "step", "rms_before_m", "rms_after_m", "delta_bic",
+                       "accepted", "reason", "parameters"}], ...],  # every round
+      # step "forward": adding the candidate; "backward": removing an accepted effect
+      # (rms_before_m without it, rms_after_m with it, accepted = it stays)
       "heldout_rms_before_m", "heldout_rms_after_m",         # whole grid, held-out rows
       "heldout_max_before_m", "heldout_max_after_m",         # analysed actuators, full rate
       "noise_floor_m": white measurement noise estimated from the final residual,
@@ -25,8 +28,9 @@ residual's autocorrelation)::
       "timings_s": {step: seconds}
     }
 
-Effect parameters use the names of docs/architecture.md ("Effects beyond the basic model");
-the YAML carries them as ``compensation.*`` (and law.m3/k3 for temperature_curvature).
+Effect parameters use the names the effects declare (:mod:`es_physics.effects`); the YAML
+carries them as each effect's ``compensation.*`` parameters (and law.m3/k3 for the ``LAW``
+effect's per-actuator coefficients).
 """
 
 from __future__ import annotations
@@ -42,9 +46,10 @@ from es_feedforward.calibration.pipeline import Calibration
 from es_feedforward.compensation import RANGES, CompensationParams
 from es_feedforward.feedforward import FeedforwardConfig
 from es_feedforward.param_file import write_params_file
-from es_feedforward.params import ActuatorParams
+from es_physics.effects import get
+from es_physics.params import ActuatorParams
 
-SCHEMA_VERSION: Final = 1
+SCHEMA_VERSION: Final = 2
 
 
 def fitted_params(cal: Calibration) -> ActuatorParams:
@@ -68,24 +73,9 @@ def compensation(cal: Calibration) -> tuple[CompensationParams, list[str]]:
     """Return the compensation of the accepted effects and notes on values clipped to range."""
     values: dict[str, float] = {}
     for effect in cal.effects:
-        p = effect.parameters
-        if effect.name == "sensor_lag":
-            values["temperature_lead_s"] = p["tau_s"]
-        elif effect.name == "delay":
-            values["delay_s"] = p["delay_s"]
-        elif effect.name == "hysteresis":
-            values["hysteresis_weight"] = p["weight"]
-            values["hysteresis_threshold_v"] = p["threshold_v"]
-        elif effect.name == "coupling":
-            values["coupling"] = p["coefficient"]
-        elif effect.name == "thermal_expansion":
-            values["thermal_expansion"] = p["alpha_m_per_degc"]
-            values["expansion_reference_temperature"] = p["reference_temperature"]
-        elif effect.name == "drift":
-            values["drift_fraction"] = p["fraction"]
-            values["drift_tau_s"] = p["tau_s"]
-            values["drift_nu"] = p["nu"]
-            values["drift_epoch_s"] = cal.aligned.start_time
+        values.update(
+            get(effect.name).compensation_values(effect.parameters, cal.aligned.start_time)
+        )
     notes = []
     for name, value in list(values.items()):
         low, high = RANGES[name]
@@ -148,6 +138,7 @@ def calibration_document(cal: Calibration) -> dict[str, Any]:
                 "uncertainties": e.uncertainties,
                 "rms_before_m": e.rms_before_m,
                 "rms_after_m": e.rms_after_m,
+                "share": e.share,
             }
             for e in cal.effects
         ],
@@ -155,6 +146,7 @@ def calibration_document(cal: Calibration) -> dict[str, Any]:
             [
                 {
                     "name": s.name,
+                    "step": r.step,
                     "rms_before_m": s.rms_before_m,
                     "rms_after_m": s.rms_after_m,
                     "delta_bic": s.delta_ic,

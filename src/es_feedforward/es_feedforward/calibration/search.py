@@ -1,25 +1,15 @@
-"""Fit the law, then add candidate effects greedily while the held-out data say they help.
-
-Every candidate is refitted jointly with the per-actuator law on training rows and scored on
-held-out rows with a Bayesian information criterion whose sample count is the *effective*
-number of independent held-out residuals (n / integrated autocorrelation time), so that a
-correlated residual cannot buy a spurious effect. A candidate is accepted only when it lowers
-that criterion, cuts the held-out RMS by at least ``MIN_RELATIVE_GAIN`` and has physical
-parameter values (e.g. a positive lag). The best passing candidate is added and the search
-repeats until none passes.
+"""Fitted model states and the workspace of one calibration run (rows, inputs, caches).
 
 Candidates are screened on a contiguous block of at most ``SCREEN_SIZE`` x ``SCREEN_SIZE``
 actuators at the grid's corner (edges and interior; the coupling needs neighbours); the
-accepted model is then refitted on the whole grid. Parameters with no closed-form Jacobian
-are searched on grids: the delay on whole command periods (a zero-order-hold command makes
-finer delays unobservable) and the hysteresis threshold on a logarithmic grid of the command
-range, refined by golden section.
+accepted model is then refitted on the whole grid (:func:`refit_full`). How each candidate
+is fitted: :mod:`.scans`; which are kept: :mod:`.selection`.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from typing import Final
 
 import numpy as np
@@ -27,29 +17,17 @@ import numpy as np
 from es_feedforward.calibration.align import AlignedData, IndexArray, select_rows
 from es_feedforward.calibration.fit import FitResult, levenberg_marquardt
 from es_feedforward.calibration.model import (
-    CANDIDATES,
+    BoolArray,
     CompositeModel,
     FitInputs,
     FloatArray,
     play_operator,
 )
 from es_feedforward.calibration.residual import integrated_autocorrelation_time
-from es_feedforward.params import ActuatorParams
+from es_physics.effects import Effect, FittedEffect, Role, get
+from es_physics.params import ActuatorParams
 
 SCREEN_SIZE: Final = 8
-#: Smallest relative cut of the held-out RMS that counts as an improvement.
-MIN_RELATIVE_GAIN: Final = 0.01
-#: Held-out RMS below which nothing is worth explaining [m] (far below interferometer noise).
-RESOLUTION_FLOOR_M: Final = 1e-12
-#: Longest delay searched [s] and in command periods.
-MAX_DELAY_S: Final = 0.1
-MAX_DELAY_PERIODS: Final = 40
-#: Hysteresis thresholds tried, as fractions of the command's range.
-THRESHOLD_FRACTIONS: Final = (0.005, 0.01, 0.02, 0.04, 0.08, 0.16, 0.3)
-#: Thresholds tried between the best coarse threshold's neighbours.
-FINE_THRESHOLDS: Final = 5
-#: Drift time constants tried, as fractions of the record's duration.
-DRIFT_TAU_FRACTIONS: Final = (0.05, 0.25, 1.0)
 #: Samples per actuator used for fits and held-out scores (capped by sample-actuator totals).
 FIT_SAMPLES: Final = 6000
 FIT_BUDGET: Final = 2_000_000
@@ -63,7 +41,7 @@ class ModelState:
 
     model: CompositeModel
     delay_s: float
-    threshold_v: float
+    thresholds: tuple[float, ...]
     fit: FitResult
     heldout_sse: float = 0.0
     heldout_count: int = 0
@@ -73,26 +51,10 @@ class ModelState:
         """Return the held-out RMS error [m]."""
         return float(np.sqrt(self.heldout_sse / max(self.heldout_count, 1)))
 
-
-@dataclass
-class CandidateScore:
-    """One candidate's outcome in one round of the search."""
-
-    name: str
-    rms_before_m: float
-    rms_after_m: float
-    delta_ic: float
-    accepted: bool
-    reason: str
-    parameters: dict[str, float] = field(default_factory=dict)
-
-
-@dataclass
-class RoundRecord:
-    """All candidates tried in one round and the one added (if any)."""
-
-    scores: list[CandidateScore]
-    added: str | None
+    @property
+    def play_thresholds(self) -> tuple[float, ...] | None:
+        """Return the play thresholds [V] when the model has a play effect, else None."""
+        return self.thresholds if self.model.play else None
 
 
 class Workspace:
@@ -155,19 +117,40 @@ class Workspace:
             }
         return self._static_cache[key]
 
+    def split_delay(self, delay_s: float) -> tuple[float, float]:
+        """Return (whole command periods [s], fraction of a period) of a delay."""
+        period = self.aligned.command_period
+        periods = delay_s / period
+        whole = float(np.floor(periods + 1e-9))
+        return whole * period, max(periods - whole, 0.0)
+
     def inputs(self, rows: IndexArray, delay_s: float, play: FloatArray | None) -> FitInputs:
-        """Return model inputs at ``rows`` with the command ``delay_s`` earlier."""
+        """Return model inputs at ``rows`` with the command ``delay_s`` earlier.
+
+        ``play`` holds the play operators at ``rows``, (len(rows), K, A), or is None.
+
+        A delay of j + f command periods gives the command interpolated between the ones in
+        effect j and j + 1 periods earlier, (1 - f) u_j + f u_(j+1) (fractional delay).
+        """
         a = self.aligned
         static = self._static(rows)
-        ci = a.command_index(rows, delay_s)
-        voltage = a.command[np.ix_(np.maximum(ci, 0), self.actuators)].T
-        valid = static["finite"] & np.isfinite(voltage) & (ci >= 0)[None, :]
-        if not a.command_finite_all:
-            valid &= a.command_finite[np.ix_(np.maximum(ci, 0), self.actuators)].T
+        whole_s, frac = self.split_delay(delay_s)
+        shifts = [(whole_s, 1.0 - frac)]
+        if frac > 1e-9:
+            shifts.append((whole_s + a.command_period, frac))
+        voltage: FloatArray = np.zeros(static["displacement"].shape)
+        valid: BoolArray = np.array(static["finite"], dtype=bool)
+        for shift, weight in shifts:
+            ci = a.command_index(rows, shift)
+            u = a.command[np.ix_(np.maximum(ci, 0), self.actuators)].T
+            valid &= np.isfinite(u) & (ci >= 0)[None, :]
+            if not a.command_finite_all:
+                valid &= a.command_finite[np.ix_(np.maximum(ci, 0), self.actuators)].T
+            voltage = np.asarray(voltage + weight * u, np.float64)
         return FitInputs(
             t=static["t"],
             voltage=voltage,
-            play=None if play is None else np.ascontiguousarray(play.T),
+            play=None if play is None else np.ascontiguousarray(play.transpose(1, 2, 0)),
             temperature=static["temperature"],
             temperature_rate=static["temperature_rate"],
             displacement=np.where(valid, static["displacement"], 0.0),
@@ -176,11 +159,13 @@ class Workspace:
             mean_temperature=a.mean_temperature,
         )
 
-    def input_pair(self, delay_s: float, threshold_v: float | None) -> tuple[FitInputs, FitInputs]:
-        """Return (training, held-out) inputs for a delay and optional play threshold."""
+    def input_pair(
+        self, delay_s: float, thresholds: Sequence[float] | None
+    ) -> tuple[FitInputs, FitInputs]:
+        """Return (training, held-out) inputs for a delay and optional play thresholds."""
         fit_play = score_play = None
-        if threshold_v is not None:
-            fit_play, score_play = (p[:, 0, :] for p in self.play_pair([threshold_v], delay_s))
+        if thresholds is not None:
+            fit_play, score_play = self.play_pair(thresholds, delay_s)
         return (
             self.inputs(self.fit_rows, delay_s, fit_play),
             self.inputs(self.score_rows, delay_s, score_play),
@@ -211,7 +196,7 @@ def fit_state(
     glob0: FloatArray,
     *,
     delay_s: float,
-    threshold_v: float,
+    thresholds: tuple[float, ...],
     inflation: float = 1.0,
     max_iter: int = 40,
 ) -> ModelState:
@@ -230,205 +215,11 @@ def fit_state(
     return ModelState(
         model,
         delay_s,
-        threshold_v,
+        thresholds,
         result,
         float(np.sum(resid * resid)),
         int(heldout.valid.sum()),
     )
-
-
-def heldout_residual(state: ModelState, heldout: FitInputs) -> FloatArray:
-    """Return the held-out residual (A, n), NaN where invalid."""
-    pred = state.model.evaluate(state.fit.local, state.fit.glob, heldout, jacobian=False).prediction
-    return np.where(heldout.valid, heldout.displacement - pred, np.nan)
-
-
-def _extend_local(state: ModelState, model: CompositeModel) -> FloatArray:
-    local = state.fit.local
-    if len(model.local_names) > local.shape[1]:
-        local = np.concatenate([local, np.zeros((local.shape[0], 2))], axis=1)
-    return local
-
-
-def _extend_global(state: ModelState, model: CompositeModel, new: dict[str, float]) -> FloatArray:
-    old = dict(zip(state.model.global_names, state.fit.glob, strict=True))
-    return np.array([old.get(n, new.get(n, 0.0)) for n in model.global_names], np.float64)
-
-
-def _candidate_states(
-    ws: Workspace, state: ModelState, name: str, duration: float
-) -> list[ModelState]:
-    """Return fitted states of ``state`` plus effect ``name`` (several starts or grid points)."""
-    model = CompositeModel((*state.model.effects, name))
-    local0 = _extend_local(state, model)
-    a = ws.aligned
-    out: list[ModelState] = []
-    threshold = state.threshold_v if state.model.has("hysteresis") else None
-    if name == "delay":
-        # rank the shifts with the current law (no refit), then refit around the best one
-        period = a.command_period
-        n_max = int(min(MAX_DELAY_PERIODS, max(1, MAX_DELAY_S / period)))
-        play = None
-        if threshold is not None:
-            play = ws.play_pair([threshold], state.delay_s)[0][:, 0, :]
-        costs = []
-        for j in range(1, n_max + 1):
-            shifted = ws.inputs(ws.fit_rows, j * period, play)
-            pred = state.model.evaluate(state.fit.local, state.fit.glob, shifted, False)
-            costs.append(
-                float(
-                    np.sum(
-                        np.where(shifted.valid, shifted.displacement - pred.prediction, 0.0) ** 2
-                    )
-                )
-            )
-        best_j = int(np.argmin(costs)) + 1
-        shifts = {max(1, best_j - 1), best_j, min(n_max, best_j + 1)}
-        if costs[best_j - 1] > state.fit.total_cost:
-            shifts = {best_j}  # every shift fits worse than none: one refit to score it
-        for j in sorted(shifts):
-            train, held = ws.input_pair(j * period, threshold)
-            out.append(
-                fit_state(
-                    model,
-                    train,
-                    held,
-                    local0,
-                    _extend_global(state, model, {}),
-                    delay_s=j * period,
-                    threshold_v=state.threshold_v,
-                    max_iter=15,
-                )
-            )
-        return out
-    if name == "hysteresis":
-        span = float(np.ptp(a.command[:, ws.actuators]))
-        glob0 = _extend_global(state, model, {"hysteresis.weight": 0.0})
-        coarse = [max(f * span, 1e-6) for f in THRESHOLD_FRACTIONS]
-        best = _best_threshold(ws, state, model, (local0, glob0), coarse)
-        if best.fit.total_cost > (1.0 - MIN_RELATIVE_GAIN) ** 2 * state.fit.total_cost:
-            return [best]  # no threshold helps even on training data: no need to refine
-        i = coarse.index(best.threshold_v)
-        lo, hi = coarse[max(i - 1, 0)], coarse[min(i + 1, len(coarse) - 1)]
-        fine = [float(r) for r in np.geomspace(lo, hi, FINE_THRESHOLDS + 2)[1:-1]]
-        refined = _best_threshold(ws, state, model, (best.fit.local, best.fit.glob), fine)
-        best = refined if refined.fit.total_cost < best.fit.total_cost else best
-        train, held = ws.input_pair(state.delay_s, best.threshold_v)
-        out.append(
-            fit_state(
-                model,
-                train,
-                held,
-                best.fit.local,
-                best.fit.glob,
-                delay_s=state.delay_s,
-                threshold_v=best.threshold_v,
-            )
-        )
-        return out
-    train, held = ws.input_pair(state.delay_s, threshold)
-    starts: list[dict[str, float]] = [{}]
-    if name == "drift":
-        starts = [
-            {
-                "drift.fraction": 0.0,
-                "drift.log_tau_s": float(np.log(f * duration)),
-                "drift.log_nu": 0.0,
-            }
-            for f in DRIFT_TAU_FRACTIONS
-        ]
-    for start in starts:
-        glob0 = _extend_global(state, model, start)
-        if name == "drift":
-            # start the nonlinear drift terms from a small fraction so their gradients exist
-            glob0[model.global_names.index("drift.fraction")] = 0.01
-        out.append(
-            fit_state(
-                model,
-                train,
-                held,
-                local0,
-                glob0,
-                delay_s=state.delay_s,
-                threshold_v=state.threshold_v,
-            )
-        )
-    return out
-
-
-def _best_threshold(
-    ws: Workspace,
-    state: ModelState,
-    model: CompositeModel,
-    start: tuple[FloatArray, FloatArray],
-    thresholds: list[float],
-) -> ModelState:
-    """Fit the hysteresis model at each play threshold (one pass of the play for all)."""
-    local0, glob0 = start
-    fit_play, score_play = ws.play_pair(thresholds, state.delay_s)
-    trials = []
-    for i, r in enumerate(thresholds):
-        train = ws.inputs(ws.fit_rows, state.delay_s, fit_play[:, i, :])
-        held = ws.inputs(ws.score_rows, state.delay_s, score_play[:, i, :])
-        trials.append(
-            fit_state(
-                model, train, held, local0, glob0, delay_s=state.delay_s, threshold_v=r, max_iter=10
-            )
-        )
-    return min(trials, key=lambda s: s.fit.total_cost)
-
-
-def effect_parameters(state: ModelState, name: str, aligned: AlignedData) -> dict[str, float]:
-    """Return the physical parameters of effect ``name`` in ``state`` (architecture table)."""
-    g = dict(zip(state.model.global_names, state.fit.glob, strict=True))
-    if name == "sensor_lag":
-        return {"tau_s": g["sensor_lag.tau_s"]}
-    if name == "delay":
-        # a shift of j command periods covers delays in (j, j + 1] periods: report the middle
-        return {"delay_s": state.delay_s + 0.5 * aligned.command_period}
-    if name == "hysteresis":
-        return {"weight": g["hysteresis.weight"], "threshold_v": state.threshold_v}
-    if name == "coupling":
-        return {"coefficient": g["coupling.coefficient"]}
-    if name == "thermal_expansion":
-        alpha = g["thermal_expansion.alpha_m_per_degc"]
-        ref = aligned.mean_temperature - g["thermal_expansion.offset_m"] / alpha if alpha else 0.0
-        return {"alpha_m_per_degc": alpha, "reference_temperature": ref}
-    if name == "drift":
-        return {
-            "fraction": g["drift.fraction"],
-            "tau_s": float(np.exp(g["drift.log_tau_s"])),
-            "nu": float(np.exp(g["drift.log_nu"])),
-        }
-    if name == "temperature_curvature":
-        local = state.fit.local
-        return {"m3": float(np.median(local[:, 4])), "k3": float(np.median(local[:, 5]))}
-    raise ValueError(f"unknown effect {name}")
-
-
-def physical_problem(name: str, params: dict[str, float]) -> str | None:
-    """Return why fitted parameters are unphysical for effect ``name``, or None."""
-    if name == "sensor_lag" and params["tau_s"] <= 0:
-        return f"lag {params['tau_s']:.3g} s is not positive"
-    if name == "hysteresis" and not 0.0 < params["weight"] < 1.0:
-        return f"weight {params['weight']:.3g} outside (0, 1)"
-    if name == "coupling" and params["coefficient"] <= 0:
-        return f"coefficient {params['coefficient']:.3g} is not positive"
-    if name == "drift" and not abs(params["fraction"]) < 1.0:
-        return f"fraction {params['fraction']:.3g} outside (-1, 1)"
-    return None
-
-
-def _added_parameters(name: str, n_actuators: int) -> int:
-    return {
-        "sensor_lag": 1,
-        "delay": 1,
-        "hysteresis": 2,
-        "coupling": 1,
-        "thermal_expansion": 2,
-        "drift": 3,
-        "temperature_curvature": 2 * n_actuators,
-    }[name]
 
 
 def information_delta(
@@ -447,61 +238,58 @@ def effective_count(ws: Workspace, state: ModelState, heldout: FitInputs) -> flo
     return float(state.heldout_count / max(tau, 1.0))
 
 
-def search_effects(
-    ws: Workspace, base: ModelState, candidates: Sequence[str] = CANDIDATES
-) -> tuple[ModelState, list[tuple[str, ModelState, ModelState]], list[RoundRecord]]:
-    """Greedy forward selection; return (final state, [(effect, before, after)], rounds)."""
-    state = base
-    added: list[tuple[str, ModelState, ModelState]] = []
-    rounds: list[RoundRecord] = []
-    duration = float(ws.aligned.t[-1])
-    A = len(ws.actuators)
-    while True:
-        remaining = [c for c in candidates if not state.model.has(c)]
-        if not remaining:
-            break
-        _, held = ws.input_pair(
-            state.delay_s, state.threshold_v if state.model.has("hysteresis") else None
-        )
-        n_eff = effective_count(ws, state, held)
-        scores: list[CandidateScore] = []
-        best: tuple[float, str, ModelState] | None = None
-        for name in remaining:
-            if name == "coupling" and A < 2:
-                continue
-            tried = _candidate_states(ws, state, name, duration)
-            new = min(tried, key=lambda s: s.fit.total_cost)
-            params = effect_parameters(new, name, ws.aligned)
-            delta = information_delta(
-                state.heldout_sse, new.heldout_sse, n_eff, _added_parameters(name, A)
-            )
-            gain = 1.0 - new.heldout_rms / max(state.heldout_rms, 1e-300)
-            problem = physical_problem(name, params)
-            reason = "passes"
-            if problem:
-                reason = f"unphysical: {problem}"
-            elif state.heldout_rms < RESOLUTION_FLOOR_M:
-                reason = "residual already below resolution"
-            elif delta >= 0:
-                reason = f"information criterion does not improve (dBIC = {delta:+.1f})"
-            elif gain < MIN_RELATIVE_GAIN:
-                reason = f"held-out RMS cut {100 * gain:.2f} % < {100 * MIN_RELATIVE_GAIN:.0f} %"
-            ok = reason == "passes"
-            scores.append(
-                CandidateScore(name, state.heldout_rms, new.heldout_rms, delta, ok, reason, params)
-            )
-            if ok and (best is None or delta < best[0]):
-                best = (delta, name, new)
-        if best is None:
-            rounds.append(RoundRecord(scores, None))
-            break
-        _, name, new = best
-        for s in scores:
-            s.accepted = s.name == name
-        rounds.append(RoundRecord(scores, name))
-        added.append((name, state, new))
-        state = new
-    return state, added, rounds
+def heldout_residual(state: ModelState, heldout: FitInputs) -> FloatArray:
+    """Return the held-out residual (A, n), NaN where invalid."""
+    pred = state.model.evaluate(state.fit.local, state.fit.glob, heldout, jacobian=False).prediction
+    return np.where(heldout.valid, heldout.displacement - pred, np.nan)
+
+
+def extend_local(state: ModelState, model: CompositeModel) -> FloatArray:
+    """Return ``model``'s local start: ``state``'s law, with zero curvature terms if new."""
+    local = state.fit.local
+    if len(model.local_names) > local.shape[1]:
+        local = np.concatenate([local, np.zeros((local.shape[0], 2))], axis=1)
+    return local
+
+
+def extend_global(state: ModelState, model: CompositeModel, new: dict[str, float]) -> FloatArray:
+    """Return ``model``'s global start: ``state``'s values, else ``new``'s, else 0."""
+    old = dict(zip(state.model.global_names, state.fit.glob, strict=True))
+    return np.array([old.get(n, new.get(n, 0.0)) for n in model.global_names], np.float64)
+
+
+def fitted_effect(state: ModelState, effect: Effect, aligned: AlignedData) -> FittedEffect:
+    """Return ``effect``'s unknowns in ``state`` in the effect's own parameter names."""
+    model = state.model
+    sig_g = np.sqrt(np.maximum(np.diag(state.fit.cov_global), 0.0))
+    values: dict[str, float] = {}
+    sigma: dict[str, float] = {}
+    for i, p in enumerate(model.parameter_names(effect)):
+        j = model.global_names.index(model.key(effect, i))
+        values[p], sigma[p] = float(state.fit.glob[j]), float(sig_g[j])
+    # with equal command and displacement stamps and the command not yet in effect at its own
+    # stamp, a shift of d is a delay of d + one command period from the command's stamp
+    late = aligned.has_same_stamps and not aligned.include_same_stamp
+    offset = aligned.command_period if late else 0.0
+    order = model.operators if effect is model.play else 1
+    scanned = {Role.INPUT_SHIFT: (state.delay_s + offset,), Role.PLAY: state.thresholds}
+    for p, value in zip(effect.searched_names(order), scanned.get(effect.role, ()), strict=True):
+        values[p] = value
+    local: dict[str, FloatArray] = {}
+    local_sigma: dict[str, FloatArray] = {}
+    for p in effect.local_parameters:
+        j = model.local_names.index(p)
+        local[p] = state.fit.local[:, j]
+        local_sigma[p] = np.sqrt(np.maximum(state.fit.cov_local[:, j, j], 0.0))
+    return FittedEffect(
+        values, sigma, local, local_sigma, aligned.command_period, aligned.mean_temperature
+    )
+
+
+def effect_parameters(state: ModelState, name: str, aligned: AlignedData) -> dict[str, float]:
+    """Return the physical parameters of effect ``name`` in ``state``."""
+    effect = get(name)
+    return effect.reported(fitted_effect(state, effect, aligned))
 
 
 def screen_block(grid: tuple[int, int]) -> tuple[IndexArray, tuple[int, int]]:
@@ -517,7 +305,7 @@ def base_state(ws: Workspace) -> ModelState:
     train, held = ws.input_pair(0.0, None)
     model = CompositeModel(())
     return fit_state(
-        model, train, held, initial_law(train), np.zeros(0), delay_s=0.0, threshold_v=0.0
+        model, train, held, initial_law(train), np.zeros(0), delay_s=0.0, thresholds=()
     )
 
 
@@ -543,8 +331,7 @@ def refit_full(
     """Refit a screened model on the whole grid, starting from its global parameters."""
     idx = np.arange(aligned.n_actuators, dtype=np.intp)
     ws = Workspace(aligned, idx, aligned.grid)
-    threshold = screened.threshold_v if screened.model.has("hysteresis") else None
-    train, held = ws.input_pair(screened.delay_s, threshold)
+    train, held = ws.input_pair(screened.delay_s, screened.play_thresholds)
     local0 = initial_law(train) if start is None else start.fit.local
     if len(screened.model.local_names) > local0.shape[1]:
         local0 = np.concatenate([local0, np.zeros((local0.shape[0], 2))], axis=1)
@@ -556,7 +343,7 @@ def refit_full(
             local0,
             screened.fit.glob,
             delay_s=screened.delay_s,
-            threshold_v=screened.threshold_v,
+            thresholds=screened.thresholds,
         ),
         ws,
     )

@@ -20,7 +20,7 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
-from es_feedforward.params import (
+from es_physics.params import (
     VALIDITY_MARGIN_BELOW_TM,
     VALIDITY_SPAN_ABOVE_TM,
     ActuatorParams,

@@ -1,0 +1,241 @@
+"""What an effect states about itself: its parameters, where it acts, how it is calibrated.
+
+An effect is one class (a subclass of :class:`Effect`) in one module. The simulator, the
+calibration and the feedforward never name an effect: they read these declarations through
+:mod:`es_physics.effects.registry`.
+
+- :attr:`Effect.plant`: the simulator's parameters (scenario ``effects.<name>.<param>``);
+- :attr:`Effect.role`: the stage of the calibration's composite model the effect acts in;
+  :attr:`Effect.fit_parameters` (shared by all actuators) and
+  :attr:`Effect.local_parameters` (per actuator) are its unknowns there,
+  :attr:`Effect.searched` those found by a scan instead of Gauss-Newton;
+- :meth:`Effect.reported`, :meth:`Effect.uncertainties`, :meth:`Effect.problem`: the
+  physical parameters calibration.json and the report give, and when they are unphysical;
+- :attr:`Effect.compensation` and :meth:`Effect.compensation_values`: the feedforward's
+  ``compensation.<param>`` parameters and how a calibration sets them.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from abc import ABC, abstractmethod
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import ClassVar
+
+import numpy as np
+import numpy.typing as npt
+
+FloatArray = npt.NDArray[np.float64]
+
+
+class EffectError(ValueError):
+    """An effect definition or an effect setting is invalid."""
+
+
+class UnknownEffectError(EffectError):
+    """A name that no registered effect has."""
+
+
+class Role(enum.Enum):
+    """The stage of the calibration's composite model an effect acts in.
+
+    In model order: the actuator temperature T_a from the sensor's (``TEMPERATURE``), the
+    voltage in effect (``INPUT_SHIFT``: the command shifted in time; ``PLAY``: a play
+    operator blended with the drive), the law's own coefficients (``LAW``), a gain on the
+    law's displacement (``GAIN``), the face sheet spreading it (``SPATIAL``), and terms added
+    to the displacement (``ADDITIVE``, any number of effects). ``PLANT_ONLY`` effects exist in
+    the simulator and are no calibration candidate.
+    """
+
+    TEMPERATURE = "temperature"
+    INPUT_SHIFT = "input_shift"
+    PLAY = "play"
+    LAW = "law"
+    GAIN = "gain"
+    SPATIAL = "spatial"
+    ADDITIVE = "additive"
+    PLANT_ONLY = "plant_only"
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """One parameter of an effect: name, unit, accepted range, default.
+
+    Attributes:
+        name: parameter name (``effects.<effect>.<name>`` or ``compensation.<name>``).
+        unit: SI unit (temperatures in degC), "" when dimensionless.
+        low: lowest accepted value.
+        high: highest accepted value.
+        default: value when the setting is absent.
+        doc: one line saying what it is.
+        low_open: ``low`` itself is not accepted.
+        high_open: ``high`` itself is not accepted.
+        per_actuator: the data can support one value per actuator (else one for the grid).
+        time_scaled: a slow (thermal, aging) time that a scenario's ``time_scale`` multiplies.
+
+    """
+
+    name: str
+    unit: str
+    low: float
+    high: float
+    default: float
+    doc: str
+    low_open: bool = False
+    high_open: bool = False
+    per_actuator: bool = False
+    time_scaled: bool = False
+
+    def accepts(self, value: float) -> bool:
+        """Return whether ``value`` lies in the range (NaN never does)."""
+        if not math.isfinite(value) and not (math.isinf(value) and math.isinf(self.high)):
+            return False
+        above = value > self.low if self.low_open else value >= self.low
+        below = value < self.high if self.high_open else value <= self.high
+        return above and below
+
+    def range_text(self) -> str:
+        """Return the range as text, e.g. ``[0, 0.125)``."""
+        left = "(" if self.low_open else "["
+        right = ")" if self.high_open else "]"
+        return f"{left}{self.low:g}, {self.high:g}{right}"
+
+    def check(self, value: float, prefix: str) -> None:
+        """Raise :class:`EffectError` naming ``prefix.name`` when ``value`` is out of range.
+
+        Raises:
+            EffectError: the value is outside :meth:`range_text` or not a number.
+
+        """
+        if not self.accepts(value):
+            raise EffectError(f"{prefix}.{self.name} = {value!r} must be in {self.range_text()}")
+
+
+@dataclass(frozen=True)
+class FittedEffect:
+    """An effect's unknowns after a calibration fit, in the effect's own parameter names.
+
+    Attributes:
+        values: fitted shared parameters (:attr:`Effect.fit_parameters`) and scanned ones
+            (:attr:`Effect.searched`).
+        sigma: their 1-sigma uncertainties (scanned ones: the scan's resolution).
+        local: fitted per-actuator parameters (:attr:`Effect.local_parameters`), each (A,).
+        local_sigma: their 1-sigma uncertainties, each (A,).
+        command_period: the data's command period [s].
+        mean_temperature: mean temperature of the data [degC].
+
+    """
+
+    values: Mapping[str, float]
+    sigma: Mapping[str, float]
+    local: Mapping[str, FloatArray] = field(default_factory=dict)
+    local_sigma: Mapping[str, FloatArray] = field(default_factory=dict)
+    command_period: float = 0.0
+    mean_temperature: float = 0.0
+
+
+@dataclass(frozen=True)
+class Additive:
+    """An additive term's value and derivatives, each broadcasting against (A, n).
+
+    Attributes:
+        value: the term added to the displacement [m].
+        columns: d value / d parameter, one per :attr:`Effect.fit_parameters` entry.
+        d_temperature: d value / d T_a [m/degC] (0 when the term does not depend on it).
+
+    """
+
+    value: FloatArray
+    columns: tuple[FloatArray, ...]
+    d_temperature: FloatArray | float = 0.0
+
+
+class Effect(ABC):
+    """One effect beyond the basic hyperbolic law (see the module docstring)."""
+
+    #: Canonical name (scenario ``effects.<name>``, calibration candidate, report).
+    name: ClassVar[str]
+    #: One sentence: what the effect is physically.
+    summary: ClassVar[str]
+    #: Stage of the calibration's model (PLANT_ONLY: not a candidate).
+    role: ClassVar[Role]
+    #: The simulator's parameters of the effect.
+    plant: ClassVar[tuple[Parameter, ...]] = ()
+    #: Whether es_sim_plant simulates the effect (an external effect may only be calibrated).
+    simulated: ClassVar[bool] = False
+    #: Shared unknowns of the calibration's Gauss-Newton fit.
+    fit_parameters: ClassVar[tuple[str, ...]] = ()
+    #: Per-actuator unknowns the effect adds to the law's coefficients.
+    local_parameters: ClassVar[tuple[str, ...]] = ()
+    #: Unknowns the calibration finds by a scan (one value for the grid).
+    searched: ClassVar[tuple[str, ...]] = ()
+    #: The feedforward's ``compensation.<name>`` parameters the effect owns.
+    compensation: ClassVar[tuple[Parameter, ...]] = ()
+
+    @property
+    def candidate(self) -> bool:
+        """Whether the calibration may add the effect."""
+        return self.role is not Role.PLANT_ONLY
+
+    #: Most operators (terms of the same kind) the calibration may give the effect.
+    max_order: ClassVar[int] = 1
+
+    def fit_names(self, order: int = 1) -> tuple[str, ...]:
+        """Return the shared unknowns with ``order`` operators (default: fit_parameters)."""
+        return self.fit_parameters
+
+    def searched_names(self, order: int = 1) -> tuple[str, ...]:
+        """Return the scanned unknowns with ``order`` operators (default: searched)."""
+        return self.searched
+
+    def added_parameters(self, n_actuators: int, order: int = 1) -> int:
+        """Return how many unknowns the effect adds to a fit of ``n_actuators`` actuators."""
+        return (
+            len(self.fit_names(order))
+            + len(self.searched_names(order))
+            + n_actuators * len(self.local_parameters)
+        )
+
+    def starts(self, duration_s: float) -> list[dict[str, float]]:
+        """Return starting values of :attr:`fit_parameters` to try (data ``duration_s`` long)."""
+        return [{}]
+
+    @abstractmethod
+    def reported(self, fit: FittedEffect) -> dict[str, float]:
+        """Return the physical parameters (plant names and units) of a fit."""
+
+    def uncertainties(self, fit: FittedEffect) -> dict[str, float]:
+        """Return 1-sigma uncertainties of :meth:`reported` (default: of the fit's values)."""
+        return {k: float(v) for k, v in fit.sigma.items()}
+
+    def problem(self, reported: dict[str, float]) -> str | None:
+        """Return why reported parameters are unphysical, or None (default: plant ranges)."""
+        for p in self.plant:
+            if p.name in reported and not p.accepts(reported[p.name]):
+                return f"{p.name} {reported[p.name]:.3g} outside {p.range_text()}"
+        return None
+
+    def compensation_values(
+        self, reported: dict[str, float], start_time: float
+    ) -> dict[str, float]:
+        """Return the ``compensation.*`` values (no prefix) for reported parameters.
+
+        ``start_time`` is the ROS time of the data's first sample [s].
+        """
+        return {}
+
+    def additive(self, g: Mapping[str, float], t: FloatArray, Ta: FloatArray) -> Additive:
+        """Return the displacement term of an ``ADDITIVE`` effect and its derivatives.
+
+        Args:
+            g: current values of :attr:`fit_parameters`.
+            t: seconds since the start of the data, shape (n,).
+            Ta: actuator temperature minus the data's mean temperature, (A, n) [degC].
+
+        Raises:
+            EffectError: the effect is not additive.
+
+        """
+        raise EffectError(f"effect {self.name} is not an additive term")
