@@ -15,6 +15,19 @@ from __future__ import annotations
 
 import importlib
 from types import ModuleType
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # type checkers see the modules; at run time they load on first access
+    from es_msgs_py import (
+        arrays,
+        bag,
+        diagnostics,
+        errors,
+        node_main,
+        params,
+        record,
+        topics,
+    )
 
 __version__ = "0.1.0"
 
@@ -32,13 +45,16 @@ __all__ = [
 ]
 
 
-def __getattr__(name: str) -> ModuleType:
-    """Import a public module on first access (``es_msgs_py.bag`` after ``import es_msgs_py``).
+# Hidden from type checkers, which then flag a misspelt module instead of accepting any name.
+if not TYPE_CHECKING:
 
-    Raises:
-        AttributeError: ``name`` is not a public module of the package.
+    def __getattr__(name: str) -> ModuleType:
+        """Import a public module on first access (``es_msgs_py.bag`` after ``import es_msgs_py``).
 
-    """
-    if name in __all__ and name != "__version__":
-        return importlib.import_module(f"{__name__}.{name}")
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+        Raises:
+            AttributeError: ``name`` is not a public module of the package.
+
+        """
+        if name in __all__ and name != "__version__":
+            return importlib.import_module(f"{__name__}.{name}")
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
