@@ -42,7 +42,7 @@ from es_msgs_py.bag.errors import (
 )
 from es_msgs_py.bag.raw import RawTopic, StorageFormat
 
-if TYPE_CHECKING:
+if TYPE_CHECKING:  # the class get_typestore returns, named for annotations only
     from rosbags.typesys.store import Typestore
 
 __all__ = ["STORAGE_PLUGINS", "TopicSeries", "read_bag"]

@@ -10,7 +10,7 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from types import TracebackType
-from typing import TYPE_CHECKING, Final, Literal, Self
+from typing import Final, Literal, Self
 
 import numpy as np
 import numpy.typing as npt
@@ -34,9 +34,6 @@ from es_msgs_py.bag.errors import (
     BagWriteError,
     UnknownMessageTypeError,
 )
-
-if TYPE_CHECKING:
-    from rosbags.typesys.store import Typestore
 
 __all__ = ["BAG_VERSION", "STORAGES", "BagWriter", "Storage", "ros_type_name", "write_array_bag"]
 
@@ -129,7 +126,7 @@ class BagWriter:
         if self.path.exists():
             raise BagExistsError(f"{self.path} exists already; a bag is never overwritten")
         self._writer = Writer(self.path, version=BAG_VERSION, storage_plugin=_PLUGINS[storage])
-        self._typestore: Typestore = get_typestore(Stores.ROS2_JAZZY)
+        self._typestore = get_typestore(Stores.ROS2_JAZZY)
         self._connections: dict[str, Connection] = {}
         self.counts: dict[str, int] = {}
         try:
