@@ -2,9 +2,10 @@
 
 The scan needs no summary section or index, so it also reads the storage of a bag whose
 writer was killed (no ``metadata.yaml``, no footer, maybe a torn last record) up to the last
-complete record. rosbags' MCAP reader needs the summary or the bag's metadata, and has no
-public entry for such a file, so the scan follows the MCAP format specification
-(https://mcap.dev/spec) itself: chunks uncompressed or zstd, as rosbag2 and rosbags write.
+complete record. rosbags cannot read such a file: its public ``Reader`` needs
+``metadata.yaml`` and its MCAP storage reader the file's footer, which a killed writer never
+writes. So the scan follows the MCAP format specification (https://mcap.dev/spec) itself:
+chunks uncompressed or zstd, as rosbag2 and rosbags write them.
 """
 
 from __future__ import annotations
@@ -15,12 +16,7 @@ import sys
 from pathlib import Path
 from typing import Final
 
-from es_msgs_py.bag.errors import (
-    BagError,
-    CorruptBagError,
-    NotABagError,
-    UnsupportedBagError,
-)
+from es_msgs_py.bag.errors import CorruptBagError, NotABagError, UnsupportedBagError
 from es_msgs_py.bag.raw import RawTopic, StorageFormat
 
 __all__ = ["FORMAT", "MAGIC", "STORAGE_ID", "read"]
@@ -56,7 +52,7 @@ class _Scan:
         self.topics: dict[str, RawTopic] = {}
         self.complete = False
 
-    def corrupt(self, what: str) -> BagError:
+    def corrupt(self, what: str) -> CorruptBagError:
         return CorruptBagError(f"{self.file}: corrupt MCAP storage ({what})")
 
     def run(self, data: memoryview) -> None:
