@@ -2,6 +2,59 @@
 
 See ``shared/docs/interfaces.md``; every node and tool of the suite goes through this package
 so that data from a real test stand can replace the simulator at any point.
+
+Importing the package is cheap and needs no rclpy: its modules are loaded on first use
+(``es_msgs_py.bag`` or ``from es_msgs_py import bag``). Pure, without rclpy: :mod:`.bag`
+(bag I/O, needs rosbags and numpy) and :mod:`.errors` (every exception class of the
+package). The others need rclpy or the ROS message packages: :mod:`.arrays` (message
+classes), :mod:`.topics`, :mod:`.params`, :mod:`.diagnostics`, :mod:`.node_main`,
+:mod:`.record`.
 """
 
+from __future__ import annotations
+
+import importlib
+from types import ModuleType
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # type checkers see the modules; at run time they load on first access
+    from es_msgs_py import (
+        arrays,
+        bag,
+        diagnostics,
+        errors,
+        node_main,
+        params,
+        record,
+        topics,
+    )
+
 __version__ = "0.1.0"
+
+#: The public modules of the package.
+__all__ = [
+    "__version__",
+    "arrays",
+    "bag",
+    "diagnostics",
+    "errors",
+    "node_main",
+    "params",
+    "record",
+    "topics",
+]
+
+
+# Hidden from type checkers, which then flag a misspelt module instead of accepting any name.
+if not TYPE_CHECKING:
+
+    def __getattr__(name: str) -> ModuleType:
+        """Import a public module on first access (``es_msgs_py.bag`` after ``import es_msgs_py``).
+
+        Raises:
+            AttributeError: ``name`` is not a public module of the package.
+
+        """
+        if name in __all__ and name != "__version__":
+            return importlib.import_module(f"{__name__}.{name}")
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -16,15 +16,13 @@ import numpy as np
 import numpy.typing as npt
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
+from es_msgs_py.errors import LayoutError
+
 ROW_LABEL = "row"
 COL_LABEL = "col"
 SENSOR_LABEL = "sensor"
 
 FloatArray = npt.NDArray[np.float64]
-
-
-class LayoutError(ValueError):
-    """A message's layout, size or length does not match what the receiver expects."""
 
 
 def _buffer_of(
