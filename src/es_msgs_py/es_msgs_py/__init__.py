@@ -5,8 +5,9 @@ so that data from a real test stand can replace the simulator at any point.
 
 Importing the package is cheap and needs no rclpy: its modules are loaded on first use
 (``es_msgs_py.bag`` or ``from es_msgs_py import bag``). Pure, without rclpy: :mod:`.bag`
-(bag I/O, needs rosbags and numpy) and :mod:`.errors` (every exception class of the
-package). The others need rclpy or the ROS message packages: :mod:`.arrays` (message
+(bag I/O, needs rosbags and numpy), :mod:`.topic_names` (the contract's topic names),
+:mod:`.labimport` (lab recordings into contract bags) and :mod:`.errors` (every exception
+class of the package). The others need rclpy or the ROS message packages: :mod:`.arrays` (message
 classes), :mod:`.topics`, :mod:`.params`, :mod:`.diagnostics`, :mod:`.node_main`,
 :mod:`.record`.
 """
@@ -23,9 +24,11 @@ if TYPE_CHECKING:  # type checkers see the modules; at run time they load on fir
         bag,
         diagnostics,
         errors,
+        labimport,
         node_main,
         params,
         record,
+        topic_names,
         topics,
     )
 
@@ -38,9 +41,11 @@ __all__ = [
     "bag",
     "diagnostics",
     "errors",
+    "labimport",
     "node_main",
     "params",
     "record",
+    "topic_names",
     "topics",
 ]
 
