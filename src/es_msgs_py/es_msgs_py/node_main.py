@@ -6,7 +6,11 @@ nodes without it get rclpy's ``SingleThreadedExecutor``.
 The DDS teardown at the end is bounded (:data:`TEARDOWN_LIMIT`): Fast DDS 2.14 can hang for
 good while it destroys a participant that is handling another participant's goodbye at that
 moment (several nodes stopped at once). The node's own work is finished and flushed by then;
-instead of waiting for a SIGKILL, the process prints where it hung and exits 1.
+instead of waiting for a SIGKILL, the process prints where it hung and exits 1. A native
+crash (SIGSEGV, SIGABRT) prints the Python stack of every thread (``faulthandler``).
+
+``--help``/``-h`` (before any ``--ros-args``) prints the node's usage and parameters and exits
+0 without initialising ROS.
 """
 
 from __future__ import annotations
@@ -23,6 +27,8 @@ from rclpy.context import Context
 from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.publisher import Publisher
+
+from es_msgs_py.params import ParameterSpec
 
 #: Name of the read-only parameter through which a node chooses its executor.
 EXECUTOR_PARAMETER: Final = "executor"
@@ -111,10 +117,42 @@ def spin(node: Node, kind: str = EXECUTORS[0], context: Context | None = None) -
     executor.spin()
 
 
+def wants_help(args: Sequence[str]) -> bool:
+    """Return whether ``args`` (program name first) ask for help before any ROS arguments."""
+    own = list(args[1:])
+    if "--ros-args" in own:
+        own = own[: own.index("--ros-args")]
+    return "-h" in own or "--help" in own
+
+
+def usage_text(program: str, summary: str, specs: Sequence[ParameterSpec] = ()) -> str:
+    """Return the ``--help`` text of a node executable: usage, summary and its parameters.
+
+    Args:
+        program: executable name as ``ros2 run`` knows it, e.g. ``es_thermal thermal_node``.
+        summary: what the node does (a paragraph).
+        specs: the node's declared parameters (name, default, description with units).
+
+    """
+    lines = [
+        f"usage: ros2 run {program} [--ros-args -p NAME:=VALUE ... --params-file FILE]",
+        "",
+        summary.strip(),
+    ]
+    if specs:
+        lines += ["", "parameters (name, default: description):"]
+        for spec in specs:
+            text = spec.descriptor().description
+            lines.append(f"  {spec.name} ({spec.default!r}): {text}")
+    return "\n".join(lines) + "\n"
+
+
 def run_node(
     make_node: Callable[[], Node],
     args: Sequence[str] | None = None,
     teardown_limit: float = TEARDOWN_LIMIT,
+    *,
+    help_text: str = "",
 ) -> int:
     """Create the node with ``make_node``, spin it until shutdown and return an exit code.
 
@@ -124,10 +162,17 @@ def run_node(
     published per topic (``published <topic>: <count>``, see :class:`PublishCounter`). An
     invalid configuration (``ValueError`` from the constructor) prints one readable line and
     returns 2. A DDS teardown that takes longer than ``teardown_limit`` seconds ends the
-    process with exit code 1 and the Python stack it hung in on stderr.
+    process with exit code 1 and the Python stack it hung in on stderr. With ``--help`` it
+    prints ``help_text`` (see :func:`usage_text`) and returns 0 without starting the node.
     """
+    argv = list(args) if args is not None else sys.argv
+    if help_text and wants_help(argv):
+        sys.stdout.write(help_text)
+        return 0
+    # A native crash (e.g. SIGSEGV in a DDS teardown) prints every thread's stack.
+    faulthandler.enable()
     try:
-        rclpy.init(args=list(args) if args is not None else sys.argv)
+        rclpy.init(args=argv)
     except RCLError as err:  # e.g. a --params-file that does not exist or does not parse
         print(f"error: {str(err).splitlines()[0]}", file=sys.stderr)
         return 2
