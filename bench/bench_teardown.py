@@ -119,6 +119,10 @@ def one_stop(kind: str, work: Path, rng: random.Random) -> tuple[float | None, s
 
 def teardown_stops(kind: str, stops: int, seed: int = 0) -> StopResult:
     """Run ``stops`` Ctrl-C stops of the graph started by ``kind`` (launch or bringup)."""
+    # A background job ignores SIGINT and its children would inherit that: handled here, it
+    # is back to the default in every child (exec resets handled signals, not ignored ones).
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
     rng = random.Random(seed)
     result = StopResult(kind)
     for index in range(stops):

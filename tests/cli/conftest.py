@@ -11,6 +11,7 @@ from __future__ import annotations
 import os
 import re
 import shutil
+import signal
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -104,6 +105,10 @@ def ros2() -> Iterator[Ros2]:
             pytest.fail(f"ros2 CLI tier cannot run in CI: {MISSING}", pytrace=False)
         pytest.skip(MISSING)
     tool = Ros2(*found)
+    # Ctrl-C must reach the commands even when the suite runs in a background job, which
+    # ignores SIGINT: handled here, it is back to the default in every child after exec.
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
     yield tool
     tool.run("ros2 daemon stop", ROOT, timeout=60)
 
