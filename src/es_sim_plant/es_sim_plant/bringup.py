@@ -209,8 +209,8 @@ class Bringup:
             outcome = self.supervisor.stop()
             outcome.reason = problem
             return outcome
-        # No settle time: the plant's first step waits until the thermal and feedforward
-        # nodes report on /diagnostics that their inputs are matched (wait_ready).
+        # No settle time: the plant's first step waits until the recorder, thermal and
+        # feedforward nodes report on /diagnostics that their inputs are matched (wait_ready).
         self.supervisor.start(plant)
         drain = None
         if self.config.bag is not None and not self.config.with_controllers:
