@@ -8,7 +8,8 @@ the recorder (``es_msgs_py record``) on every /dm topic and /diagnostics if a ba
 the thermal node and the feedforward node; once the graph shows their subscriptions, the
 plant (lockstep, ``exit_when_done``), which itself waits until every topic it publishes has
 a matched subscription from its peers and the recorder (``start_subscribers``) and until the
-thermal and feedforward nodes report on /diagnostics that they are ready (``wait_ready``).
+recorder, thermal and feedforward nodes report on /diagnostics that they are ready
+(``wait_ready``): no fixed settle time.
 
 It supervises them (:mod:`es_sim_plant.supervisor`): output goes to ``<log_dir>/<name>.log``
 (and to the terminal with a ``[name]`` prefix unless ``--quiet``), a node that dies stops the
