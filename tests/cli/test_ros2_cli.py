@@ -124,6 +124,7 @@ def test_a_run_ends_by_itself_with_every_message_in_its_bag(
     output = result.stdout + result.stderr + logs
     assert result.returncode == 0, output[-3000:]
     assert DIED not in output, output[-3000:]
+    assert "stepping anyway" not in output  # every node said it was ready
     published = published_counts(output)
     assert published.get(topics.DISPLACEMENT, 0) > 0, output[-3000:]
     recorded = bag_counts(_bag_of(line, tmp_path))
