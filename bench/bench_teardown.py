@@ -22,6 +22,7 @@ import argparse
 import json
 import os
 import random
+import shutil
 import signal
 import subprocess
 import sys
@@ -117,8 +118,13 @@ def one_stop(kind: str, work: Path, rng: random.Random) -> tuple[float | None, s
     return seconds, None
 
 
-def teardown_stops(kind: str, stops: int, seed: int = 0) -> StopResult:
-    """Run ``stops`` Ctrl-C stops of the graph started by ``kind`` (launch or bringup)."""
+def teardown_stops(
+    kind: str, stops: int, seed: int = 0, keep: Path | None = None
+) -> StopResult:
+    """Run ``stops`` Ctrl-C stops of the graph started by ``kind`` (launch or bringup).
+
+    ``keep``: folder that receives the output and node logs of every crashed stop.
+    """
     # A background job ignores SIGINT and its children would inherit that: handled here, it
     # is back to the default in every child (exec resets handled signals, not ignored ones).
     if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
@@ -128,6 +134,12 @@ def teardown_stops(kind: str, stops: int, seed: int = 0) -> StopResult:
     for index in range(stops):
         with tempfile.TemporaryDirectory(prefix=f"teardown_{kind}_") as tmp:
             seconds, note = one_stop(kind, Path(tmp), rng)
+            if note is not None and keep is not None:
+                kept = keep / f"{kind}_{index + 1}"
+                kept.mkdir(parents=True, exist_ok=True)
+                for log in [Path(tmp) / "output.log", *Path(tmp).glob("logs/*.log")]:
+                    if log.is_file():
+                        shutil.copy(log, kept / log.name)
         result.stops += 1
         if seconds is not None:
             result.stop_seconds.append(seconds)
@@ -145,8 +157,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--stops", type=int, default=50)
     parser.add_argument("--only", nargs="+", choices=("launch", "bringup"),
                         default=["launch", "bringup"])  # fmt: skip
+    parser.add_argument("--keep", type=Path, help="keep the logs of crashed stops here")
+    parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
-    results = [teardown_stops(kind, args.stops) for kind in args.only]
+    results = [teardown_stops(kind, args.stops, args.seed, args.keep) for kind in args.only]
     print(json.dumps([asdict(r) for r in results], indent=1))
     return 1 if any(r.crashes for r in results) else 0
 

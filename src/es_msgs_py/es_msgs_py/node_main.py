@@ -16,7 +16,9 @@ crash (SIGSEGV, SIGABRT) prints the Python stack of every thread (``faulthandler
 from __future__ import annotations
 
 import faulthandler
+import signal
 import sys
+import time
 from collections.abc import Callable, Sequence
 from typing import Final, Protocol
 
@@ -27,6 +29,7 @@ from rclpy.context import Context
 from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.publisher import Publisher
+from rclpy.signals import uninstall_signal_handlers
 
 from es_msgs_py.params import ParameterSpec
 
@@ -147,6 +150,27 @@ def usage_text(program: str, summary: str, specs: Sequence[ParameterSpec] = ()) 
     return "\n".join(lines) + "\n"
 
 
+def summary_line(node_name: str, text: str) -> None:
+    """Print one exit-summary line to stderr, formatted like an rcutils log line.
+
+    ``[INFO] [<unix time>] [<node_name>.summary]: <text>``. Printed, not logged: under
+    ``ros2 launch`` every node is stopped at once, and logging through rcutils while rclpy
+    and the middleware shut down (their own threads) crashed a node with SIGSEGV now and then.
+    """
+    print(f"[INFO] [{time.time():.9f}] [{node_name}.summary]: {text}", file=sys.stderr,
+          flush=True)  # fmt: skip
+
+
+def end_signal_handling() -> None:
+    """Stop rclpy's signal handling before the teardown; a further SIGINT is ignored.
+
+    Uninstalling joins rclpy's signal-handler thread, so nothing of the shutdown it started
+    still runs beside the teardown. SIGTERM still ends the process (a launcher's escalation).
+    """
+    uninstall_signal_handlers()
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
 def run_node(
     make_node: Callable[[], Node],
     args: Sequence[str] | None = None,
@@ -188,15 +212,14 @@ def run_node(
         print(f"error: {err}", file=sys.stderr)
         return 2
     finally:
+        end_signal_handling()
         if node is not None:
             close = getattr(node, "close", None)
             if callable(close):
                 close()
             if counter is not None:
-                # A plain logger: the node's own would try /rosout after shutdown.
-                summary = rclpy.logging.get_logger(f"{node.get_name()}.summary")
                 for line in counter.log_lines():
-                    summary.info(line)
+                    summary_line(node.get_name(), line)
         # A C-level watchdog: a hung teardown holds the GIL, so no Python thread could act.
         faulthandler.dump_traceback_later(teardown_limit, exit=True)
         try:

@@ -26,7 +26,6 @@ from typing import NoReturn
 
 from rclpy.clock import Clock, ClockType
 from rclpy.event_handler import QoSMessageLostInfo, SubscriptionEventCallbacks
-from rclpy.logging import get_logger
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
 from rclpy.subscription import Subscription
@@ -35,7 +34,7 @@ from rclpy.validate_full_topic_name import validate_full_topic_name
 from es_msgs_py import topics
 from es_msgs_py.bag import STORAGES, BagError, BagWriter
 from es_msgs_py.diagnostics import Level, make_array, make_status, readiness_status, unmatched
-from es_msgs_py.node_main import run_node
+from es_msgs_py.node_main import run_node, summary_line
 
 NODE_NAME = "record"
 #: Topics taken by ``--all-dm``.
@@ -274,16 +273,15 @@ class Recorder(Node):
         )
 
     def close(self) -> None:
-        """Finish the bag and log the counts per topic."""
+        """Finish the bag and print the counts per topic (:func:`summary_line`)."""
         self._bag.close()
-        # Not the node's logger: /rosout is already gone when a signal stopped the node.
-        logger = get_logger(f"{NODE_NAME}.summary")
         for topic, count in self._counts.items():
-            logger.info(
+            summary_line(
+                NODE_NAME,
                 f"{topic}: received {count.received}, written {count.written}, "
-                f"lost before reception {count.lost}, missed {count.missed_text()}"
+                f"lost before reception {count.lost}, missed {count.missed_text()}",
             )
-        logger.info(f"bag closed: {self._options.output}")
+        summary_line(NODE_NAME, f"bag closed: {self._options.output}")
 
 
 def main(argv: Sequence[str] | None = None) -> int:
