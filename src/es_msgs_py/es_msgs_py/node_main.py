@@ -16,7 +16,6 @@ crash (SIGSEGV, SIGABRT) prints the Python stack of every thread (``faulthandler
 from __future__ import annotations
 
 import faulthandler
-import signal
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -29,7 +28,6 @@ from rclpy.context import Context
 from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.publisher import Publisher
-from rclpy.signals import uninstall_signal_handlers
 
 from es_msgs_py.params import ParameterSpec
 
@@ -161,16 +159,6 @@ def summary_line(node_name: str, text: str) -> None:
           flush=True)  # fmt: skip
 
 
-def end_signal_handling() -> None:
-    """Stop rclpy's signal handling before the teardown; a further SIGINT is ignored.
-
-    Uninstalling joins rclpy's signal-handler thread, so nothing of the shutdown it started
-    still runs beside the teardown. SIGTERM still ends the process (a launcher's escalation).
-    """
-    uninstall_signal_handlers()
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-
-
 def run_node(
     make_node: Callable[[], Node],
     args: Sequence[str] | None = None,
@@ -218,7 +206,6 @@ def run_node(
         print(f"error: {err}", file=sys.stderr)
         return 2
     finally:
-        end_signal_handling()
         if node is not None:
             close = getattr(node, "close", None)
             if callable(close):
