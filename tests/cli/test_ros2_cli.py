@@ -21,6 +21,7 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
 from es_msgs_py import topics
+from es_sim_plant.invariants import contract_name
 
 from .conftest import README, Ros2, readme_commands
 
@@ -85,11 +86,12 @@ def test_launch_arguments_are_all_described(ros2: Ros2, tmp_path: Path) -> None:
 
 
 def published_counts(output: str) -> dict[str, int]:
-    """Return what the nodes logged they published, per /dm topic (every node's summary)."""
+    """Return what the nodes said they published, per /dm topic (namespaced names mapped)."""
     counts: Counter[str] = Counter()
     for _, topic, n in PUBLISHED.findall(output):
-        if topic in topics.DM_TOPICS:
-            counts[topic] += int(n)
+        name = contract_name(topic, topics.DM_TOPICS)
+        if name in topics.DM_TOPICS:
+            counts[name] += int(n)
     return dict(counts)
 
 
