@@ -70,9 +70,10 @@ from bench_scale import section_lockstep_scale, section_scale  # noqa: E402
 
 SECTIONS = ("kernels", "convert", "feedforward", "lockstep", "recorder", "calibrate", "thermal",
             "calibration_loop", "import", "scale", "lockstep_scale", "multihost", "selfsensing",
-            "identify")
+            "identify", "teardown")
 #: Sections run when ``--only`` is not given (the identification sweep has its own command).
 DEFAULT_SECTIONS = tuple(name for name in SECTIONS if name != "identify")
+
 #: Grid shapes of the DDS benchmark (N = 144, 1024, 4096).
 DDS_SHAPES = ((12, 12), (32, 32), (64, 64))
 #: Grids of the lockstep benchmark.
@@ -845,6 +846,30 @@ TARGETS = (
 )
 
 
+def section_teardown(settings: Settings, results: Results) -> None:
+    """Ctrl-C stops under ros2 launch and the bring-up (bench_teardown.py): crashes, times."""
+    from bench_teardown import ros2_executable, teardown_stops
+
+    stops = 5 if settings.repeats == 1 else 50
+    kinds = ["launch", "bringup"] if ros2_executable() else ["bringup"]
+    if "launch" not in kinds:
+        results.failures.append("teardown: no ros2 for the launch stops (scripts/ros2cli-env)")
+    for kind in kinds:
+        outcome = teardown_stops(kind, stops)
+        results.records.append(
+            Record.of(f"teardown_crashes_{kind}", outcome.stops, [outcome.crashes], "crashes"))
+        if outcome.stop_seconds:
+            results.records.append(Record.of(f"teardown_stop_time_{kind}", outcome.stops,
+                                             outcome.stop_seconds, "s"))
+        results.notes += [f"teardown {kind} {note}" for note in outcome.crash_notes]
+    results.notes.append(
+        f"teardown: {stops} Ctrl-C stops (SIGINT to the ros2 launch / bringup PID) of a "
+        "dm_exposure 12 x 12 lockstep graph with recorder, each 0.2-2 s after the feedforward "
+        "was ready; a crash = a node died or printed a native stack, an unclean exit, a stop "
+        "over 90 s or an unclosed bag; stop time = SIGINT to exit (median, min-max)."
+    )
+
+
 def check_targets(results: Results) -> list[str]:
     """Return one line per issue-9 target: met or missed, with the measured figure."""
     lines = []
@@ -987,6 +1012,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "multihost": lambda: section_multihost(settings, results, log_dir),
         "selfsensing": lambda: section_selfsensing(results),
         "identify": lambda: section_identify(args.quick, results, args.output / "identify"),
+        "teardown": lambda: section_teardown(settings, results),
     }
     for name in args.only:
         start = time.monotonic()

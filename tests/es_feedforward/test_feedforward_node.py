@@ -141,9 +141,16 @@ def test_node_commands_safety_and_reload(harness: tuple[Harness, NodeProcess]) -
     h, proc = harness
     z = np.array([[10.0, 50.0, 90.0], [120.0, 60.0, 5.0]]) * NM
 
-    # no temperature yet: the held (zero) command is still published, diagnostic ERROR
+    # its inputs are matched: it says it is ready
+    assert h.diagnostic("ready", lambda s: level_of(s) == Level.OK).message == "ready"
+    # no temperature yet: the held (zero) command is still published, counted, WARN, logged
     assert np.all(h.exchange(grid_to_msg(z)) == 0.0)
     assert level_of(h.diagnostic("temperature")) == Level.ERROR
+    held = h.diagnostic("actuators", lambda s: level_of(s) == Level.WARN)
+    assert "holding the last good command" in held.message
+    assert "no temperature received yet" in held.message
+    assert values_of(held)["held"] == "1"
+    assert spin_until(h.node, lambda: "0 V: no good command yet" in proc.output(), 5.0)
 
     # per-actuator maps from the parameters file: the command reproduces z on the model
     h.send_temperature(TEMPERATURE)
@@ -157,6 +164,9 @@ def test_node_commands_safety_and_reload(harness: tuple[Harness, NodeProcess]) -
     np.testing.assert_array_equal(h.exchange(wrong), good)
     status = h.diagnostic("setpoint", lambda s: level_of(s) == Level.ERROR)
     assert "expected 2 x 3" in status.message
+    assert values_of(status)["held"] == "2"  # the rejected set point's command was held
+    held = h.diagnostic("actuators", lambda s: "set point rejected" in s.message)
+    assert level_of(held) == Level.WARN
     # wrong layout (labels) as well
     bad_layout = grid_to_msg(z)
     bad_layout.layout.dim = [MultiArrayDimension(label="sensor", size=6, stride=6)]
@@ -213,6 +223,36 @@ def test_node_commands_safety_and_reload(harness: tuple[Harness, NodeProcess]) -
     )
     assert proc.process.poll() is None
     assert proc.stop() == 0
+
+
+def test_node_reports_not_ready_until_its_inputs_are_matched() -> None:
+    args = ["--ros-args", "-p", "rows:=2", "-p", "cols:=3", "-p", "diagnostics_period:=0.2"]
+    with (
+        node_process("es_feedforward", "feedforward_node", args) as proc,
+        ros_node("ff_ready_test") as node,
+    ):
+        seen: dict[str, DiagnosticStatus] = {}
+
+        def on_diag(msg: DiagnosticArray) -> None:
+            for status in msg.status:
+                if status.name == "feedforward: ready":
+                    seen["ready"] = status
+
+        def says(message: str) -> bool:
+            return spin_until(node, lambda: "ready" in seen and seen["ready"].message == message,
+                              20.0)  # fmt: skip
+
+        node.create_subscription(DiagnosticArray, DIAGNOSTICS, on_diag, qos_for(DIAGNOSTICS))
+        assert says("not ready: waiting for /dm/temperature, /dm/setpoint"), seen
+        assert level_of(seen["ready"]) == Level.WARN
+        node.create_publisher(Float64MultiArray, topics.TEMPERATURE, qos_for(topics.TEMPERATURE))
+        assert says("not ready: waiting for /dm/setpoint"), seen
+        node.create_publisher(Float64MultiArray, SETPOINT, qos_for(SETPOINT))
+        assert says("ready"), seen
+        assert level_of(seen["ready"]) == Level.OK
+        # logged just after the status went out
+        assert spin_until(node, lambda: "ready: every input matched" in proc.output(), 10.0)
+        assert proc.stop() == 0
 
 
 def test_node_rejects_an_invalid_parameters_file_with_one_line(tmp_path: Path) -> None:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -17,6 +18,7 @@ from es_feedforward.param_file import (
     read_params_file,
     write_params_file,
 )
+from es_physics.params import ActuatorParams
 
 from .plantlike import grid_params
 
@@ -55,6 +57,35 @@ def test_round_trip_with_per_actuator_maps(tmp_path: Path) -> None:
     assert parsed["law.L"].type_ is Parameter.Type.DOUBLE_ARRAY
     assert parsed["compensation.delay_s"].value == 0.0024
     assert parsed["rows"].value == 3
+
+
+def test_values_without_a_dot_are_written_so_every_reader_gets_floats(tmp_path: Path) -> None:
+    path = tmp_path / "ff.yaml"
+    original = FeedforwardConfig(
+        shape=(1, 2),
+        params=replace(ActuatorParams(), m1=-4e-17, m3=1e-07, k3=np.array([[1e-20, 2e-20]])),
+    )
+    write_params_file(path, original)
+    values = yaml.safe_load(path.read_text())["feedforward"]["ros__parameters"]  # PyYAML
+    assert all(isinstance(values[f"law.{name}"][0], float) for name in ("m1", "m3", "k3"))
+    assert values["law.m1"][0] == pytest.approx(-4e-17, rel=1e-15)  # within one ulp
+    parsed = parameter_dict_from_yaml_file(str(path))  # rclpy, as `ros2 param load` reads it
+    for name in ("m1", "m3", "k3"):
+        assert Parameter.from_parameter_msg(parsed[f"law.{name}"]).type_ is (
+            Parameter.Type.DOUBLE_ARRAY
+        )
+    np.testing.assert_allclose(read_params_file(path).params.k3, [[1e-20, 2e-20]], rtol=1e-15)
+
+
+def test_strings_that_are_floats_are_read_as_floats(tmp_path: Path) -> None:
+    path = tmp_path / "dumped.yaml"  # what `ros2 param dump` writes for such values
+    path.write_text(
+        "/feedforward:\n  ros__parameters:\n    rows: 1\n    cols: 1\n"
+        "    law:\n      m1:\n      - -4e-17\n    v_limit: 3e2\n"
+    )
+    loaded = read_params_file(path)
+    assert loaded.params.m1 == -4e-17
+    assert loaded.v_limit == 300.0
 
 
 def test_nested_names_and_wildcard_node(tmp_path: Path) -> None:

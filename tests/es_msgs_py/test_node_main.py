@@ -4,8 +4,10 @@ bounded teardown."""
 from __future__ import annotations
 
 import contextlib
+import os
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 import rclpy
@@ -14,7 +16,14 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from support.ros import test_node as ros_node
 
-from es_msgs_py.node_main import EXECUTOR_PARAMETER, EXECUTORS, executor_kind, spin
+from es_msgs_py.node_main import (
+    EXECUTOR_PARAMETER,
+    EXECUTORS,
+    executor_kind,
+    spin,
+    usage_text,
+    wants_help,
+)
 from es_msgs_py.params import ParameterSpec, declare_parameters
 
 pytestmark = pytest.mark.dds
@@ -103,3 +112,33 @@ def test_a_hanging_teardown_ends_the_process_with_exit_1_and_its_stack() -> None
     assert done.returncode == 1, done.stderr
     assert "Timeout (0:00:00.500000)!" in done.stderr
     assert "in destroy_node" in done.stderr
+
+
+@pytest.mark.parametrize(
+    ("package", "name"),
+    [
+        ("es_sim_plant", "plant_node"), ("es_thermal", "thermal_node"),
+        ("es_feedforward", "feedforward_node"), ("es_msgs_py", "record"),
+        ("es_feedforward", "calibrate"), ("es_sim_plant", "bringup"), ("es_sim_plant", "demo"),
+    ],
+)  # fmt: skip
+def test_every_executable_answers_help_without_starting_a_node(package: str, name: str) -> None:
+    launcher = Path(sys.prefix) / "lib" / package / name
+    # an invalid domain: a node that started anyway would fail loudly
+    env = dict(os.environ, ROS_DOMAIN_ID="999")
+    result = subprocess.run([str(launcher), "--help"], capture_output=True, text=True,
+                            timeout=60, env=env, check=False)  # fmt: skip
+    assert result.returncode == 0, result.stderr
+    assert "usage" in result.stdout.lower()
+    assert "[INFO]" not in result.stdout + result.stderr
+
+
+def test_help_lists_every_parameter_with_its_description() -> None:
+    specs = [ParameterSpec("v_limit", 350.0, "Amplifier limit [V].", 1.0, 1000.0),
+             ParameterSpec("mode", "a", "Scheme: 'a': first; 'b': second.", choices=("a", "b"))]
+    text = usage_text("pkg node_exe", "Does things.", specs)
+    assert text.startswith("usage: ros2 run pkg node_exe")
+    assert "  v_limit (350.0): Amplifier limit [V]." in text
+    assert "'b': second. One of: a, b." in text
+    assert wants_help(["node", "--help"]) and wants_help(["node", "-h", "--ros-args"])
+    assert not wants_help(["node", "--ros-args", "-p", "x:=--help"])

@@ -20,6 +20,7 @@ from support.ros import test_node as ros_node
 
 from es_msgs_py.arrays import grid_to_msg, msg_to_grid, msg_to_sensors, sensors_to_msg
 from es_msgs_py.bag import decode_float64_multi_arrays, read_bag
+from es_msgs_py.record import TopicCount
 from es_msgs_py.topics import CLOCK, COMMAND, DIAGNOSTICS, DM_QOS, TEMPERATURE_RAW, qos_for
 
 pytestmark = pytest.mark.dds
@@ -123,6 +124,42 @@ def test_recorder_writes_every_message_and_closes_on_sigint(tmp_path: Path) -> N
     assert np.all(np.diff(series[COMMAND].times) >= 0)
     assert abs(series[COMMAND].times[0] - time.time()) < 120  # wall-clock stamps
     assert len(series[DIAGNOSTICS]) >= 1  # its own counts, at least
+
+
+def test_missed_messages_come_from_publication_sequence_numbers() -> None:
+    count = TopicCount("std_msgs/msg/Float64MultiArray")
+    assert count.missed_text() == "unknown"  # nothing received: not a silent 0
+    for sequence in (5, 6, 7, 9, 10):  # joined after 4, lost 8
+        count.note_sequence(sequence)
+    assert count.missed == 5
+    assert count.missed_text() == "5"
+    unsupported = TopicCount("std_msgs/msg/Float64MultiArray")
+    unsupported.note_sequence(0)  # a middleware without sequence numbers
+    assert unsupported.missed_text() == "unknown"
+    on_time = TopicCount("std_msgs/msg/Float64MultiArray")
+    for sequence in (1, 2, 3):
+        on_time.note_sequence(sequence)
+    assert on_time.missed_text() == "0"
+
+
+def test_recorder_reports_what_it_missed_by_joining_late(tmp_path: Path) -> None:
+    bag = tmp_path / "bag"
+    with ros_node("es_record_late") as node:
+        command = node.create_publisher(Float64MultiArray, COMMAND, PUBLISHER_QOS)
+        for k in range(7):  # nobody records these
+            command.publish(grid_to_msg(np.full((2, 2), float(k))))
+        recorder = NodeProcess("es_msgs_py", "record", ["-o", str(bag), COMMAND])
+        try:
+            assert spin_until(node, lambda: command.get_subscription_count() >= 1, 20.0)
+            spin_until(node, lambda: False, 0.5)
+            for k in range(3):
+                command.publish(grid_to_msg(np.full((2, 2), float(k))))
+            spin_until(node, lambda: False, 1.0)
+        finally:
+            assert recorder.stop(signal.SIGINT) == 0, recorder.output()
+    assert "/dm/command: received 3, written 3, lost before reception 0, missed 7" in (
+        recorder.output()
+    )
 
 
 def test_recorder_stamps_with_sim_time(tmp_path: Path) -> None:

@@ -15,7 +15,7 @@ from support import ros
 
 from es_msgs_py import topics
 from es_msgs_py.arrays import grid_to_msg, msg_to_grid, sensors_to_msg
-from es_msgs_py.diagnostics import Level, level_of
+from es_msgs_py.diagnostics import Level, level_of, make_array, readiness_status
 from es_physics.laws import hyperbolic_forward
 from es_physics.params import ActuatorParams
 
@@ -159,6 +159,62 @@ def test_sync_temperature_barrier_orders_setpoints_after_estimates(tmp_path: Pat
     # Step k's set point comes only after the estimate answering step k's sample (k = 0, 10, 20).
     assert replies_seen_at_setpoint == [k // 10 + 1 for k in range(30)]
     assert "sync_timeouts 0" in log and "command_timeouts 0" in log
+
+
+def test_first_step_waits_for_the_nodes_it_is_told_to_wait_for(tmp_path: Path) -> None:
+    scenario = tmp_path / "node_test.yaml"
+    scenario.write_text(SCENARIO.replace("duration: 1.0", "duration: 0.2"))
+    args = [
+        "--ros-args", "-p", f"scenario:={scenario}", "-p", "exit_when_done:=true",
+        "-p", "sync_temperature:=false", "-p", 'wait_ready:=["feedforward", "record"]',
+        "-p", "start_timeout:=60.0",
+    ]  # fmt: skip
+    with ros.test_node("plant_ready") as node:
+        commands = node.create_publisher(Float64MultiArray, topics.COMMAND, topics.DM_QOS)
+        diagnostics = node.create_publisher(
+            DiagnosticArray, topics.DIAGNOSTICS, topics.qos_for(topics.DIAGNOSTICS)
+        )
+        setpoints: list[int] = []
+
+        def on_setpoint(msg: Float64MultiArray) -> None:
+            setpoints.append(1)
+            commands.publish(grid_to_msg(msg_to_grid(msg, (2, 2)) * 1.0e9))
+
+        def report(ready: set[str]) -> None:
+            statuses = [readiness_status(name, [] if name in ready else ["/dm/temperature"])
+                        for name in ("feedforward", "record")]  # fmt: skip
+            diagnostics.publish(make_array(node.get_clock().now().to_msg(), statuses))
+
+        node.create_subscription(Float64MultiArray, topics.SETPOINT, on_setpoint, topics.DM_QOS)
+        with ros.node_process("es_sim_plant", "plant_node", args) as plant:
+            assert ros.spin_until(node, lambda: diagnostics.get_subscription_count() > 0, 30.0)
+            for ready in (set(), {"feedforward"}):  # not all ready: no step
+                deadline = time.monotonic() + 1.5
+                while time.monotonic() < deadline:
+                    report(ready)
+                    ros.spin_until(node, lambda: False, 0.1)
+                assert not setpoints, plant.output()
+            report({"feedforward", "record"})
+            assert ros.spin_until(node, lambda: plant.process.poll() is not None, 60.0)
+            assert plant.process.returncode == 0, plant.output()
+    assert len(setpoints) == 20
+
+
+def test_a_node_that_never_says_ready_is_named_when_the_start_times_out(
+    tmp_path: Path,
+) -> None:
+    scenario = tmp_path / "node_test.yaml"
+    scenario.write_text(SCENARIO.replace("duration: 1.0", "duration: 0.05"))
+    args = [
+        "--ros-args", "-p", f"scenario:={scenario}", "-p", "exit_when_done:=true",
+        "-p", "sync_temperature:=false", "-p", "publish_setpoints:=false",
+        "-p", 'wait_ready:=["thermal"]', "-p", "start_timeout:=1.0",
+    ]  # fmt: skip
+    with ros.node_process("es_sim_plant", "plant_node", args) as plant:
+        plant.process.wait(60)
+        output = plant.output()
+    assert plant.process.returncode == 0, output
+    assert "(not ready: thermal); stepping anyway" in output
 
 
 def test_real_time_mode_runs_on_the_wall_clock(tmp_path: Path) -> None:

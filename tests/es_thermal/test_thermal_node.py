@@ -121,6 +121,8 @@ def test_node_estimates_faults_and_recovery(harness: tuple[Harness, NodeProcess]
     assert estimate is not None and estimate.shape == SHAPE
     np.testing.assert_allclose(estimate, 40.0, atol=0.05)
     assert h.diagnostic("sensors", is_level(Level.OK)).message == "all sensors valid"
+    # its raw input is matched (this harness publishes it): it says it is ready
+    assert h.diagnostic("ready", is_level(Level.OK)).message == "ready"
 
     # A NaN and an out-of-range sensor: excluded, the estimate continues from the others.
     bad = readings()

@@ -34,7 +34,7 @@ import numpy as np
 import pytest
 
 from es_feedforward.feedforward import Feedforward
-from es_feedforward.feedforward_node import parameter_specs
+from es_feedforward.node_params import parameter_specs
 from es_feedforward.param_file import config_from_parameters as feedforward_config
 from es_msgs_py import topics
 from es_msgs_py.bag import TopicSeries, read_bag

@@ -3,9 +3,13 @@
 Subscribes ``/dm/setpoint`` (m) and ``/dm/temperature`` (degC), publishes one ``/dm/command``
 (V) per set point received, computed for the whole grid with the newest temperature
 (:mod:`es_feedforward.feedforward`). When no new command can be computed (missing, stale or
-invalid temperature; malformed set point) it re-publishes the last good one, so a lockstep
-plant never waits. Parameters: :mod:`es_feedforward.param_file` names, declared with ranges;
-a run-time change is validated as a whole set and swapped in between two set points.
+invalid temperature; malformed set point) it re-publishes the last good one (0 V before the
+first), so a lockstep plant never waits; every such held command is counted, raises the
+``feedforward: actuators`` status to WARN and is logged (at most once a second). Until its
+inputs are connected (/dm/setpoint and, except ``uncompensated``, /dm/temperature matched to
+a publisher) ``feedforward: ready`` on /diagnostics says "not ready" (a lockstep plant waits
+for it). Parameters: :mod:`es_feedforward.param_file` names, declared with ranges; a run-time
+change is validated as a whole set and swapped in between two set points.
 """
 
 from __future__ import annotations
@@ -21,29 +25,25 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from std_msgs.msg import Float64MultiArray
 
-from es_feedforward.compensation import DESCRIPTIONS as COMPENSATION_DESCRIPTIONS
-from es_feedforward.compensation import PREFIX as COMPENSATION_PREFIX
-from es_feedforward.compensation import RANGES as COMPENSATION_RANGES
-from es_feedforward.compensation import CompensationParams
 from es_feedforward.feedforward import (
-    DEFAULT_REFERENCE_TEMPERATURE,
-    DEFAULT_TEMPERATURE_TIMEOUT,
     CommandResult,
     Feedforward,
     FeedforwardConfig,
-    Mode,
-    ObserverGains,
 )
+from es_feedforward.node_params import parameter_specs
 from es_feedforward.param_file import (
-    LAW_FIELDS,
-    LAW_PREFIX,
-    OBSERVER_PREFIX,
     config_from_parameters,
 )
 from es_msgs_py.arrays import LayoutError, grid_to_msg, msg_to_grid
-from es_msgs_py.diagnostics import Level, make_array, make_status
-from es_msgs_py.node_main import EXECUTOR_PARAMETER, EXECUTORS, run_node
-from es_msgs_py.params import Check, ParameterSpec, declare_parameters
+from es_msgs_py.diagnostics import (
+    Level,
+    make_array,
+    make_status,
+    readiness_status,
+    unmatched,
+)
+from es_msgs_py.node_main import run_node, usage_text
+from es_msgs_py.params import declare_parameters
 from es_msgs_py.topics import (
     COMMAND,
     DIAGNOSTICS,
@@ -52,8 +52,7 @@ from es_msgs_py.topics import (
     TEMPERATURE,
     qos_for,
 )
-from es_physics.laws import DEFAULT_V_LIMIT, Status
-from es_physics.params import ActuatorParams
+from es_physics.laws import Status
 
 NODE_NAME: Final = "feedforward"
 #: How many of the worst actuators the diagnostics name.
@@ -66,113 +65,11 @@ _LEVEL_OF_STATUS: Final = {
     Status.INVALID: Level.ERROR,
 }
 _OK: Final = int(Level.OK)
+_WARN: Final = int(Level.WARN)
 _ERROR: Final = int(Level.ERROR)
 _STATUS_LEVELS: Final = np.array([_LEVEL_OF_STATUS[s] for s in Status], np.int8)
-
-
-def _double_array_check(name: str) -> Check:
-    """Return a check rejecting empty or non-finite double arrays (rclpy gives array.array)."""
-
-    def check(value: object) -> str | None:
-        if isinstance(value, str | bytes) or not hasattr(value, "__len__"):
-            return f"{name} must be a double array"
-        values = np.asarray(value, dtype=np.float64)
-        if values.size == 0:
-            return f"{name} must be a non-empty double array"
-        if not np.all(np.isfinite(values)):
-            return f"{name} must hold finite values"
-        return None
-
-    return check
-
-
-def parameter_specs() -> list[ParameterSpec]:
-    """Return every declared parameter of the node (defaults: thesis laws, effects off)."""
-    law_defaults = ActuatorParams()
-    compensation_defaults = CompensationParams()
-    observer_defaults = ObserverGains()
-    specs = [
-        ParameterSpec("rows", 12, "Grid rows R.", 1, 1024, read_only=True),
-        ParameterSpec(
-            EXECUTOR_PARAMETER,
-            "events",
-            "Executor: 'events' (rclpy's experimental EventsExecutor, what the 1 kHz x 4096 "
-            "target needs) or 'single_threaded' (rclpy's default, as a fallback).",
-            choices=EXECUTORS,
-            read_only=True,
-        ),
-        ParameterSpec("cols", 12, "Grid columns C.", 1, 1024, read_only=True),
-        ParameterSpec(
-            "mode",
-            Mode.INVERSE_HYPERBOLIC.value,
-            "Feedforward scheme.",
-            choices=[m.value for m in Mode],
-        ),
-        ParameterSpec("v_limit", DEFAULT_V_LIMIT, "Amplifier limit [V].", 1.0, 1000.0),
-        ParameterSpec(
-            "reference_temperature",
-            DEFAULT_REFERENCE_TEMPERATURE,
-            "Temperature [degC] at which 'uncompensated' evaluates the model.",
-            -50.0,
-            150.0,
-        ),
-        ParameterSpec(
-            "temperature_timeout",
-            DEFAULT_TEMPERATURE_TIMEOUT,
-            "Age [s, ROS time] beyond which the temperature estimate is stale (0: never).",
-            0.0,
-            3600.0,
-        ),
-        ParameterSpec(
-            "diagnostics_period",
-            1.0,
-            "Period [s, wall time] of /diagnostics.",
-            0.05,
-            60.0,
-            read_only=True,
-        ),
-        ParameterSpec(
-            OBSERVER_PREFIX + "kp",
-            observer_defaults.kp,
-            "Observer PI proportional gain (normalised by the observer gain).",
-            0.0,
-            1.0,
-        ),
-        ParameterSpec(
-            OBSERVER_PREFIX + "ki",
-            observer_defaults.ki,
-            "Observer PI integral gain per iteration (normalised by the observer gain).",
-            0.001,
-            1.0,
-        ),
-        ParameterSpec(
-            OBSERVER_PREFIX + "iterations",
-            observer_defaults.iterations,
-            "Observer PI iterations per set point.",
-            1,
-            1000,
-        ),
-    ]
-    specs += [
-        ParameterSpec(
-            LAW_PREFIX + name,
-            [float(getattr(law_defaults, name))],
-            f"Temperature law field {name} (SI units, see README); length 1 or rows*cols.",
-            check=_double_array_check(LAW_PREFIX + name),
-        )
-        for name in LAW_FIELDS
-    ]
-    specs += [
-        ParameterSpec(
-            COMPENSATION_PREFIX + name,
-            float(getattr(compensation_defaults, name)),
-            f"Effect compensation, {COMPENSATION_DESCRIPTIONS[name]}.",
-            low,
-            high,
-        )
-        for name, (low, high) in COMPENSATION_RANGES.items()
-    ]
-    return specs
+#: Period [s, wall] of the readiness check until the node is ready.
+READY_CHECK_PERIOD: Final = 0.05
 
 
 class FeedforwardNode(Node):
@@ -204,11 +101,20 @@ class FeedforwardNode(Node):
         # In lockstep a step's estimate is sent before its set point, which must use it: the
         # events executor serves messages in arrival order, the single-threaded one serves
         # ready subscriptions in creation order, hence temperature first.
-        self.create_subscription(
+        self._temperature_sub = self.create_subscription(
             Float64MultiArray, TEMPERATURE, self._on_temperature, qos_for(TEMPERATURE)
         )
-        self.create_subscription(Float64MultiArray, SETPOINT, self._on_setpoint, qos_for(SETPOINT))
+        self._setpoint_sub = self.create_subscription(
+            Float64MultiArray, SETPOINT, self._on_setpoint, qos_for(SETPOINT)
+        )
         self._counts = {"setpoints": 0, "commands": 0, "held": 0, "temperatures": 0}
+        self._hold_reason: str | None = None  # why the last command was held, None: it was not
+        self._waiting_for = self._unconnected_inputs()
+        self._ready_timer = self.create_timer(
+            READY_CHECK_PERIOD,
+            self._check_ready,
+            clock=Clock(clock_type=ClockType.STEADY_TIME),
+        )
         self._rejected = {SETPOINT: 0, TEMPERATURE: 0}
         self._last_rejection: dict[str, str | None] = {SETPOINT: None, TEMPERATURE: None}
         self._last_result: CommandResult | None = None
@@ -231,17 +137,32 @@ class FeedforwardNode(Node):
         try:
             setpoint = msg_to_grid(msg, self._core.config.shape)
         except LayoutError as err:
-            self._reject(SETPOINT, str(err))
-            self._publish_command(self._core.last_voltage)
+            self._hold(f"set point rejected: {err}")
+            self._reject(SETPOINT, str(err))  # its diagnostics count the held command
             return
         self._last_rejection[SETPOINT] = None
         now = self._now()
         result = self._core.command(setpoint, now)
-        self._publish_command(result.voltage)
         self._last_result = result
         if result.held:
-            self._counts["held"] += 1
+            self._hold(result.problem or "no new command")
+        else:
+            self._hold_reason = None
+            self._publish_command(result.voltage)
         self._publish_diagnostics_on_change(now)
+
+    def _hold(self, reason: str) -> None:
+        """Re-publish the last good command (0 V before the first); count and log it."""
+        held = self._core.last_voltage
+        self._publish_command(held)
+        self._counts["held"] += 1
+        self._hold_reason = reason
+        zero = " (0 V: no good command yet)" if not np.any(held) else ""
+        self.get_logger().warning(
+            f"holding the last good command{zero}: {reason} "
+            f"({self._counts['held']} held so far)",
+            throttle_duration_sec=1.0,
+        )
 
     def _on_temperature(self, msg: Float64MultiArray) -> None:
         self._counts["temperatures"] += 1
@@ -263,6 +184,23 @@ class FeedforwardNode(Node):
         self._command_grid[...] = voltage
         self._command_pub.publish(self._command_msg)
         self._counts["commands"] += 1
+
+    def _unconnected_inputs(self) -> list[str]:
+        """Return the input topics that have matched no publisher yet (readiness)."""
+        needed = [self._setpoint_sub]
+        if self._core.needs_temperature:
+            needed.insert(0, self._temperature_sub)
+        return unmatched(needed)
+
+    def _check_ready(self) -> None:
+        """Follow the inputs' matching until ready; say so on /diagnostics at once."""
+        waiting = self._unconnected_inputs()
+        if waiting != self._waiting_for:
+            self._waiting_for = waiting
+            self._publish_diagnostics()
+        if not waiting:
+            self._ready_timer.cancel()
+            self.get_logger().info("ready: every input matched a publisher")
 
     def _reject(self, topic: str, reason: str) -> None:
         self._rejected[topic] += 1
@@ -305,7 +243,7 @@ class FeedforwardNode(Node):
         core = self._core
         config: FeedforwardConfig = core.config
         now = self._now()
-        out = []
+        out = [readiness_status(NODE_NAME, self._waiting_for)]
         problem = core.temperature_problem(now)
         level = self._temperature_level(problem)
         if not core.needs_temperature:
@@ -358,11 +296,18 @@ class FeedforwardNode(Node):
     def _actuator_status(self) -> DiagnosticStatus:
         name = f"{NODE_NAME}: actuators"
         result = self._last_result
+        held = self._counts["held"]
         if result is None:
-            return make_status(name, Level.OK, "no set point yet")
+            if self._hold_reason is None:
+                return make_status(name, Level.OK, "no set point yet")
+            return make_status(
+                name, Level.WARN, f"holding the last good command: {self._hold_reason}",
+                {"held": held},
+            )  # fmt: skip
         status = result.status.ravel()
         counts = np.bincount(status, minlength=len(Status))
         values: dict[str, object] = {s.name.lower(): int(counts[s]) for s in Status}
+        values["held"] = held
         level = Level(int(_STATUS_LEVELS[status.max()])) if status.size else Level.OK
         if level is not Level.OK:
             worst = np.argsort(-status, kind="stable")[:WORST_COUNT]
@@ -376,8 +321,9 @@ class FeedforwardNode(Node):
             values["max_model_error_m"] = float(np.max(np.abs(result.model_error)))
         bad = int(np.count_nonzero(status))
         message = "all ok" if not bad else f"{bad} actuator(s) not ok"
-        if result.held:
-            message = f"holding the last good command: {result.problem}"
+        if self._hold_reason is not None:
+            message = f"holding the last good command: {self._hold_reason}"
+            level = max(level, Level.WARN)
         return make_status(name, level, message, values)
 
     def _publish_diagnostics(self) -> None:
@@ -404,8 +350,11 @@ class FeedforwardNode(Node):
             if result is not None and result.status.size
             else _OK
         )
+        if self._hold_reason is not None:
+            actuators = max(actuators, _WARN)
         setpoint = _ERROR if self._last_rejection[SETPOINT] else _OK
-        return (temperature, actuators, setpoint, _OK)
+        ready = _WARN if self._waiting_for else _OK
+        return (ready, temperature, actuators, setpoint, _OK)
 
     def _publish_diagnostics_on_change(self, now: float | None = None) -> None:
         levels = self._current_levels(self._now() if now is None else now)
@@ -415,7 +364,10 @@ class FeedforwardNode(Node):
 
 def main() -> int:
     """Run the node until SIGINT/SIGTERM."""
-    return run_node(FeedforwardNode)
+    return run_node(
+        FeedforwardNode,
+        help_text=usage_text("es_feedforward feedforward_node", __doc__ or "", parameter_specs()),
+    )
 
 
 if __name__ == "__main__":

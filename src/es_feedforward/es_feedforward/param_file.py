@@ -6,7 +6,10 @@ One flat set of parameter names (``docs/architecture.md``, README of es_feedforw
 and ``observer.<kp|ki|iterations>``. The calibration tool writes files with
 :func:`write_params_file`; the node is started with ``--ros-args --params-file FILE`` and
 checks every set with :func:`config_from_parameters`, the same code path as
-:func:`read_params_file`.
+:func:`read_params_file`. Files are written with :func:`es_msgs_py.param_yaml.dump_parameters`
+(every float with a dot, so ``ros2 param load`` reads it as a float too), and a dot-less
+exponent such as ``-4e-17`` (a string to YAML 1.1, as ``ros2 param dump`` may write it) is
+read as the float it stands for.
 """
 
 from __future__ import annotations
@@ -22,6 +25,7 @@ import yaml
 from es_feedforward.compensation import PREFIX as COMPENSATION_PREFIX
 from es_feedforward.compensation import CompensationParams
 from es_feedforward.feedforward import FeedforwardConfig, Mode, ObserverGains
+from es_msgs_py.param_yaml import dump_parameters, floats_from_strings
 from es_physics.params import ActuatorParams
 
 LAW_PREFIX: Final = "law."
@@ -141,7 +145,7 @@ def write_params_file(
 ) -> None:
     """Write ``config`` as a ROS 2 parameters YAML for the node ``node_name``."""
     document = {node_name: {"ros__parameters": config_to_parameters(config)}}
-    Path(path).write_text(yaml.safe_dump(document, sort_keys=False), encoding="utf-8")
+    Path(path).write_text(dump_parameters(document), encoding="utf-8")
 
 
 def _flatten(tree: Mapping[str, object], prefix: str = "") -> dict[str, object]:
@@ -160,7 +164,8 @@ def read_params_file(path: str | Path, node_name: str = DEFAULT_NODE_NAME) -> Fe
     """Read the feedforward configuration from a ROS 2 parameters YAML.
 
     Takes the parameters of ``node_name`` (with or without a leading ``/``) and of ``/**``
-    (wildcard), the node's own entries winning, as ROS does.
+    (wildcard), the node's own entries winning, as ROS does. Dot-less exponent strings
+    (``-4e-17``) are read as floats (:func:`es_msgs_py.param_yaml.floats_from_strings`).
 
     Raises:
         ValueError: unreadable file, no parameters for the node, or an invalid value (one
@@ -168,7 +173,7 @@ def read_params_file(path: str | Path, node_name: str = DEFAULT_NODE_NAME) -> Fe
 
     """
     try:
-        document = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
+        document, _ = floats_from_strings(yaml.safe_load(Path(path).read_text(encoding="utf-8")))
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as err:
         raise ValueError(f"cannot read parameters file {path}: {err}".splitlines()[0]) from None
     if not isinstance(document, Mapping):

@@ -1,9 +1,10 @@
-"""Build ``diagnostic_msgs`` messages from plain Python values."""
+"""Build ``diagnostic_msgs`` messages from plain Python values; readiness statuses."""
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from enum import IntEnum
+from typing import Protocol
 
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -47,3 +48,49 @@ def level_of(status: DiagnosticStatus) -> Level:
     """Return the level of a received status as a :class:`Level`."""
     raw = status.level
     return Level(raw[0] if isinstance(raw, bytes | bytearray) else int(raw))
+
+
+#: Aspect of a node's readiness status: ``"<node>: ready"``, OK once the node has the inputs
+#: it needs, WARN ("not ready: ...") until then. A lockstep plant waits for it before its
+#: first step (its ``wait_ready`` parameter).
+READY_ASPECT = "ready"
+
+
+class _Matched(Protocol):
+    """A subscription that knows how many publishers it matched (rclpy ``Subscription``)."""
+
+    @property
+    def topic_name(self) -> str:
+        """The subscription's topic."""
+
+    def get_publisher_count(self) -> int:
+        """Return how many publishers the subscription matched."""
+
+
+def unmatched(subscriptions: Iterable[_Matched]) -> list[str]:
+    """Return the topics of ``subscriptions`` that have matched no publisher yet."""
+    return [s.topic_name for s in subscriptions if s.get_publisher_count() == 0]
+
+
+def readiness_status(node: str, waiting_for: Sequence[str]) -> DiagnosticStatus:
+    """Return the ``"<node>: ready"`` status: OK, or WARN naming what the node waits for."""
+    if not waiting_for:
+        return make_status(f"{node}: {READY_ASPECT}", Level.OK, "ready")
+    return make_status(
+        f"{node}: {READY_ASPECT}",
+        Level.WARN,
+        f"not ready: waiting for {', '.join(waiting_for)}",
+    )
+
+
+def ready_nodes(msg: DiagnosticArray) -> dict[str, bool]:
+    """Return, per node that reports readiness in ``msg``, whether it says it is ready.
+
+    Node names are the part of ``"<node>: ready"`` before the colon (no namespace).
+    """
+    out = {}
+    suffix = f": {READY_ASPECT}"
+    for status in msg.status:
+        if status.name.endswith(suffix):
+            out[status.name[: -len(suffix)]] = level_of(status) is Level.OK
+    return out

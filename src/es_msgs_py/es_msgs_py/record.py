@@ -8,20 +8,24 @@ Subscriptions use the contract QoS of each topic with a deeper queue, so that a 
 ``--flush-interval`` seconds, so even a killed recorder leaves a bag readable up to its last
 flush; SIGINT/SIGTERM close it cleanly (messages still in flight when the signal arrives
 are not recorded). Counts of received and written messages per topic are published on
-/diagnostics every second and logged at exit.
+/diagnostics every second and logged at exit, with the messages the recorder missed: from
+each message's publication sequence number (the publisher's count, 1 for its first message),
+what was published before the recorder joined and what fell into gaps since. That is known
+for topics with one publisher (every /dm topic); elsewhere it is reported as unknown.
+``record: ready`` on /diagnostics says "not ready" until every recorded /dm topic has matched
+a publisher (a lockstep plant can wait for it: nothing of the run is then missed).
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import NoReturn
 
 from rclpy.clock import Clock, ClockType
 from rclpy.event_handler import QoSMessageLostInfo, SubscriptionEventCallbacks
-from rclpy.logging import get_logger
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
 from rclpy.subscription import Subscription
@@ -29,8 +33,8 @@ from rclpy.validate_full_topic_name import validate_full_topic_name
 
 from es_msgs_py import topics
 from es_msgs_py.bag import STORAGES, BagError, BagWriter
-from es_msgs_py.diagnostics import Level, make_array, make_status
-from es_msgs_py.node_main import run_node
+from es_msgs_py.diagnostics import Level, make_array, make_status, readiness_status, unmatched
+from es_msgs_py.node_main import run_node, summary_line
 
 NODE_NAME = "record"
 #: Topics taken by ``--all-dm``.
@@ -48,18 +52,44 @@ class Options:
     queue_depth: int
 
 
+#: Topics with exactly one publisher by contract: their publication sequence numbers count
+#: every message published, so a missed message shows.
+SINGLE_PUBLISHER_TOPICS = frozenset(topics.DM_TOPICS)
+
+
 @dataclass
 class TopicCount:
     """Messages of one topic received from DDS, written to the bag, and reported lost.
 
     ``lost`` is what the middleware reports as lost before reception (its message-lost
-    event); it stays 0 where the middleware does not report losses.
+    event); it stays 0 where the middleware does not report losses. ``missed`` counts the
+    messages the publisher published but this recorder never received (before it joined:
+    ``first_sequence - 1``; later: gaps in the sequence numbers); ``None`` when unknown
+    (several publishers, or a middleware without publication sequence numbers).
     """
 
     type_name: str
     received: int = 0
     written: int = 0
     lost: int = 0
+    missed: int | None = None
+    first_sequence: int | None = None
+    last_sequence: int = 0
+
+    def note_sequence(self, sequence: int) -> None:
+        """Account for a message with publication sequence number ``sequence`` (0: none)."""
+        if sequence <= 0:
+            return
+        if self.first_sequence is None:
+            self.first_sequence = sequence
+            self.missed = sequence - 1
+        elif sequence > self.last_sequence + 1 and self.missed is not None:
+            self.missed += sequence - self.last_sequence - 1
+        self.last_sequence = max(self.last_sequence, sequence)
+
+    def missed_text(self) -> str:
+        """Return the missed count, or ``unknown`` (never a silent 0)."""
+        return "unknown" if self.missed is None else str(self.missed)
 
 
 class _OneLineParser(argparse.ArgumentParser):
@@ -114,7 +144,7 @@ class Recorder(Node):
         self._options = options
         self._bag = BagWriter(options.output, options.storage)
         self._counts: dict[str, TopicCount] = {}
-        self._recorded: list[Subscription] = []  # Node owns `_subscriptions`
+        self._recorded: dict[str, Subscription] = {}  # by topic; Node owns `_subscriptions`
         self._pending = [t for t in options.topics if t not in topics.TOPIC_TYPES]
         self._write_failed = False
         for topic in options.topics:
@@ -131,6 +161,8 @@ class Recorder(Node):
         self.create_timer(1.0, self._publish_diagnostics, clock=steady)
         if self._pending:
             self.create_timer(0.2, self._discover, clock=steady)
+        self._waiting_for = self._unmatched()
+        self._ready_timer = self.create_timer(0.05, self._check_ready, clock=steady)
         self.get_logger().info(
             f"recording {', '.join(options.topics)} to {options.output} ({options.storage})"
         )
@@ -146,8 +178,12 @@ class Recorder(Node):
         self._bag.add_topic(topic, type_name)
         count = self._counts[topic] = TopicCount(type_name)
 
-        def on_message(data: bytes) -> None:
+        counts_sequence = topic in SINGLE_PUBLISHER_TOPICS
+
+        def on_message(data: bytes, info: Mapping[str, int]) -> None:
             count.received += 1
+            if counts_sequence:
+                count.note_sequence(int(info.get("publication_sequence_number", 0)))
             try:
                 self._bag.write(topic, self.get_clock().now().nanoseconds, data, type_name)
             except (BagError, OSError) as err:
@@ -161,16 +197,28 @@ class Recorder(Node):
         def on_lost(status: QoSMessageLostInfo) -> None:
             count.lost = int(status.total_count)
 
-        self._recorded.append(
-            self.create_subscription(
-                topics.message_class(type_name),
-                topic,
-                on_message,
-                qos,
-                raw=True,
-                event_callbacks=SubscriptionEventCallbacks(message_lost=on_lost),
-            )
+        self._recorded[topic] = self.create_subscription(
+            topics.message_class(type_name),
+            topic,
+            on_message,  # type: ignore[arg-type]  # rclpy passes the message info to 2 args
+            qos,
+            raw=True,
+            event_callbacks=SubscriptionEventCallbacks(message_lost=on_lost),
         )
+
+    def _unmatched(self) -> list[str]:
+        """Return the recorded /dm topics without a matched publisher, and undiscovered ones."""
+        dm = [s for t, s in self._recorded.items() if t in SINGLE_PUBLISHER_TOPICS]
+        return [*unmatched(dm), *self._pending]
+
+    def _check_ready(self) -> None:
+        """Follow the recorded topics' matching until ready; say so on /diagnostics at once."""
+        waiting = self._unmatched()
+        if waiting != self._waiting_for:
+            self._waiting_for = waiting
+            self._publish_diagnostics()
+        if not waiting:
+            self._ready_timer.cancel()
 
     def _flush(self) -> None:
         try:
@@ -197,12 +245,19 @@ class Recorder(Node):
             values[f"{topic} received"] = count.received
             values[f"{topic} written"] = count.written
             values[f"{topic} lost"] = count.lost
+            values[f"{topic} missed"] = count.missed_text()
         for topic in self._pending:
             values[f"{topic} received"] = "waiting for publisher"
         unwritten = sum(c.received - c.written for c in self._counts.values())
         lost = sum(c.lost for c in self._counts.values())
+        missed = {t: c.missed for t, c in self._counts.items() if c.missed}
         if unwritten:
             level, text = Level.ERROR, f"{unwritten} received messages not written"
+        elif missed:
+            level = Level.WARN
+            text = "missed " + ", ".join(f"{n} on {t}" for t, n in missed.items()) + (
+                " (published before the recorder joined, or lost)"
+            )
         elif lost:
             level, text = Level.WARN, f"middleware lost {lost} messages before reception"
         else:
@@ -210,21 +265,23 @@ class Recorder(Node):
         self._diagnostics.publish(
             make_array(
                 self.get_clock().now().to_msg(),
-                [make_status(f"{NODE_NAME}: bag", level, text, values)],
+                [
+                    readiness_status(NODE_NAME, self._waiting_for),
+                    make_status(f"{NODE_NAME}: bag", level, text, values),
+                ],
             )
         )
 
     def close(self) -> None:
-        """Finish the bag and log the counts per topic."""
+        """Finish the bag and print the counts per topic (:func:`summary_line`)."""
         self._bag.close()
-        # Not the node's logger: /rosout is already gone when a signal stopped the node.
-        logger = get_logger(f"{NODE_NAME}.summary")
         for topic, count in self._counts.items():
-            logger.info(
+            summary_line(
+                NODE_NAME,
                 f"{topic}: received {count.received}, written {count.written}, "
-                f"lost before reception {count.lost}"
+                f"lost before reception {count.lost}, missed {count.missed_text()}",
             )
-        logger.info(f"bag closed: {self._options.output}")
+        summary_line(NODE_NAME, f"bag closed: {self._options.output}")
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -1,13 +1,15 @@
 r"""``ros2 run es_sim_plant bringup``: run the closed-loop node graph as separate processes.
 
-Our own small replacement for ``ros2 launch`` (none on PyPI; ``launch/closed_loop.launch.py``
-describes the same graph for a full ROS 2 install). It starts, from their installed
-``lib/<pkg>/<exe>`` launchers:
+Our own small replacement for ``ros2 launch`` (``launch/closed_loop.launch.py`` starts the
+same graph: both take it from :func:`es_sim_plant.graph.build_graph`). It starts, from their
+installed ``lib/<pkg>/<exe>`` launchers:
 
 the recorder (``es_msgs_py record``) on every /dm topic and /diagnostics if a bag is asked for,
 the thermal node and the feedforward node; once the graph shows their subscriptions, the
 plant (lockstep, ``exit_when_done``), which itself waits until every topic it publishes has
-a matched subscription from its peers and the recorder (``start_subscribers``).
+a matched subscription from its peers and the recorder (``start_subscribers``) and until the
+recorder, thermal and feedforward nodes report on /diagnostics that they are ready
+(``wait_ready``): no fixed settle time.
 
 It supervises them (:mod:`es_sim_plant.supervisor`): output goes to ``<log_dir>/<name>.log``
 (and to the terminal with a ``[name]`` prefix unless ``--quiet``), a node that dies stops the
@@ -32,46 +34,52 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import NoReturn
 
 from es_msgs_py import topics
+from es_sim_plant.graph import (
+    FEEDFORWARD,
+    PLANT,
+    RECORDED_TOPICS,
+    RECORDER,
+    TEST_STAND_TOPICS,
+    THERMAL,
+    GraphConfig,
+    GraphError,
+    NodeSpec,
+    ParamValue,
+    build_graph,
+    namespaced_params_file,
+    scenario_parameters,
+    scoped,
+    topic_remaps,
+)
 from es_sim_plant.supervisor import Outcome, ProcessSpec, StopTimeouts, Supervisor
 
-ParamValue = bool | int | float | str | list[float] | list[int] | list[str]
-
-#: Topics the bring-up records: every /dm topic and /diagnostics.
-RECORDED_TOPICS: tuple[str, ...] = (*topics.DM_TOPICS, topics.DIAGNOSTICS)
-#: A test stand has no thermal node and no set points: its bag holds what a lab records.
-TEST_STAND_TOPICS: tuple[str, ...] = tuple(
-    t for t in RECORDED_TOPICS if t not in (topics.TEMPERATURE, topics.SETPOINT)
-)
+__all__ = [
+    "Bringup",
+    "GraphConfig",
+    "ParamValue",
+    "namespaced_params_file",
+    "node_specs",
+    "run_graph",
+    "scenario_parameters",
+]
 
 #: Longest wait for a test stand's recorder to catch up after the plant finished [s], and
 #: how long its counts may stand still before the bring-up stops waiting.
 DRAIN_TIMEOUT_S = 60.0
 DRAIN_IDLE_S = 3.0
-#: Recorder queue depth of a test stand: the whole backlog of a fast plant fits.
-TEST_STAND_QUEUE_DEPTH = 200_000
-#: Speed limit of a test stand (x real time): measured here, a recorder keeps up with 250 Hz
-#: test stands at 3x (no loss), the plant alone runs near 10x; the rest is caught up after
-#: the run from the recorder's deep queue.
-TEST_STAND_SPEED = 5.0
-
-#: Wall seconds between the graph showing every subscription and starting the plant.
-SETTLE_S = 1.0
-
-#: Node names (the defaults of the node executables; parameter files use them).
-PLANT, THERMAL, FEEDFORWARD, RECORDER = "plant", "thermal", "feedforward", "record"
 
 #: What the nodes started before the plant subscribe to: the bring-up waits until the graph
-#: shows these, so that they have found each other before the plant's first step.
+#: shows these before it starts the plant (which then waits for their readiness reports).
 SUBSCRIPTIONS: dict[str, tuple[str, ...]] = {
     RECORDER: RECORDED_TOPICS,
     THERMAL: (topics.TEMPERATURE_RAW, topics.HEAT_LOAD),
     FEEDFORWARD: (topics.SETPOINT, topics.TEMPERATURE),
 }
+
 
 def executable(package: str, name: str) -> Path:
     """Return the installed launcher ``<prefix>/lib/<package>/<name>`` (what ``ros2 run`` runs).
@@ -114,8 +122,8 @@ def ros_arguments(
     args = ["--ros-args", "-r", f"__node:={node_name}"]
     if namespace:
         args += ["-r", f"__ns:=/{namespace}"]
-        for topic in topics.TOPIC_TYPES:
-            args += ["-r", f"{topic}:={scoped(topic, namespace)}"]
+        for topic, remapped in topic_remaps(namespace):
+            args += ["-r", f"{topic}:={remapped}"]
     for path in params_files:
         args += ["--params-file", str(path)]
     for name, value in parameters.items():
@@ -123,217 +131,29 @@ def ros_arguments(
     return args
 
 
-def scoped(topic: str, namespace: str | None) -> str:
-    """Return ``topic`` as a graph in ``namespace`` sees it (unchanged without one)."""
-    return f"/{namespace}{topic}" if namespace else topic
-
-
-@dataclass
-class GraphConfig:
-    """What the bring-up runs.
-
-    Attributes:
-        scenario: scenario name (shipped with es_sim_plant) or path to a scenario YAML.
-        mode: feedforward mode.
-        bag: bag directory to record into (must not exist), or ``None`` for no recorder.
-        log_dir: directory for the node logs.
-        feedforward_params: ROS parameters YAML for the feedforward node (e.g. calibrated).
-        plant / thermal / feedforward: extra parameters per node (override the defaults).
-        storage: bag storage, ``mcap`` or ``sqlite3``.
-        with_controllers: start the thermal and feedforward nodes; ``False`` runs the plant
-            alone with the recorder (a test-stand characterisation drives its own voltages).
-        domain_id: ROS_DOMAIN_ID of this run (``None``: inherit the environment's), so that
-            runs can go in parallel without seeing each other.
-        ready_timeout: wall seconds to wait for the nodes' subscriptions before the plant.
-        namespace: run the graph below ``/<namespace>`` (topics remapped; bags keep the
-            contract's topic names), so that several graphs share one ROS domain.
-        wall_timeout: wall seconds after which the run is stopped as failed (``None``: none).
-        record_extra: further topics the recorder records (e.g. the optional /dm/resonance).
-
-    """
-
-    scenario: str
-    mode: str = "inverse_hyperbolic"
-    bag: Path | None = None
-    log_dir: Path = Path("log/bringup")
-    feedforward_params: Path | None = None
-    plant: dict[str, ParamValue] = field(default_factory=dict)
-    thermal: dict[str, ParamValue] = field(default_factory=dict)
-    feedforward: dict[str, ParamValue] = field(default_factory=dict)
-    storage: str = "mcap"
-    with_controllers: bool = True
-    domain_id: int | None = None
-    ready_timeout: float = 30.0
-    namespace: str | None = None
-    wall_timeout: float | None = None
-    record_extra: tuple[str, ...] = ()
-
-
 def node_specs(config: GraphConfig) -> tuple[list[ProcessSpec], ProcessSpec]:
-    """Return the processes started before the plant (recorder first) and the plant."""
-    sim_time: dict[str, ParamValue] = {"use_sim_time": True}
-    before: list[ProcessSpec] = []
-    if config.bag is not None:
-        before.append(
-            ProcessSpec(
-                RECORDER,
-                [
-                    str(executable("es_msgs_py", "record")),
-                    "-o",
-                    str(config.bag),
-                    "--storage",
-                    config.storage,
-                    *(
-                        []
-                        if config.with_controllers
-                        else ["--queue-depth", str(TEST_STAND_QUEUE_DEPTH)]
-                    ),
-                    *(RECORDED_TOPICS if config.with_controllers else TEST_STAND_TOPICS),
-                    *config.record_extra,
-                    *ros_arguments(RECORDER, sim_time, namespace=config.namespace),
-                ],
-                stop_stage=1,  # after every node it records
-            )
-        )
-    if config.with_controllers:
-        before += _controller_specs(config)
-    plant_params: dict[str, ParamValue] = {
-        "scenario": config.scenario,
-        "lockstep": True,
-        "exit_when_done": True,
-        # without a thermal node there is no /dm/temperature to wait for, and no controller
-        # paces the plant: it runs at a speed the recorder keeps up with
-        **(
-            {}
-            if config.with_controllers
-            else {"sync_temperature": False, "max_speed": TEST_STAND_SPEED}
-        ),
-        # the recorder's subscriptions must match before the first message goes out
-        **({"start_subscribers": 1} if config.bag is not None else {}),
-        **config.plant,
-    }
-    plant = ProcessSpec(
-        PLANT,
-        [
-            str(executable("es_sim_plant", "plant_node")),
-            *ros_arguments(PLANT, plant_params, namespace=config.namespace),
-        ],
-        primary=True,
-    )
-    return before, plant
+    """Return the processes started before the plant (recorder first) and the plant.
 
-
-def scenario_parameters(
-    scenario: str, plant: Mapping[str, ParamValue]
-) -> tuple[dict[str, ParamValue], dict[str, ParamValue]]:
-    """Return the thermal and feedforward parameters that describe the plant's mirror.
-
-    Read from the scenario with the plant's own overrides (``rows``, ``cols``,
-    ``time_scale``, ``sensor_rate``, ``effects.sensor_lag``), so that the three nodes agree
-    on the grid, the sensors and the time scale. The thermal node gets what the mirror's
-    design tells: the thermal network (physical values; it applies ``time_scale`` itself as
-    the plant does), the sensor positions, rate, noise level and lag (``sensor_lag_tau``,
-    physical: a property of the sensor as mounted). Its estimate is then of the actuator,
-    not of the lagging sensor, so the feedforward gets ``compensation.temperature_lead_s``
-    0: the lag is undone once, whatever lead a calibration on raw sensor data wrote.
-    Nothing else the calibration is meant to find (the actuator laws, effects) is passed.
+    The nodes are :func:`es_sim_plant.graph.build_graph`'s, as ``ros2 launch`` starts them.
 
     Raises:
-        ValueError: the scenario cannot be loaded.
+        GraphError: the graph cannot be built (scenario, parameters file).
+        FileNotFoundError: a node's launcher is not installed.
 
     """
-    from dataclasses import asdict
-
-    from es_sim_plant.scenario import load_scenario
-
-    def number(name: str) -> float:
-        value = plant.get(name, 0)
-        return float(value) if isinstance(value, int | float) else 0.0
-
-    scaled = load_scenario(scenario, number("time_scale") or None)
-    physical = load_scenario(scenario, 1.0)
-    rows = int(number("rows")) or scaled.rows
-    cols = int(number("cols")) or scaled.cols
-    sensor_rate = number("sensor_rate") or scaled.sensor_rate
-    grid: dict[str, ParamValue] = {"rows": rows, "cols": cols}
-    thermal: dict[str, ParamValue] = {
-        **grid,
-        "sample_rate": sensor_rate,
-        "time_scale": scaled.time_scale,
-        "model.sensor_noise": max(scaled.sensors.noise_sd, 1e-6),
-        **{f"thermal.{k}": float(v) for k, v in asdict(physical.thermal).items()},
-    }
-    feedforward: dict[str, ParamValue] = dict(grid)
-    if plant.get("effects.sensor_lag", physical.effects.sensor_lag.enabled) is True:
-        thermal["sensor_lag_tau"] = physical.effects.sensor_lag.tau_s
-        feedforward["compensation.temperature_lead_s"] = 0.0
-    if scaled.sensors.positions is not None:
-        thermal["sensor_positions"] = [float(v) for p in scaled.sensors.positions for v in p]
-    return thermal, feedforward
+    graph = build_graph(config)
+    before = [_process(node, config.namespace) for node in graph.before]
+    return before, _process(graph.plant, config.namespace, primary=True)
 
 
-def namespaced_params_file(path: Path, node: str, config: GraphConfig) -> Path:
-    """Return a copy of a parameters file whose entries for ``node`` apply below the namespace.
-
-    A parameters file names the node it configures by its full name (``feedforward`` is
-    ``/feedforward``); in a namespaced graph the node is ``/<namespace>/feedforward``. The
-    copy goes into the run's log folder.
-
-    Raises:
-        ValueError: the file is no ROS 2 parameters file.
-
-    """
-    import yaml
-
-    try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except (OSError, yaml.YAMLError) as err:
-        raise ValueError(f"cannot read parameters file {path}: {err}") from None
-    if not isinstance(data, dict):
-        raise ValueError(f"{path} is not a ROS 2 parameters file")
-    renamed = {
-        (f"/{config.namespace}/{node}" if key.strip("/") == node else key): value
-        for key, value in data.items()
-    }
-    config.log_dir.mkdir(parents=True, exist_ok=True)
-    copy = config.log_dir / f"{node}_params.yaml"
-    copy.write_text(yaml.safe_dump(renamed, sort_keys=False), encoding="utf-8")
-    return copy
-
-
-def _controller_specs(config: GraphConfig) -> list[ProcessSpec]:
-    sim_time: dict[str, ParamValue] = {"use_sim_time": True}
-    files = []
-    if config.feedforward_params is not None:
-        files.append(
-            namespaced_params_file(config.feedforward_params, FEEDFORWARD, config)
-            if config.namespace
-            else config.feedforward_params
-        )
-    thermal, feedforward = scenario_parameters(config.scenario, config.plant)
-    return [
-        ProcessSpec(
-            THERMAL,
-            [
-                str(executable("es_thermal", "thermal_node")),
-                *ros_arguments(
-                    THERMAL, {**sim_time, **thermal, **config.thermal}, namespace=config.namespace
-                ),
-            ],
-        ),
-        ProcessSpec(
-            FEEDFORWARD,
-            [
-                str(executable("es_feedforward", "feedforward_node")),
-                *ros_arguments(
-                    FEEDFORWARD,
-                    {**sim_time, **feedforward, "mode": config.mode, **config.feedforward},
-                    files,
-                    config.namespace,
-                ),
-            ],
-        ),
+def _process(node: NodeSpec, namespace: str | None, primary: bool = False) -> ProcessSpec:
+    command = [
+        str(executable(node.package, node.executable)),
+        *node.arguments,
+        *ros_arguments(node.name, node.parameters, node.params_files, namespace),
     ]
+    # the recorder stops after every node it records
+    return ProcessSpec(node.name, command, primary, stop_stage=1 if node.name == RECORDER else 0)
 
 
 class Bringup:
@@ -392,10 +212,8 @@ class Bringup:
             outcome = self.supervisor.stop()
             outcome.reason = problem
             return outcome
-        # The graph shows endpoints before every pair of nodes has matched them (the
-        # feedforward's subscription to the thermal node's estimates, say): let that settle
-        # so that the plant's first step finds every link up.
-        time.sleep(SETTLE_S)
+        # No settle time: the plant's first step waits until the recorder, thermal and
+        # feedforward nodes report on /diagnostics that their inputs are matched (wait_ready).
         self.supervisor.start(plant)
         drain = None
         if self.config.bag is not None and not self.config.with_controllers:
@@ -610,12 +428,26 @@ def parse_args(argv: Sequence[str]) -> tuple[GraphConfig, bool]:
         description="Run plant, thermal, feedforward and recorder as supervised processes.",
     )
     parser.add_argument("--scenario", required=True, help="scenario name or YAML path")
-    parser.add_argument("--mode", default="inverse_hyperbolic", help="feedforward mode")
+    parser.add_argument(
+        "--mode", default="inverse_hyperbolic", help="feedforward mode (see its --help)"
+    )
     parser.add_argument("--feedforward-params", type=Path, help="parameters YAML for feedforward")
     parser.add_argument("--bag", type=Path, help="record every /dm topic and /diagnostics here")
     parser.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap")
     parser.add_argument("--log-dir", type=Path, default=Path("log/bringup"))
     parser.add_argument("--timeout", type=float, help="wall-clock limit of the run [s]")
+    parser.add_argument(
+        "--duration", type=float, help="run length [s of simulation]; default: the scenario's"
+    )
+    parser.add_argument(
+        "--time-scale",
+        type=float,
+        help="multiplier of the scenario's slow (thermal) times, 1 = physical; default: the "
+        "scenario's own",
+    )
+    parser.add_argument(
+        "--namespace", help="run the graph below /NAMESPACE (topics remapped, bag keeps names)"
+    )
     parser.add_argument("--quiet", action="store_true", help="node output to log files only")
     parser.add_argument(
         "--test-stand",
@@ -649,6 +481,9 @@ def parse_args(argv: Sequence[str]) -> tuple[GraphConfig, bool]:
         storage=ns.storage,
         with_controllers=not ns.test_stand,
         wall_timeout=ns.timeout,
+        duration=ns.duration,
+        time_scale=ns.time_scale,
+        namespace=ns.namespace,
     )
     return config, not ns.quiet
 
@@ -658,7 +493,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     config, echo = parse_args(sys.argv[1:] if argv is None else argv)
     try:
         outcome = run_graph(config, echo=echo)
-    except FileNotFoundError as err:
+    except (FileNotFoundError, GraphError) as err:
         print(f"bringup: error: {err}", file=sys.stderr)
         return 2
     status = "ok" if outcome.exit_code == 0 else "FAILED"

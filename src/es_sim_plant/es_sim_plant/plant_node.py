@@ -11,7 +11,9 @@ Lockstep (default ``lockstep: true``), per control step k, exactly as docs/archi
 "Lockstep (sim time) protocol": /clock = t_k; /dm/displacement; when a sensor sample is due
 /dm/heat_load and /dm/temperature/raw, then (``sync_temperature``) wait for one
 /dm/temperature (``sync_timeout`` wall s -> continue, WARN); /dm/setpoint; wait for one
-/dm/command (``command_timeout`` wall s -> hold the last valid command, WARN); step. When
+/dm/command (``command_timeout`` wall s -> hold the last valid command, WARN); step. The
+first step waits (up to ``start_timeout``) for the peers' endpoints and for every node in
+``wait_ready`` to report "<node>: ready" OK on /diagnostics. When
 nothing publishes the awaited topic at all, the plant does not wait for it (WARN), so a
 crashed controller costs no timeouts. After the last step it publishes the final clock and
 displacement, logs a summary and, with ``exit_when_done``, exits 0.
@@ -46,8 +48,8 @@ from std_msgs.msg import Float64MultiArray
 
 from es_msgs_py import topics
 from es_msgs_py.arrays import LayoutError, grid_to_msg, msg_to_grid, sensors_to_msg
-from es_msgs_py.diagnostics import Level, make_array, make_status
-from es_msgs_py.node_main import run_node
+from es_msgs_py.diagnostics import Level, make_array, make_status, ready_nodes
+from es_msgs_py.node_main import run_node, usage_text
 from es_msgs_py.params import ParameterSpec, declare_parameters
 from es_sim_plant.effects import EFFECT_NAMES
 from es_sim_plant.plant import Plant
@@ -69,6 +71,12 @@ def _check_scenario(value: object) -> str | None:
         resolve_scenario(str(value))
     except ValueError as err:
         return str(err)
+    return None
+
+
+def _check_names(value: object) -> str | None:
+    if not isinstance(value, list | tuple) or not all(isinstance(v, str) and v for v in value):
+        return "wait_ready must be a list of node names"
     return None
 
 
@@ -170,6 +178,15 @@ SPECS: tuple[ParameterSpec, ...] = (
         low=0.0,
         high=600.0,
         read_only=True,
+    ),
+    ParameterSpec(
+        "wait_ready",
+        [],
+        "Lockstep: node names (e.g. thermal, feedforward) whose '<node>: ready' status on "
+        "/diagnostics must be OK before the first step (within start_timeout); empty: none.",
+        check=_check_names,
+        read_only=True,
+        dynamic_typing=True,  # an empty default has no array type of its own
     ),
     ParameterSpec(
         "start_subscribers",
@@ -280,6 +297,10 @@ class PlantNode(Node):
         self.start_subscribers = int(values["start_subscribers"])  # type: ignore[call-overload]
         self.exit_when_done = bool(values["exit_when_done"])
         self.max_speed = float(values["max_speed"])  # type: ignore[arg-type]
+        # Nodes whose readiness the first step waits for, and what they said last.
+        wait_ready = values["wait_ready"]
+        assert isinstance(wait_ready, list | tuple)  # _check_names made sure
+        self._wait_ready: dict[str, bool] = dict.fromkeys(map(str, wait_ready), False)
         self._paced = False
 
         # Graph queries take the topic names as remapped (a namespaced graph, -r rules).
@@ -310,6 +331,10 @@ class PlantNode(Node):
         if self.lockstep and self.sync_temperature:
             self.create_subscription(
                 Float64MultiArray, topics.TEMPERATURE, self._on_temperature, qos
+            )
+        if self.lockstep and self._wait_ready:
+            self.create_subscription(
+                DiagnosticArray, topics.DIAGNOSTICS, self._on_readiness, topics.DIAGNOSTICS_QOS
             )
 
         # Command state: the last valid command stays applied until a valid one replaces it.
@@ -381,6 +406,16 @@ class PlantNode(Node):
             f"command rejected, holding the last valid one: {reason}", throttle_duration_sec=1.0
         )
 
+    def _on_readiness(self, msg: DiagnosticArray) -> None:
+        """Note what the awaited nodes say about their readiness (only before the start)."""
+        for name, ready in ready_nodes(msg).items():
+            if name in self._wait_ready:
+                self._wait_ready[name] = ready
+
+    def _not_ready(self) -> list[str]:
+        """Return the awaited nodes that have not said they are ready."""
+        return [name for name, ready in self._wait_ready.items() if not ready]
+
     def _on_temperature(self, _msg: Float64MultiArray) -> None:
         if self._phase is Phase.WAIT_TEMPERATURE:
             self._phase = Phase.SETPOINT
@@ -422,11 +457,14 @@ class PlantNode(Node):
         if now - self._graph_checked >= _GRAPH_PERIOD:
             self._refresh_graph(now)
         if self._phase is Phase.STARTING:
-            if self._peers_ready() or now - self._start_wall >= self.start_timeout:
-                if not self._peers_ready():
+            ready = self._peers_ready() and not self._not_ready()
+            if ready or now - self._start_wall >= self.start_timeout:
+                if not ready:
+                    not_ready = self._not_ready()
                     self.get_logger().warning(
-                        f"start: peers not all present after {self.start_timeout:g} s; "
-                        "stepping anyway"
+                        f"start: peers not all present after {self.start_timeout:g} s"
+                        + (f" (not ready: {', '.join(not_ready)})" if not_ready else "")
+                        + "; stepping anyway"
                     )
                 self._refresh_graph(now)
                 self._phase = Phase.BEGIN
@@ -633,7 +671,9 @@ class PlantNode(Node):
 
 def main(args: Sequence[str] | None = None) -> int:
     """Run the plant node until shutdown or, with ``exit_when_done``, the scenario's end."""
-    return run_node(PlantNode, args)
+    return run_node(
+        PlantNode, args, help_text=usage_text("es_sim_plant plant_node", __doc__ or "", SPECS)
+    )
 
 
 if __name__ == "__main__":

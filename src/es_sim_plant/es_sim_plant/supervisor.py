@@ -207,7 +207,7 @@ class Supervisor:
         Returns:
             exit code 0 when the primary exited 0 and every other process stopped cleanly;
             1 when a process died unexpectedly, the primary failed, a stop needed SIGKILL or
-            ``wall_timeout`` passed; 130 when interrupted.
+            ``wall_timeout`` passed; 130 when interrupted (1 if a process then stopped uncleanly).
 
         """
         if not any(r.spec.primary for r in self._running):
@@ -215,7 +215,11 @@ class Supervisor:
         deadline = None if wall_timeout is None else time.monotonic() + wall_timeout
         while True:
             if self._interrupted.is_set():
-                self._stop_all()
+                unclean = self._stop_all()
+                if unclean:
+                    return self._outcome(
+                        EXIT_FAILURE, f"interrupted; unclean stop of {', '.join(unclean)}"
+                    )
                 return self._outcome(EXIT_INTERRUPTED, "interrupted; stopped every process")
             for running in self._running:
                 code = running.popen.poll()

@@ -1,108 +1,138 @@
-"""Closed-loop graph for a full ROS 2 install: the same graph as ``ros2 run es_sim_plant bringup``.
+"""Closed-loop graph for ``ros2 launch``: the same graph as ``ros2 run es_sim_plant bringup``.
 
-    ros2 launch es_sim_plant closed_loop.launch.py scenario:=thesis_ac rows:=1 cols:=1 \
+    ros2 launch es_sim_plant closed_loop.launch.py scenario:=thesis_ac \
         mode:=inverse_hyperbolic feedforward_params:=/path/calibrated.yaml bag:=/tmp/run1
 
-Starts the recorder (every /dm topic and /diagnostics, sim time), the thermal node, the
-feedforward node and the plant (lockstep, exits when its scenario ends); when the plant exits
-the launch shuts down, which sends SIGINT to the others so the recorder closes its bag.
-Unlike the bring-up, launch does not wait for the other nodes' subscriptions before starting
-the plant (the plant's lockstep start-up waits for its peers and, with start_subscribers 1,
-for the recorder), and it does not derive the thermal node's sensor (positions, noise, the
-known lag ``sensor_lag_tau``), time-scale and thermal-network parameters from the scenario:
-give the grid as rows/cols (the bring-up does all of that).
+Both take their nodes from :func:`es_sim_plant.graph.build_graph`: the recorder (every /dm
+topic and /diagnostics, sim time) when ``bag`` is given, the thermal node and the
+feedforward node with the grid, sensors, time scale and sensor lag of the scenario, and the
+plant (lockstep, exits when its scenario ends), whose first step waits until the thermal and
+feedforward nodes report on /diagnostics that they are ready. When the plant exits the
+launch shuts down, which sends SIGINT to the others, so the recorder closes its bag. A
+feedforward parameters file made for another grid than the scenario's is refused before
+anything starts. ``--show-args`` lists the arguments.
 """
 
-from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument, RegisterEventHandler, Shutdown
-from launch.conditions import IfCondition, UnlessCondition
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+from launch import LaunchContext, LaunchDescription
+from launch.action import Action
+from launch.actions import DeclareLaunchArgument, OpaqueFunction, RegisterEventHandler, Shutdown
 from launch.event_handlers import OnProcessExit
-from launch.substitutions import LaunchConfiguration, PythonExpression
 from launch_ros.actions import Node
 
-RECORDED_TOPICS = [
-    "/dm/heat_load",
-    "/dm/temperature/raw",
-    "/dm/temperature",
-    "/dm/setpoint",
-    "/dm/command",
-    "/dm/displacement",
-    "/diagnostics",
+from es_sim_plant.graph import GraphConfig, build_graph, topic_remaps
+
+#: Every argument: name, default, description.
+ARGUMENTS: list[tuple[str, str, str]] = [
+    (
+        "scenario",
+        "thesis_ac",
+        "Scenario: a shipped name (thesis_ac, thesis_dc_ac, dm_exposure, characterisation) "
+        "or the path of a scenario YAML; it sets the grid, sensors and thermal set-up of "
+        "every node.",
+    ),
+    (
+        "mode",
+        "inverse_hyperbolic",
+        "Feedforward mode: inverse_hyperbolic, inverse_quadratic, linearized_dmax, observer "
+        "or uncompensated (meanings: ros2 param describe /feedforward mode).",
+    ),
+    (
+        "feedforward_params",
+        "",
+        "ROS 2 parameters YAML for the feedforward node (e.g. the calibration tool's "
+        "feedforward_params.yaml); its rows/cols must be the scenario's grid. Empty: defaults.",
+    ),
+    ("bag", "", "Bag directory to create (must not exist); empty: no recorder."),
+    ("storage", "mcap", "Bag storage: mcap or sqlite3."),
+    ("duration", "0", "Run length in simulation seconds; 0: the scenario's."),
+    (
+        "time_scale",
+        "0",
+        "Multiplier of the scenario's slow (thermal) times, 1 = physical length; 0: the "
+        "scenario's own (the shipped ones are shortened).",
+    ),
+    (
+        "namespace",
+        "",
+        "Run the graph below /NAMESPACE (every topic remapped, the bag keeps the contract "
+        "names), so several graphs can share a ROS domain; empty: none.",
+    ),
+    (
+        "test_stand",
+        "false",
+        "true: plant and recorder only, for a scenario with its own voltage program "
+        "(characterisation).",
+    ),
 ]
 
 
-def generate_launch_description() -> LaunchDescription:
-    scenario = LaunchConfiguration("scenario")
-    mode = LaunchConfiguration("mode")
-    feedforward_params = LaunchConfiguration("feedforward_params")
-    bag = LaunchConfiguration("bag")
-    grid = {"rows": LaunchConfiguration("rows"), "cols": LaunchConfiguration("cols")}
-    has_params = PythonExpression(["'", feedforward_params, "' != ''"])
-    sim_time = {"use_sim_time": True}
+def _nodes(context: LaunchContext) -> list[Action]:
+    """Build the graph from the launch arguments (at launch time) into launch_ros nodes."""
+    arg = context.launch_configurations
 
-    recorder = Node(
-        package="es_msgs_py",
-        executable="record",
-        name="record",
-        arguments=["-o", bag, *RECORDED_TOPICS],
-        parameters=[sim_time],
-        output="screen",
+    def positive(name: str) -> float | None:
+        value = float(arg[name])
+        return value if value > 0 else None
+
+    namespace = arg["namespace"].strip("/") or None
+    config = GraphConfig(
+        scenario=arg["scenario"],
+        mode=arg["mode"],
+        bag=Path(arg["bag"]) if arg["bag"] else None,
+        storage=arg["storage"],
+        feedforward_params=Path(arg["feedforward_params"]) if arg["feedforward_params"] else None,
+        with_controllers=arg["test_stand"].lower() not in ("true", "1"),
+        namespace=namespace,
+        duration=positive("duration"),
+        time_scale=positive("time_scale"),
+        # where a namespaced copy of the parameters file goes
+        log_dir=Path(tempfile.gettempdir()) / f"es_dm_launch_{os.getpid()}",
     )
-    thermal = Node(
-        package="es_thermal",
-        executable="thermal_node",
-        name="thermal",
-        parameters=[{**sim_time, **grid}],
-        output="screen",
+    graph = build_graph(config)  # GraphError: one line, launch exits non-zero
+    remaps = topic_remaps(namespace)
+    actions: list[Action] = []
+    plant: Node | None = None
+    for spec in graph.nodes:
+        node = Node(
+            package=spec.package,
+            executable=spec.executable,
+            name=spec.name,
+            namespace=f"/{namespace}" if namespace else "",
+            arguments=list(spec.arguments),
+            parameters=[*(str(p) for p in spec.params_files), spec.parameters],
+            remappings=remaps,
+            output="screen",
+            # nodes end on SIGINT; give a DDS teardown its own bounded time (node_main)
+            sigterm_timeout="10",
+        )
+        actions.append(node)
+        if spec is graph.plant:
+            plant = node
+    assert plant is not None
+    actions.append(
+        RegisterEventHandler(
+            OnProcessExit(
+                target_action=plant, on_exit=[Shutdown(reason="plant finished its scenario")]
+            )
+        )
     )
-    feedforward_with_file = Node(
-        package="es_feedforward",
-        executable="feedforward_node",
-        name="feedforward",
-        parameters=[feedforward_params, {**sim_time, **grid, "mode": mode}],
-        output="screen",
-        condition=IfCondition(has_params),
-    )
-    feedforward_defaults = Node(
-        package="es_feedforward",
-        executable="feedforward_node",
-        name="feedforward",
-        parameters=[{**sim_time, **grid, "mode": mode}],
-        output="screen",
-        condition=UnlessCondition(has_params),
-    )
-    plant = Node(
-        package="es_sim_plant",
-        executable="plant_node",
-        name="plant",
-        parameters=[
-            {
-                "scenario": scenario,
-                "lockstep": True,
-                "exit_when_done": True,
-                "start_subscribers": 1,
-            }
-        ],
-        output="screen",
-    )
+    return actions
+
+
+def generate_launch_description() -> LaunchDescription:
+    """Return the closed-loop launch description (arguments, then the graph at launch time)."""
     return LaunchDescription(
         [
-            DeclareLaunchArgument("scenario", default_value="thesis_ac"),
-            DeclareLaunchArgument("mode", default_value="inverse_hyperbolic"),
-            DeclareLaunchArgument("feedforward_params", default_value=""),
-            DeclareLaunchArgument("rows", default_value="12", description="grid rows"),
-            DeclareLaunchArgument("cols", default_value="12", description="grid columns"),
-            DeclareLaunchArgument("bag", description="bag directory to create"),
-            recorder,
-            thermal,
-            feedforward_with_file,
-            feedforward_defaults,
-            plant,
-            RegisterEventHandler(
-                OnProcessExit(
-                    target_action=plant,
-                    on_exit=[Shutdown(reason="plant finished its scenario")],
-                )
+            *(
+                DeclareLaunchArgument(name, default_value=default, description=text)
+                for name, default, text in ARGUMENTS
             ),
+            OpaqueFunction(function=_nodes),
         ]
     )

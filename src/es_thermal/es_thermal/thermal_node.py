@@ -15,7 +15,8 @@ cell (beyond ``fault.heat_load_tolerance``) or a cell above ``fault.max_heat_loa
 accepted heat load is held; NaN/inf, out-of-range and stuck sensors are
 excluded and the estimate continues from the others (WARN); with no valid sensor, or no raw
 message for ``fault.stale_timeout`` wall seconds, the node publishes no estimate (ERROR), so
-the feedforward holds, and it resumes by itself when valid readings return. Should an update
+the feedforward holds, and it resumes by itself when valid readings return. ``thermal: ready``
+on /diagnostics says "not ready" until /dm/temperature/raw has matched a publisher. Should an update
 fail all the same (a bug, not bad input), the callback logs it, reports ERROR, publishes
 nothing for that message and restarts the estimate from the next readings: the node keeps
 running.
@@ -56,8 +57,8 @@ from std_msgs.msg import Float64MultiArray
 
 from es_msgs_py import topics
 from es_msgs_py.arrays import LayoutError, grid_to_msg, msg_to_grid, msg_to_sensors
-from es_msgs_py.diagnostics import Level, make_array, make_status
-from es_msgs_py.node_main import run_node
+from es_msgs_py.diagnostics import Level, make_array, make_status, readiness_status, unmatched
+from es_msgs_py.node_main import run_node, usage_text
 from es_msgs_py.params import ParameterSpec, declare_parameters
 from es_thermal.estimator import (
     ESTIMATORS,
@@ -102,7 +103,15 @@ _TUNING = KalmanTuning(sensor_noise=0.02)
 _FAULTS = FaultConfig()
 
 SPECS: tuple[ParameterSpec, ...] = (
-    ParameterSpec("estimator", "model", "Estimator.", choices=ESTIMATORS, read_only=True),
+    ParameterSpec(
+        "estimator",
+        "model",
+        "Estimator: 'model' = Kalman filter on the thermal network driven by /dm/heat_load; "
+        "'lowpass' = the thesis's low-pass filter (lowpass.cutoff_hz) plus spatial "
+        "interpolation between sensors.",
+        choices=ESTIMATORS,
+        read_only=True,
+    ),
     ParameterSpec("rows", 12, "Actuator grid rows.", 1, 256, read_only=True),
     ParameterSpec("cols", 12, "Actuator grid columns.", 1, 256, read_only=True),
     ParameterSpec(
@@ -158,7 +167,10 @@ SPECS: tuple[ParameterSpec, ...] = (
         "lowpass.cutoff_hz", DEFAULT_CUTOFF_HZ, "Low-pass cut-off, Hz.", 1e-5, 1e4,
         read_only=True,
     ),
-    ParameterSpec("lowpass.order", DEFAULT_ORDER, "Low-pass order.", 1, 8, read_only=True),
+    ParameterSpec(
+        "lowpass.order", DEFAULT_ORDER, "Low-pass filter order (dimensionless).", 1, 8,
+        read_only=True,
+    ),
     *(
         ParameterSpec(
             f"thermal.{f.name}",
@@ -343,10 +355,13 @@ class ThermalNode(Node):
                 Float64MultiArray, topics.COMMAND, self._on_command,  # type: ignore[arg-type]
                 topics.qos_for(topics.COMMAND),
             )
-        self.create_subscription(
+        self._raw_sub = self.create_subscription(
             Float64MultiArray, topics.TEMPERATURE_RAW, self._on_raw,
             topics.qos_for(topics.TEMPERATURE_RAW),
         )
+        # Readiness: the estimator is built; ready once the raw readings' publisher matched.
+        self._waiting_for = unmatched([self._raw_sub])
+        self._ready_timer = self.create_timer(0.05, self._check_ready, clock=self._wall)
         period = float(values["diagnostics_period"])  # type: ignore[arg-type]
         self.create_timer(period, self._publish_diagnostics, clock=self._wall)
         rate = float(values["publish_rate"])  # type: ignore[arg-type]
@@ -556,8 +571,17 @@ class ThermalNode(Node):
             )
         return Level.OK, "resonance readings fused", kv
 
+    def _check_ready(self) -> None:
+        """Follow the raw input's matching until ready; say so on /diagnostics at once."""
+        waiting = unmatched([self._raw_sub])
+        if waiting != self._waiting_for:
+            self._waiting_for = waiting
+            self._publish_diagnostics()
+        if not waiting:
+            self._ready_timer.cancel()
+
     def _statuses(self) -> list[DiagnosticStatus]:
-        out = []
+        out = [readiness_status(self.get_name(), self._waiting_for)]
         aspects = [
             ("sensors", self._sensor_status),
             ("input", self._input_status),
@@ -586,7 +610,9 @@ class ThermalNode(Node):
 
 def main(args: Sequence[str] | None = None) -> int:
     """Run the thermal node until shutdown."""
-    return run_node(ThermalNode, args)
+    return run_node(
+        ThermalNode, args, help_text=usage_text("es_thermal thermal_node", __doc__ or "", SPECS)
+    )
 
 
 if __name__ == "__main__":

@@ -1,0 +1,332 @@
+"""The closed-loop node graph, described once: what ``bringup`` and ``closed_loop.launch.py`` run.
+
+Pure (no rclpy, no launch): from a scenario and options, :func:`build_graph` returns every
+node to start (package, executable, name, parameters, parameter files, program arguments)
+with everything derived from the scenario: the grid, the thermal node's sensors, noise, lag
+and network, the time scale. ``ros2 run es_sim_plant bringup`` turns the nodes into
+supervised processes, ``ros2 launch es_sim_plant closed_loop.launch.py`` into launch_ros
+``Node`` actions; both start the same graph.
+
+The plant starts its scenario only when the recorder, thermal and feedforward nodes report
+``"<node>: ready"`` on /diagnostics (plant parameter ``wait_ready``), not after a fixed
+settle time: the controllers have matched their inputs, the recorder every /dm topic. A
+calibrated feedforward parameters file is checked at build time: its grid (``rows``/``cols``)
+must be the scenario's, else :class:`GraphError` says so in one line.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Final
+
+from es_msgs_py import topics
+from es_msgs_py.param_yaml import dump_parameters, floats_from_strings
+
+ParamValue = bool | int | float | str | list[float] | list[int] | list[str]
+
+#: Node names (the defaults of the node executables; parameter files use them).
+PLANT, THERMAL, FEEDFORWARD, RECORDER = "plant", "thermal", "feedforward", "record"
+
+#: Topics the graph records: every /dm topic and /diagnostics.
+RECORDED_TOPICS: Final[tuple[str, ...]] = (*topics.DM_TOPICS, topics.DIAGNOSTICS)
+#: A test stand has no thermal node and no set points: its bag holds what a lab records.
+TEST_STAND_TOPICS: Final[tuple[str, ...]] = tuple(
+    t for t in RECORDED_TOPICS if t not in (topics.TEMPERATURE, topics.SETPOINT)
+)
+#: Recorder queue depth of a test stand: the whole backlog of a fast plant fits.
+TEST_STAND_QUEUE_DEPTH: Final = 200_000
+#: Speed limit of a test stand (x real time): measured here, a recorder keeps up with 250 Hz
+#: test stands at 3x (no loss), the plant alone runs near 10x; the rest is caught up after
+#: the run from the recorder's deep queue.
+TEST_STAND_SPEED: Final = 5.0
+#: Longest wall time [s] the plant waits at its start for its peers to be ready (a 32 x 32
+#: thermal estimator takes seconds to build on a busy machine).
+START_TIMEOUT_S: Final = 120.0
+
+
+class GraphError(ValueError):
+    """The graph cannot be built as asked (one readable line)."""
+
+
+@dataclass
+class GraphConfig:
+    """What the graph runs.
+
+    Attributes:
+        scenario: scenario name (shipped with es_sim_plant) or path to a scenario YAML.
+        mode: feedforward mode.
+        bag: bag directory to record into (must not exist), or ``None`` for no recorder.
+        log_dir: directory for the node logs (and a namespaced copy of a parameters file).
+        feedforward_params: ROS parameters YAML for the feedforward node (e.g. calibrated).
+        plant / thermal / feedforward: extra parameters per node (override the defaults).
+        storage: bag storage, ``mcap`` or ``sqlite3``.
+        with_controllers: start the thermal and feedforward nodes; ``False`` runs the plant
+            alone with the recorder (a test-stand characterisation drives its own voltages).
+        domain_id: ROS_DOMAIN_ID of this run (``None``: inherit the environment's), so that
+            runs can go in parallel without seeing each other.
+        ready_timeout: wall seconds to wait for the nodes' subscriptions before the plant.
+        namespace: run the graph below ``/<namespace>`` (topics remapped; bags keep the
+            contract's topic names), so that several graphs share one ROS domain.
+        wall_timeout: wall seconds after which the run is stopped as failed (``None``: none).
+        duration: run length in simulation seconds (``None``: the scenario's).
+        time_scale: multiplier of the scenario's slow times (``None``: the scenario's own).
+        record_extra: further topics the recorder records (e.g. the optional /dm/resonance).
+
+    """
+
+    scenario: str
+    mode: str = "inverse_hyperbolic"
+    bag: Path | None = None
+    log_dir: Path = Path("log/bringup")
+    feedforward_params: Path | None = None
+    plant: dict[str, ParamValue] = field(default_factory=dict)
+    thermal: dict[str, ParamValue] = field(default_factory=dict)
+    feedforward: dict[str, ParamValue] = field(default_factory=dict)
+    storage: str = "mcap"
+    with_controllers: bool = True
+    domain_id: int | None = None
+    ready_timeout: float = 30.0
+    namespace: str | None = None
+    wall_timeout: float | None = None
+    duration: float | None = None
+    time_scale: float | None = None
+    record_extra: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class NodeSpec:
+    """One node of the graph, as ``ros2 run PACKAGE EXECUTABLE ARGUMENTS --ros-args ...``.
+
+    Attributes:
+        package / executable: what to run (``lib/<package>/<executable>``).
+        name: node name.
+        parameters: ``-p`` parameters (after the files: they win).
+        params_files: ``--params-file`` files, in order.
+        arguments: program arguments before ``--ros-args`` (the recorder's).
+
+    """
+
+    package: str
+    executable: str
+    name: str
+    parameters: dict[str, ParamValue]
+    params_files: tuple[Path, ...] = ()
+    arguments: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class Graph:
+    """The nodes started before the plant (recorder first) and the plant."""
+
+    before: list[NodeSpec]
+    plant: NodeSpec
+    namespace: str | None = None
+
+    @property
+    def nodes(self) -> list[NodeSpec]:
+        """Every node, the plant last."""
+        return [*self.before, self.plant]
+
+
+def scoped(topic: str, namespace: str | None) -> str:
+    """Return ``topic`` as a graph in ``namespace`` sees it (unchanged without one)."""
+    return f"/{namespace}{topic}" if namespace else topic
+
+
+def topic_remaps(namespace: str | None) -> list[tuple[str, str]]:
+    """Return the remappings that put every contract topic below ``namespace`` (none without).
+
+    Contract topics are absolute (/clock and /diagnostics too), so a node namespace alone
+    does not move them.
+    """
+    if not namespace:
+        return []
+    return [(t, scoped(t, namespace)) for t in topics.TOPIC_TYPES]
+
+
+def _plant_values(config: GraphConfig) -> dict[str, ParamValue]:
+    """Return the plant's own overrides with the graph's duration and time scale folded in."""
+    values: dict[str, ParamValue] = {}
+    if config.duration is not None:
+        values["duration"] = float(config.duration)
+    if config.time_scale is not None:
+        values["time_scale"] = float(config.time_scale)
+    return {**values, **config.plant}
+
+
+def build_graph(config: GraphConfig) -> Graph:
+    """Return the nodes of the graph ``config`` describes.
+
+    Raises:
+        GraphError: the scenario cannot be loaded, or the feedforward parameters file is
+            unreadable, invalid or made for another grid than the scenario's.
+
+    """
+    sim_time: dict[str, ParamValue] = {"use_sim_time": True}
+    plant_values = _plant_values(config)
+    before: list[NodeSpec] = []
+    if config.bag is not None:
+        recorded = (
+            *(RECORDED_TOPICS if config.with_controllers else TEST_STAND_TOPICS),
+            *config.record_extra,
+        )
+        depth = () if config.with_controllers else ("--queue-depth", str(TEST_STAND_QUEUE_DEPTH))
+        before.append(
+            NodeSpec(
+                "es_msgs_py", "record", RECORDER, dict(sim_time),
+                arguments=("-o", str(config.bag), "--storage", config.storage, *depth, *recorded),
+            )
+        )  # fmt: skip
+    if config.with_controllers:
+        before += _controller_specs(config, plant_values)
+    plant_params: dict[str, ParamValue] = {
+        "scenario": config.scenario,
+        "lockstep": True,
+        "exit_when_done": True,
+        "start_timeout": START_TIMEOUT_S,
+        # the scenario starts once the other nodes say they have their inputs
+        "wait_ready": [spec.name for spec in before],
+        # without a thermal node there is no /dm/temperature to wait for, and no controller
+        # paces the plant: it runs at a speed the recorder keeps up with
+        **(
+            {}
+            if config.with_controllers
+            else {"sync_temperature": False, "max_speed": TEST_STAND_SPEED}
+        ),
+        # the recorder's subscriptions must match before the first message goes out
+        **({"start_subscribers": 1} if config.bag is not None else {}),
+        **plant_values,
+    }
+    plant = NodeSpec("es_sim_plant", "plant_node", PLANT, plant_params)
+    return Graph(before, plant, config.namespace)
+
+
+def _controller_specs(
+    config: GraphConfig, plant_values: Mapping[str, ParamValue]
+) -> list[NodeSpec]:
+    sim_time: dict[str, ParamValue] = {"use_sim_time": True}
+    thermal, feedforward = scenario_parameters(config.scenario, plant_values)
+    files: tuple[Path, ...] = ()
+    if config.feedforward_params is not None:
+        rows, cols = thermal["rows"], thermal["cols"]
+        assert isinstance(rows, int) and isinstance(cols, int)
+        check_params_grid(config.feedforward_params, (rows, cols))
+        path = config.feedforward_params
+        if config.namespace:
+            path = namespaced_params_file(path, FEEDFORWARD, config)
+        files = (path,)
+    return [
+        NodeSpec(
+            "es_thermal", "thermal_node", THERMAL, {**sim_time, **thermal, **config.thermal}
+        ),
+        NodeSpec(
+            "es_feedforward",
+            "feedforward_node",
+            FEEDFORWARD,
+            {**sim_time, **feedforward, "mode": config.mode, **config.feedforward},
+            files,
+        ),
+    ]
+
+
+def check_params_grid(path: Path, grid: tuple[int, int]) -> None:
+    """Check that a feedforward parameters file is valid and made for ``grid`` (rows, cols).
+
+    Raises:
+        GraphError: unreadable or invalid file, or a grid other than ``grid``.
+
+    """
+    from es_feedforward.param_file import read_params_file
+
+    try:
+        shape = read_params_file(path).shape
+    except ValueError as err:
+        raise GraphError(f"feedforward parameters: {err}") from None
+    if shape != grid:
+        raise GraphError(
+            f"feedforward parameters {path} are for a {shape[0]} x {shape[1]} grid, the "
+            f"scenario's is {grid[0]} x {grid[1]}: calibrate for this grid or pick a "
+            "matching scenario"
+        )
+
+
+def scenario_parameters(
+    scenario: str, plant: Mapping[str, ParamValue]
+) -> tuple[dict[str, ParamValue], dict[str, ParamValue]]:
+    """Return the thermal and feedforward parameters that describe the plant's mirror.
+
+    Read from the scenario with the plant's own overrides (``rows``, ``cols``,
+    ``time_scale``, ``sensor_rate``, ``effects.sensor_lag``), so that the three nodes agree
+    on the grid, the sensors and the time scale. The thermal node gets what the mirror's
+    design tells: the thermal network (physical values; it applies ``time_scale`` itself as
+    the plant does), the sensor positions, rate, noise level and lag (``sensor_lag_tau``,
+    physical: a property of the sensor as mounted). Its estimate is then of the actuator,
+    not of the lagging sensor, so the feedforward gets ``compensation.temperature_lead_s``
+    0: the lag is undone once, whatever lead a calibration on raw sensor data wrote.
+    Nothing else the calibration is meant to find (the actuator laws, effects) is passed.
+
+    Raises:
+        GraphError: the scenario cannot be loaded.
+
+    """
+    from es_sim_plant.scenario import load_scenario
+
+    def number(name: str) -> float:
+        value = plant.get(name, 0)
+        return float(value) if isinstance(value, int | float) else 0.0
+
+    try:
+        scaled = load_scenario(scenario, number("time_scale") or None)
+        physical = load_scenario(scenario, 1.0)
+    except ValueError as err:
+        raise GraphError(str(err).splitlines()[0]) from None
+    rows = int(number("rows")) or scaled.rows
+    cols = int(number("cols")) or scaled.cols
+    sensor_rate = number("sensor_rate") or scaled.sensor_rate
+    grid: dict[str, ParamValue] = {"rows": rows, "cols": cols}
+    thermal: dict[str, ParamValue] = {
+        **grid,
+        "sample_rate": sensor_rate,
+        "time_scale": scaled.time_scale,
+        "model.sensor_noise": max(scaled.sensors.noise_sd, 1e-6),
+        **{f"thermal.{k}": float(v) for k, v in asdict(physical.thermal).items()},
+    }
+    feedforward: dict[str, ParamValue] = dict(grid)
+    if plant.get("effects.sensor_lag", physical.effects.sensor_lag.enabled) is True:
+        thermal["sensor_lag_tau"] = physical.effects.sensor_lag.tau_s
+        feedforward["compensation.temperature_lead_s"] = 0.0
+    if scaled.sensors.positions is not None:
+        thermal["sensor_positions"] = [float(v) for p in scaled.sensors.positions for v in p]
+    return thermal, feedforward
+
+
+def namespaced_params_file(path: Path, node: str, config: GraphConfig) -> Path:
+    """Return a copy of a parameters file whose entries for ``node`` apply below the namespace.
+
+    A parameters file names the node it configures by its full name (``feedforward`` is
+    ``/feedforward``); in a namespaced graph the node is ``/<namespace>/feedforward``. The
+    copy goes into ``config.log_dir``; its floats are written so that every ROS 2 reader
+    reads them as floats (:mod:`es_msgs_py.param_yaml`).
+
+    Raises:
+        GraphError: the file is no ROS 2 parameters file.
+
+    """
+    import yaml
+
+    try:
+        data, _ = floats_from_strings(yaml.safe_load(path.read_text(encoding="utf-8")))
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as err:
+        raise GraphError(f"cannot read parameters file {path}: {err}".splitlines()[0]) from None
+    if not isinstance(data, dict):
+        raise GraphError(f"{path} is not a ROS 2 parameters file")
+    renamed = {
+        (f"/{config.namespace}/{node}" if key.strip("/") == node else key): value
+        for key, value in data.items()
+    }
+    config.log_dir.mkdir(parents=True, exist_ok=True)
+    copy = config.log_dir / f"{node}_params.yaml"
+    copy.write_text(dump_parameters(renamed), encoding="utf-8")
+    return copy
