@@ -14,8 +14,9 @@ from es_thermal.interpolation import (
     sampling_matrix,
     sensor_positions,
 )
-from es_thermal.kalman import KalmanTuning, ModelEstimator, discretise, steady_state_covariance
+from es_thermal.kalman import KalmanTuning, ModelEstimator
 from es_thermal.lowpass import LowpassBank
+from es_thermal.modal import discretise, steady_state_covariance
 from es_thermal.network import NetworkParams, continuous_model, grid_laplacian
 
 
@@ -172,7 +173,7 @@ def test_modal_gain_equals_dense_solution(positions: np.ndarray, tau: float) -> 
     R = tuning.sensor_noise**2 * np.eye(len(positions))
     P = steady_state_covariance(A_d, H, np.diag(q * dt), R)
     gain = np.linalg.solve(H @ P @ H.T + R, H @ P).T
-    np.testing.assert_allclose(est.gain, gain, atol=1e-9)
+    np.testing.assert_allclose(est.gain_matrix(), gain, atol=1e-9)
 
 
 def test_score_finds_the_lag_and_skips_missing_estimates() -> None:

@@ -20,6 +20,7 @@ from collections.abc import Sequence
 
 import numpy as np
 import numpy.typing as npt
+from scipy import sparse
 from scipy.interpolate import LinearNDInterpolator
 from scipy.spatial import QhullError, cKDTree
 
@@ -84,24 +85,23 @@ def sensor_positions(
 
 def sampling_matrix(rows: int, cols: int, positions: FloatArray) -> FloatArray:
     """Return the S x N bilinear map from the actuator temperature grid to the sensors."""
+    return np.asarray(sparse_sampling(rows, cols, positions).toarray(), float)
+
+
+def sparse_sampling(rows: int, cols: int, positions: FloatArray) -> sparse.csr_matrix:
+    """Return :func:`sampling_matrix` as a sparse matrix (at most four entries a row)."""
     count = positions.shape[0]
-    out = np.zeros((count, rows * cols))
     r0 = np.clip(np.floor(positions[:, 0]).astype(int), 0, max(rows - 2, 0))
     c0 = np.clip(np.floor(positions[:, 1]).astype(int), 0, max(cols - 2, 0))
     fr = positions[:, 0] - r0
     fc = positions[:, 1] - c0
     r1 = np.minimum(r0 + 1, rows - 1)
     c1 = np.minimum(c0 + 1, cols - 1)
-    idx = np.arange(count)
-    # np.add.at accumulates: on a one-row or one-column grid r1 == r0 (or c1 == c0).
-    for rr, cc, w in (
-        (r0, c0, (1 - fr) * (1 - fc)),
-        (r0, c1, (1 - fr) * fc),
-        (r1, c0, fr * (1 - fc)),
-        (r1, c1, fr * fc),
-    ):
-        np.add.at(out, (idx, rr * cols + cc), w)
-    return out
+    idx = np.tile(np.arange(count), 4)
+    column = np.concatenate([r0 * cols + c0, r0 * cols + c1, r1 * cols + c0, r1 * cols + c1])
+    weight = np.concatenate([(1 - fr) * (1 - fc), (1 - fr) * fc, fr * (1 - fc), fr * fc])
+    # Duplicates are summed: on a one-row or one-column grid r1 == r0 (or c1 == c0).
+    return sparse.csr_matrix((weight, (idx, column)), shape=(count, rows * cols))
 
 
 def interpolation_matrix(
