@@ -10,6 +10,7 @@ from es_thermal.interpolation import actuator_positions, block_centre_positions,
 from es_thermal.kalman import KalmanTuning, ModelEstimator
 from es_thermal.modal import discretise, modal_solution, steady_state_covariance
 from es_thermal.network import (
+    DENSE_TRANSFORM_MAX,
     GridTransform,
     NetworkParams,
     continuous_model,
@@ -21,15 +22,16 @@ from es_thermal.network import (
 IRREGULAR = np.array([[0.0, 0.0], [1.5, 2.2], [3.0, 5.0], [2.0, 1.0], [4.0, 6.0]])
 
 
-def test_grid_transform_applies_the_kronecker_product_separably() -> None:
-    rows, cols = 3, 5
+@pytest.mark.parametrize(("rows", "cols"), [(3, 5), (17, 19)], ids=["formed", "separable"])
+def test_grid_transform_applies_the_kronecker_product(rows: int, cols: int) -> None:
     full = np.kron(dct_matrix(rows), dct_matrix(cols))
     t = GridTransform.dct(rows, cols)
+    assert (t.dense is None) == (rows * cols > DENSE_TRANSFORM_MAX)
     x = np.random.default_rng(0).standard_normal((rows * cols, 2))
     np.testing.assert_allclose(t.forward(x), full @ x, atol=1e-13)
     np.testing.assert_allclose(t.inverse(x[:, 0]), full.T @ x[:, 0], atol=1e-13)
     np.testing.assert_allclose(t.inverse(t.forward(x)), x, atol=1e-13)
-    index = np.array([0, 4, 7, 14])
+    index = np.array([0, 4, 7, rows * cols - 1])
     np.testing.assert_allclose(t.columns(index), full[:, index], atol=1e-15)
     eye = GridTransform.eye(4)
     y = np.arange(4.0)
