@@ -22,7 +22,7 @@ from es_thermal.network import (
 IRREGULAR = np.array([[0.0, 0.0], [1.5, 2.2], [3.0, 5.0], [2.0, 1.0], [4.0, 6.0]])
 
 
-@pytest.mark.parametrize(("rows", "cols"), [(3, 5), (17, 19)], ids=["formed", "separable"])
+@pytest.mark.parametrize(("rows", "cols"), [(3, 5), (17, 19)], ids=["formed", "fft"])
 def test_grid_transform_applies_the_kronecker_product(rows: int, cols: int) -> None:
     full = np.kron(dct_matrix(rows), dct_matrix(cols))
     t = GridTransform.dct(rows, cols)
