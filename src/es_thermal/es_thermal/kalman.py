@@ -11,9 +11,10 @@ discretisation (matrix exponential) and the steady-state gain (discrete algebrai
 equation solved by the structure-preserving doubling algorithm). The filter runs in modal
 coordinates (2-D DCT of the grid and of a regular sensor grid), where the uniform network falls
 apart into small independent groups of states (:mod:`es_thermal.modal`): the transition
-matrix and the gain are then sparse with a few entries per state, and only the readings in
-and the estimate out are transformed, separably (O(N (R + C))). Nothing N x N is ever formed.
-An irregular sensor layout keeps the sensors as they are and makes the gain dense.
+matrix and the gain are then sparse with a few entries per state, and only the heat load and
+readings in and the estimate out are transformed (fast DCT, O(N log N)). Nothing N x N is
+ever formed. An irregular sensor layout keeps the sensors as they are and makes the gain
+dense (S x S per group of coupled modes).
 """
 
 from __future__ import annotations
