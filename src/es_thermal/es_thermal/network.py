@@ -273,16 +273,20 @@ def modal_sampling(
     axes = _regular_axes(positions)
     if axes is None or sensors.identity:
         dense = grid.forward(sampling_matrix(rows, cols, positions).T).T
-        return sparse.csr_matrix(sensors.forward(dense) if not sensors.identity else dense)
+        return sparse.csr_matrix(_drop_roundoff(sensors.forward(dense)))
     factors = []
     for n, at, own, theirs in (
         (rows, axes[0], grid.row, sensors.row), (cols, axes[1], grid.col, sensors.col)
     ):
         weights = sampling_matrix(n, 1, np.column_stack([at, np.zeros_like(at)]))
-        factor = theirs @ weights @ own.T
-        factor[np.abs(factor) < 1e-12 * np.max(np.abs(factor))] = 0.0
-        factors.append(sparse.csr_matrix(factor))
+        factors.append(sparse.csr_matrix(_drop_roundoff(theirs @ weights @ own.T)))
     return sparse.csr_matrix(sparse.kron(factors[0], factors[1]))
+
+
+def _drop_roundoff(matrix: FloatArray) -> FloatArray:
+    """Return ``matrix`` with entries below 1e-12 of its largest set to zero (in place)."""
+    matrix[np.abs(matrix) < 1e-12 * np.max(np.abs(matrix))] = 0.0
+    return matrix
 
 
 def modal_model(
