@@ -6,6 +6,7 @@ Usage (from the repository root, after ./scripts/bootstrap)::
         [--noise 0.01] [--error 0.2] [--pattern mixed|high|low|exact] [--duration S]
         [--time-scale X] [--sensor-rate HZ] [--sensor-lag]
     .venv/bin/python bench/bench_thermal.py --cost 32x32/2     # build and update time
+    .venv/bin/python bench/bench_thermal.py --node-cost 64x64  # ... as the node builds it
 
 The issue-5 goal run (the defaults): ``dm_exposure`` with 0.01 degC sensor noise, one sensor
 per 2 x 2 actuators (at the block centres, reading the bilinear mean of the four), no sensor
@@ -16,8 +17,9 @@ Butterworth at 0.1 Hz physical, i.e. 0.1 Hz / time_scale in a shortened scenario
 both see the same dynamics. The first 10 % of the run (start-up) is not scored.
 
 :func:`thermal_accuracy` returns the figures (``thermal_rms_model``, ``thermal_rms_lowpass``
-and more) for the benchmark suite, :func:`update_cost` the model estimator's cost; ``main``
-prints them as JSON.
+and more) for the benchmark suite, :func:`update_cost` the model estimator's cost,
+:func:`node_cost` that of the estimator the thermal node builds for the lockstep benchmark;
+``main`` prints them as JSON.
 """
 
 from __future__ import annotations
@@ -191,6 +193,48 @@ def update_cost(
     }
 
 
+#: Grids whose estimator build and update are timed in the thermal node's configuration.
+NODE_COST_GRIDS: tuple[int, ...] = (32, 64)
+
+
+def node_cost(rows: int, cols: int, *, updates: int = 200) -> dict[str, float]:
+    """Return the build time [s] and time per update [ms] of the estimator the node builds.
+
+    The configuration is the thermal node's for the lockstep benchmark: its parameter
+    defaults (one sensor per actuator) with the ``dm_exposure`` scenario's values for an
+    R x C grid (es_sim_plant.bringup.scenario_parameters), through the node's own mapping
+    (``config_from_parameters``). An update is a heat load plus a message of readings, as
+    the node hands them over; median, min and max over ``updates``.
+    """
+    from es_sim_plant.bringup import scenario_parameters
+    from es_thermal.thermal_node import SPECS, config_from_parameters
+
+    values: dict[str, object] = {spec.name: spec.default for spec in SPECS}
+    values.update(scenario_parameters("dm_exposure", {"rows": rows, "cols": cols})[0])
+    config = config_from_parameters(values)
+    started = time.perf_counter()
+    est = TemperatureEstimator(config)
+    build = time.perf_counter() - started
+    rng = np.random.default_rng(0)
+    count = config.sensor_count
+    heat = np.full((rows, cols), 0.01)
+    est.update(0.0, np.full(count, 42.0))
+    spent = []
+    for k in range(1, updates + 1):
+        readings = 42.0 + 0.02 * rng.standard_normal(count)
+        started = time.perf_counter()
+        est.set_heat_load(heat)
+        est.update(config.sample_period * k, readings)
+        spent.append(time.perf_counter() - started)
+    ms = 1e3 * np.asarray(spent)
+    return {
+        "build_s": build,
+        "update_ms_median": float(np.median(ms)),
+        "update_ms_min": float(np.min(ms)),
+        "update_ms_max": float(np.max(ms)),
+    }
+
+
 def main() -> None:
     """Print the figures of one accuracy run as JSON."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -207,7 +251,15 @@ def main() -> None:
     parser.add_argument(
         "--cost", metavar="RxC/P", help="instead: time the model estimator, e.g. 32x32/2"
     )
+    parser.add_argument(
+        "--node-cost", metavar="RxC",
+        help="instead: time the estimator as the thermal node builds it for dm_exposure",
+    )
     args = parser.parse_args()
+    if args.node_cost:
+        rows, cols = (int(v) for v in args.node_cost.split("x"))
+        print(json.dumps(node_cost(rows, cols), indent=2))
+        return
     if args.cost:
         size, pitch = args.cost.split("/")
         rows, cols = (int(v) for v in size.split("x"))

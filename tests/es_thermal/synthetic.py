@@ -15,7 +15,7 @@ import numpy as np
 import numpy.typing as npt
 
 from es_thermal.interpolation import sampling_matrix
-from es_thermal.kalman import discretise
+from es_thermal.modal import discretise
 from es_thermal.network import NetworkParams, continuous_model
 
 FloatArray = npt.NDArray[np.float64]

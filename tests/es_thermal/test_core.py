@@ -14,8 +14,9 @@ from es_thermal.interpolation import (
     sampling_matrix,
     sensor_positions,
 )
-from es_thermal.kalman import KalmanTuning, ModelEstimator, discretise, steady_state_covariance
+from es_thermal.kalman import KalmanTuning, ModelEstimator
 from es_thermal.lowpass import LowpassBank
+from es_thermal.modal import discretise, steady_state_covariance
 from es_thermal.network import NetworkParams, continuous_model, grid_laplacian
 
 
@@ -53,7 +54,7 @@ def test_interpolation_linear_inside_nearest_outside_and_masks() -> None:
     rows, cols = 6, 6
     pos = block_centre_positions(rows, cols, 2)
     plane = 1.0 + pos @ np.array([0.3, 0.7])
-    W = interpolation_matrix(rows, cols, pos)
+    W = interpolation_matrix(rows, cols, pos).toarray()
     np.testing.assert_allclose(W.sum(axis=1), 1.0)
     out = (W @ plane).reshape(rows, cols)
     targets = actuator_positions(rows, cols).reshape(rows, cols, 2)
@@ -64,12 +65,14 @@ def test_interpolation_linear_inside_nearest_outside_and_masks() -> None:
     assert out[0, 0] == pytest.approx(plane[0])  # corner: the nearest sensor
     valid = np.ones(len(pos), bool)
     valid[4] = False
-    W2 = interpolation_matrix(rows, cols, pos, valid)
+    W2 = interpolation_matrix(rows, cols, pos, valid).toarray()
     assert np.all(W2[:, 4] == 0.0)
     np.testing.assert_allclose(W2.sum(axis=1), 1.0)
     one = np.zeros(len(pos), bool)
     one[2] = True
-    np.testing.assert_array_equal(interpolation_matrix(rows, cols, pos, one)[:, 2], 1.0)
+    np.testing.assert_array_equal(
+        interpolation_matrix(rows, cols, pos, one).toarray()[:, 2], 1.0
+    )
     with pytest.raises(ValueError, match="no valid sensor"):
         interpolation_matrix(rows, cols, pos, np.zeros(len(pos), bool))
 
@@ -172,7 +175,7 @@ def test_modal_gain_equals_dense_solution(positions: np.ndarray, tau: float) -> 
     R = tuning.sensor_noise**2 * np.eye(len(positions))
     P = steady_state_covariance(A_d, H, np.diag(q * dt), R)
     gain = np.linalg.solve(H @ P @ H.T + R, H @ P).T
-    np.testing.assert_allclose(est.gain, gain, atol=1e-9)
+    np.testing.assert_allclose(est.gain_matrix(), gain, atol=1e-9)
 
 
 def test_score_finds_the_lag_and_skips_missing_estimates() -> None:

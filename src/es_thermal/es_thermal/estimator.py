@@ -25,6 +25,7 @@ from typing import Final
 
 import numpy as np
 import numpy.typing as npt
+from scipy import sparse
 
 from es_thermal.faults import FaultConfig, SensorFaultMonitor, SensorHealth, heat_load_problem
 from es_thermal.interpolation import interpolation_matrix
@@ -119,7 +120,7 @@ class TemperatureEstimator:
         self._cells = cfg.rows * cfg.cols
         self._heat_now: FloatArray = np.zeros(self._cells)
         self._heat_then: FloatArray = np.zeros(self._cells)
-        self._interp_cache: dict[bytes, FloatArray] = {}
+        self._interp_cache: dict[bytes, sparse.csr_matrix] = {}
         self._previous_valid: BoolArray = np.zeros(cfg.sensor_count, bool)
         self._last_update: float | None = None
         self.latest: Estimate | None = None
@@ -215,7 +216,7 @@ class TemperatureEstimator:
         # Two messages stamped alike (a clock update racing the data) still are two samples.
         return max(1, periods), False
 
-    def _interpolation(self, valid: BoolArray) -> FloatArray:
+    def _interpolation(self, valid: BoolArray) -> sparse.csr_matrix:
         key = np.packbits(valid).tobytes()
         matrix = self._interp_cache.get(key)
         if matrix is None:

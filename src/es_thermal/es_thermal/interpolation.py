@@ -4,14 +4,14 @@ Actuator (r, c) sits at grid coordinates (row=r, col=c). A sensor sits at a frac
 (row, col) position; when there are as many sensors as actuators and no positions are given,
 sensor i sits on actuator i (row-major), as the interface contract says.
 
-Two maps, both precomputed as dense matrices so that applying them is one matrix product:
+Two maps, both precomputed so that applying them is one matrix product:
 
 - :func:`sampling_matrix` (S x N): what a sensor at its position sees of the actuator
   temperature field (bilinear interpolation between the four surrounding actuators). The
   model-based estimator uses it as its measurement model.
-- :func:`interpolation_matrix` (N x S): actuator temperatures from sensor values (linear
-  interpolation on a Delaunay triangulation of the sensors, nearest sensor outside their
-  convex hull). The low-pass estimator uses it.
+- :func:`interpolation_matrix` (N x S, sparse): actuator temperatures from sensor values
+  (linear interpolation on a Delaunay triangulation of the sensors, nearest sensor outside
+  their convex hull). The low-pass estimator uses it, the model estimator to start from.
 """
 
 from __future__ import annotations
@@ -20,8 +20,8 @@ from collections.abc import Sequence
 
 import numpy as np
 import numpy.typing as npt
-from scipy.interpolate import LinearNDInterpolator
-from scipy.spatial import QhullError, cKDTree
+from scipy import sparse
+from scipy.spatial import Delaunay, QhullError, cKDTree
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
@@ -84,33 +84,33 @@ def sensor_positions(
 
 def sampling_matrix(rows: int, cols: int, positions: FloatArray) -> FloatArray:
     """Return the S x N bilinear map from the actuator temperature grid to the sensors."""
+    return np.asarray(sparse_sampling(rows, cols, positions).toarray(), float)
+
+
+def sparse_sampling(rows: int, cols: int, positions: FloatArray) -> sparse.csr_matrix:
+    """Return :func:`sampling_matrix` as a sparse matrix (at most four entries a row)."""
     count = positions.shape[0]
-    out = np.zeros((count, rows * cols))
     r0 = np.clip(np.floor(positions[:, 0]).astype(int), 0, max(rows - 2, 0))
     c0 = np.clip(np.floor(positions[:, 1]).astype(int), 0, max(cols - 2, 0))
     fr = positions[:, 0] - r0
     fc = positions[:, 1] - c0
     r1 = np.minimum(r0 + 1, rows - 1)
     c1 = np.minimum(c0 + 1, cols - 1)
-    idx = np.arange(count)
-    # np.add.at accumulates: on a one-row or one-column grid r1 == r0 (or c1 == c0).
-    for rr, cc, w in (
-        (r0, c0, (1 - fr) * (1 - fc)),
-        (r0, c1, (1 - fr) * fc),
-        (r1, c0, fr * (1 - fc)),
-        (r1, c1, fr * fc),
-    ):
-        np.add.at(out, (idx, rr * cols + cc), w)
-    return out
+    idx = np.tile(np.arange(count), 4)
+    column = np.concatenate([r0 * cols + c0, r0 * cols + c1, r1 * cols + c0, r1 * cols + c1])
+    weight = np.concatenate([(1 - fr) * (1 - fc), (1 - fr) * fc, fr * (1 - fc), fr * fc])
+    # Duplicates are summed: on a one-row or one-column grid r1 == r0 (or c1 == c0).
+    return sparse.csr_matrix((weight, (idx, column)), shape=(count, rows * cols))
 
 
 def interpolation_matrix(
     rows: int, cols: int, positions: FloatArray, valid: BoolArray | None = None
-) -> FloatArray:
-    """Return the N x S map from sensor values to actuator temperatures.
+) -> sparse.csr_matrix:
+    """Return the N x S map from sensor values to actuator temperatures (sparse).
 
     Only sensors with ``valid`` true get weight (their columns are zero otherwise). Inside
-    the convex hull of the valid sensors the map interpolates linearly, outside it takes the
+    the convex hull of the valid sensors the map interpolates linearly (barycentric weights
+    on the Delaunay triangulation: at most three entries a row), outside it takes the
     nearest valid sensor; with fewer than three valid sensors, or all of them on one line,
     nearest-sensor everywhere.
 
@@ -125,19 +125,30 @@ def interpolation_matrix(
         raise ValueError("no valid sensor to interpolate from")
     targets = actuator_positions(rows, cols)
     pts = positions[chosen]
-    weights = np.full((targets.shape[0], chosen.size), np.nan)
+    simplex = np.full(targets.shape[0], -1)
     if chosen.size >= 3:
         try:
-            # Interpolating the identity gives every target's weights on the chosen sensors.
-            interp = LinearNDInterpolator(pts, np.eye(chosen.size))
-            weights = np.asarray(interp(targets), float)
+            tri = Delaunay(pts)
+            simplex = np.asarray(tri.find_simplex(targets), int)
         except QhullError:  # collinear or coincident sensors: no triangulation
             pass
-    outside = np.isnan(weights).any(axis=1)
-    if np.any(outside):
+    inside = np.flatnonzero(simplex >= 0)
+    outside = np.flatnonzero(simplex < 0)
+    row_parts = [np.repeat(inside, 3)]
+    col_parts = []
+    weight_parts = []
+    if inside.size:
+        transform = tri.transform[simplex[inside]]
+        partial = np.einsum("tij,tj->ti", transform[:, :2], targets[inside] - transform[:, 2])
+        weight_parts.append(np.column_stack([partial, 1.0 - partial.sum(axis=1)]).ravel())
+        col_parts.append(chosen[tri.simplices[simplex[inside]]].ravel())
+    if outside.size:
         _, nearest = cKDTree(pts).query(targets[outside])
-        weights[outside] = 0.0
-        weights[np.flatnonzero(outside), nearest] = 1.0
-    out = np.zeros((targets.shape[0], count))
-    out[:, chosen] = weights
-    return out
+        row_parts.append(outside)
+        col_parts.append(chosen[nearest])
+        weight_parts.append(np.ones(outside.size))
+    weights = np.concatenate(weight_parts)
+    return sparse.csr_matrix(
+        (weights, (np.concatenate(row_parts), np.concatenate(col_parts))),
+        shape=(targets.shape[0], count),
+    )

@@ -8,33 +8,40 @@ the lagging sensor.
 
 Everything that does not depend on the data is computed once: the zero-order-hold
 discretisation (matrix exponential) and the steady-state gain (discrete algebraic Riccati
-equation solved by the structure-preserving doubling algorithm). Both are computed in modal
+equation solved by the structure-preserving doubling algorithm). The filter runs in modal
 coordinates (2-D DCT of the grid and of a regular sensor grid), where the uniform network falls
-apart into small independent groups of states, then transformed back: about 0.1 s for a
-12 x 12 grid and 2-3 s for 32 x 32 instead of minutes for the dense equation. An update is
-then one sparse prediction and one dense gain product (about 0.1 ms at 12 x 12 and 1 ms at
-32 x 32 with a sensor per 2 x 2 actuators, single-threaded BLAS).
+apart into small independent groups of states (:mod:`es_thermal.modal`): the transition
+matrix and the gain are then sparse with a few entries per state, and only the heat load and
+readings in and the estimate out are transformed (fast DCT, O(N log N)). Nothing N x N is
+ever formed. An irregular sensor layout keeps the sensors as they are and makes the gain
+dense (S x S per group of coupled modes).
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Final
 
 import numpy as np
 import numpy.typing as npt
-from scipy import linalg, sparse
-from scipy.sparse import csgraph
+from scipy import sparse
 
-from es_thermal.interpolation import sampling_matrix
-from es_thermal.network import NetworkParams, StateLayout, grid_dct, modal_model, sensor_transform
+from es_thermal.interpolation import sparse_sampling
+from es_thermal.modal import modal_solution
+from es_thermal.network import (
+    GridTransform,
+    NetworkParams,
+    StateLayout,
+    modal_model,
+    sensor_transform,
+)
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
 
-#: Entries of the discretised transition matrix below this fraction of its largest entry are
-#: dropped: heat spreads only a few cells per sample, so the matrix is nearly banded.
-SPARSITY_THRESHOLD = 1e-13
+#: Sensor-transform columns formed at a time for the innovation weights (bounds memory).
+_WEIGHT_CHUNK: Final = 256
 #: Innovations and sensitivities enter the model-error fit clipped to +- this [degC, degC per
 #: unit relative error]: far beyond any real temperature error, so only a wrecked state or an
 #: absurd input reaches it, and one such sample cannot overflow the fit.
@@ -88,56 +95,6 @@ class KalmanTuning:
         )
 
 
-def discretise(
-    A: FloatArray, B: FloatArray, dt: float
-) -> tuple[FloatArray, FloatArray]:
-    """Return the zero-order-hold discretisation (A_d, B_d) of dx/dt = A x + B u over ``dt``."""
-    n, m = B.shape
-    augmented = np.zeros((n + m, n + m))
-    augmented[:n, :n] = A * dt
-    augmented[:n, n:] = B * dt
-    phi = linalg.expm(augmented)
-    return phi[:n, :n], phi[:n, n:]
-
-
-def steady_state_covariance(
-    A: FloatArray,
-    H: FloatArray,
-    Q: FloatArray,
-    R: FloatArray,
-    *,
-    tol: float = 1e-12,
-    max_iter: int = 80,
-) -> FloatArray:
-    """Return the steady-state prior covariance P of the Kalman filter for (A, H, Q, R).
-
-    P solves the filter DARE ``P = A P A' - A P H' (H P H' + R)^-1 H P A' + Q``; the
-    structure-preserving doubling algorithm gets there in a few dozen iterations
-    (quadratic convergence) even when the slowest mode barely decays per sample.
-
-    Raises:
-        ValueError: no convergence (the pair (A, H) is not detectable).
-
-    """
-    n = A.shape[0]
-    Ak = A.T.copy()
-    Gk = H.T @ np.linalg.solve(R, H)
-    Hk = Q.copy()
-    eye = np.eye(n)
-    for _ in range(max_iter):
-        W = eye + Gk @ Hk
-        Y = np.linalg.solve(W, np.hstack([Ak, Gk]))
-        Y_a, Y_g = Y[:, :n], Y[:, n:]
-        H_next = Hk + Ak.T @ Hk @ Y_a
-        Gk = Gk + Ak @ Y_g @ Ak.T
-        Ak = Ak @ Y_a
-        change = np.max(np.abs(H_next - Hk))
-        Hk = 0.5 * (H_next + H_next.T)
-        if change <= tol * max(1.0, float(np.max(np.abs(Hk)))):
-            return Hk
-    raise ValueError("Kalman gain: the Riccati iteration did not converge")
-
-
 class ModelEstimator:
     """Steady-state Kalman filter on the thermal network, plus model-error estimation.
 
@@ -154,7 +111,8 @@ class ModelEstimator:
       that fixed sensor offsets, which the filter keeps correcting, do not pass for it.
 
     Cost per update: one sparse product with four columns (state, two sensitivities, heat
-    response) and one dense gain product.
+    response), one sparse gain product, and separable transforms of the heat load, the
+    readings and the estimate.
 
     Args:
         rows, cols: actuator grid.
@@ -181,10 +139,10 @@ class ModelEstimator:
     ) -> None:
         if sample_period <= 0.0 or sensor_tau < 0.0:
             raise ValueError("sample_period must be > 0 and sensor_tau >= 0")
-        sampling = sampling_matrix(rows, cols, positions)
-        to_sensor_modes = sensor_transform(positions)
+        self._grid = GridTransform.dct(rows, cols)
+        self._sensors = sensor_transform(positions)
         A, B, H, layout = modal_model(
-            params, rows, cols, sampling, sensor_tau, sensors=to_sensor_modes
+            params, rows, cols, positions, sensor_tau, sensors=self._sensors
         )
         q = np.zeros(layout.size)
         q[layout.face] = tuning.process_noise**2
@@ -192,30 +150,21 @@ class ModelEstimator:
         q[layout.sensor] = (1e-3 * tuning.process_noise) ** 2  # lag model taken as known
         q[layout.base] = tuning.base_drift**2
         # Every noise is isotropic within its group of states, so it looks the same in modes.
-        modal = _modal_solution(
+        modal = modal_solution(
             A, B, H, q=q * sample_period, r=tuning.sensor_noise**2, dt=sample_period
         )
-        to_grid_modes = grid_dct(rows, cols)
-        basis = [to_grid_modes, to_grid_modes] + ([to_sensor_modes] if layout.sensors else [])
-        A_d = _to_grid(basis, modal.A_d @ sparse.block_diag([*basis, np.eye(1)]).toarray())
-        B_d = _to_grid(basis, modal.B_d @ to_grid_modes)
-        self.gain: FloatArray = _to_grid(basis, modal.gain @ to_sensor_modes)
-        innovation_cov = to_sensor_modes.T @ modal.innovation_cov @ to_sensor_modes
-        # Innovation weights of the bias fit (diagonal: a sensor subset needs no inversion).
-        self._innovation_weight: FloatArray = 1.0 / np.diag(innovation_cov)
-        H = np.zeros((sampling.shape[0], layout.size))
-        if layout.sensors:
-            H[:, layout.sensor] = np.eye(sampling.shape[0])
-        else:
-            H[:, layout.actuator] = sampling
         self.layout: StateLayout = layout
-        self.sampling = sampling
+        self.sampling: sparse.csr_matrix = sparse_sampling(rows, cols, positions)
         self.tuning = tuning
         self.sample_period = sample_period
-        self._A = _sparsified(A_d)
-        self._B = _sparsified(B_d)
-        self._H = sparse.csr_matrix(H)
+        self._A = modal.A_d
+        self._B = modal.B_d
+        self._H = H
+        self._gain = modal.gain
+        # Innovation weights of the bias fit (diagonal: a sensor subset needs no inversion).
+        self._innovation_weight: FloatArray = 1.0 / self._sensor_diagonal(modal.innovation_cov)
         self._thermal = slice(0, 2 * layout.cells)
+        # The state, its sensitivities and the heat response are kept in modes.
         self._state: FloatArray | None = None
         nb = len(self.BIASES)
         self._prior_info = np.eye(nb) / tuning.bias_prior**2
@@ -233,7 +182,10 @@ class ModelEstimator:
     @property
     def base_temperature(self) -> float:
         """The current base-plate estimate [degC] (NaN before initialisation)."""
-        return float("nan") if self._state is None else float(self._estimate()[self.layout.base])
+        if self._state is None:
+            return float("nan")
+        base = self.layout.base
+        return float(self._state[base] + self._sens[base] @ self._bias)
 
     @property
     def biases(self) -> dict[str, float]:
@@ -242,7 +194,17 @@ class ModelEstimator:
 
     def actuator_temperatures(self) -> FloatArray:
         """Return the current estimate of every actuator temperature, flat (N,)."""
-        return self._estimate()[self.layout.actuator].copy()
+        act = self.layout.actuator
+        x = self._require_state()
+        return self._grid.inverse(x[act] + self._sens[act] @ self._bias)
+
+    def gain_matrix(self) -> FloatArray:
+        """Return the steady-state Kalman gain in grid coordinates, dense (states x S).
+
+        For inspection and tests: it is formed from the modal gain, O(states x S) memory.
+        """
+        modal = self._sensors.inverse(self._gain.toarray().T).T
+        return self._from_modes(modal)
 
     def initialise(self, field: FloatArray, readings: FloatArray, valid: BoolArray) -> None:
         """Start from an equilibrium at ``field`` (N,), the actuator field the readings suggest.
@@ -257,7 +219,7 @@ class ModelEstimator:
         if lay.sensors:
             x[lay.sensor] = np.where(valid, readings, self.sampling @ field)
         x[lay.base] = float(np.mean(readings[valid]))
-        self._state = x
+        self._state = self._to_modes(x)
         self._sens[:] = 0.0
         # The heat-driven response alone, from a uniform start: what a faster network would
         # speed up. (The filter's own state also relaxes its corrections, which would make
@@ -277,7 +239,7 @@ class ModelEstimator:
         x = self._require_state()
         if not np.all(np.isfinite(heat_load)):
             raise ValueError("heat load holds NaN or inf")
-        drive = np.asarray(self._B @ heat_load)
+        drive = np.asarray(self._B @ self._grid.forward(heat_load))
         # One sparse product advances the state, both sensitivities and the heat response.
         cols = np.column_stack([x, self._sens, self._heat_response])
         thermal = self._thermal
@@ -300,12 +262,14 @@ class ModelEstimator:
         Invalid sensors get a zero innovation: their gain columns are left out.
         """
         x = self._require_state()
-        seen = np.asarray(self._H @ np.column_stack([x, self._sens]))
+        seen = self._sensors.inverse(np.asarray(self._H @ np.column_stack([x, self._sens])))
         innovation = np.where(valid, readings - seen[:, 0], 0.0)
         regressor = seen[:, 1:]
         regressor[~valid] = 0.0
-        # One pass over the (large, dense) gain corrects the state and the sensitivities.
-        update = self.gain @ np.column_stack([innovation, -regressor])
+        # One pass over the (sparse, modal) gain corrects the state and the sensitivities.
+        update = np.asarray(
+            self._gain @ self._sensors.forward(np.column_stack([innovation, -regressor]))
+        )
         self._state = x + update[:, 0]
         self._sens = self._sens + update[:, 1:]
         self._fit_biases(
@@ -339,76 +303,31 @@ class ModelEstimator:
             raise ValueError("the model estimator has no state yet")
         return self._state
 
-    def _estimate(self) -> FloatArray:
-        return self._require_state() + self._sens @ self._bias
+    def _sensor_diagonal(self, modal: sparse.csr_matrix) -> FloatArray:
+        """Return diag(Ts' M Ts) of a sensor-mode matrix M (S x S), in sensor order (S,)."""
+        count = modal.shape[0]
+        out = np.empty(count)
+        for start in range(0, count, _WEIGHT_CHUNK):
+            index = np.arange(start, min(start + _WEIGHT_CHUNK, count))
+            columns = self._sensors.columns(index)
+            out[index] = np.sum(columns * np.asarray(modal @ columns), axis=0)
+        return out
 
+    def _to_modes(self, x: FloatArray) -> FloatArray:
+        """Return a grid-coordinate state (states,) or (states, k) in modes."""
+        return self._map(x, GridTransform.forward)
 
-@dataclass(frozen=True)
-class _ModalSolution:
-    """Discretised network and steady-state filter in modal coordinates."""
+    def _from_modes(self, x: FloatArray) -> FloatArray:
+        """Return a modal state (states,) or (states, k) in grid coordinates."""
+        return self._map(x, GridTransform.inverse)
 
-    A_d: sparse.csr_matrix
-    B_d: sparse.csr_matrix
-    gain: sparse.csr_matrix
-    innovation_cov: FloatArray
-
-
-def _modal_solution(
-    A: FloatArray, B: FloatArray, H: FloatArray, *, q: FloatArray, r: float, dt: float
-) -> _ModalSolution:
-    """Discretise and solve the filter DARE block by block.
-
-    In modal coordinates the network falls apart into independent groups of states and
-    measurements (connected components of the coupling graph): each is discretised and
-    solved on its own, which costs little even for a 32 x 32 grid. An irregular sensor
-    layout couples everything into one group and this becomes the dense solution.
-    """
-    n, s = A.shape[0], H.shape[0]
-    state_links = sparse.csr_matrix(A != 0.0)
-    sensor_links = sparse.csr_matrix(H != 0.0)
-    coupled = sparse.bmat([[state_links, sensor_links.T], [sensor_links, None]])
-    _, label = csgraph.connected_components(coupled, directed=False)
-    state_label, measurement_label = label[:n], label[n:]
-    inputs = np.flatnonzero(np.any(B != 0.0, axis=0))
-    A_d = sparse.lil_matrix((n, n))
-    B_d = sparse.lil_matrix((n, B.shape[1]))
-    gain = sparse.lil_matrix((n, s))
-    innovation_cov = np.zeros((s, s))
-    for group in np.unique(state_label):
-        st = np.flatnonzero(state_label == group)
-        ms = np.flatnonzero(measurement_label == group)
-        cols = inputs[np.any(B[np.ix_(st, inputs)] != 0.0, axis=0)]
-        Ad, Bd = discretise(A[np.ix_(st, st)], B[np.ix_(st, cols)], dt)
-        A_d[np.ix_(st, st)] = Ad
-        B_d[np.ix_(st, cols)] = Bd
-        if ms.size == 0:
-            continue  # unobserved and stable (the Laplacian's higher modes decay to the base)
-        Hc = H[np.ix_(ms, st)]
-        R = r * np.eye(ms.size)
-        P = steady_state_covariance(Ad, Hc, np.diag(q[st]), R)
-        cov = Hc @ P @ Hc.T + R
-        gain[np.ix_(st, ms)] = np.linalg.solve(cov, Hc @ P).T
-        innovation_cov[np.ix_(ms, ms)] = cov
-    return _ModalSolution(A_d.tocsr(), B_d.tocsr(), gain.tocsr(), innovation_cov)
-
-
-def _to_grid(basis: list[FloatArray], modal_rows: FloatArray | sparse.spmatrix) -> FloatArray:
-    """Return T' X for the block-diagonal modal transform T = diag(basis..., 1)."""
-    dense = modal_rows if isinstance(modal_rows, np.ndarray) else modal_rows.toarray()
-    out = np.empty_like(dense)
-    start = 0
-    for block in basis:
-        stop = start + block.shape[0]
-        out[start:stop] = block.T @ dense[start:stop]
-        start = stop
-    out[start:] = dense[start:]
-    return np.asarray(out, float)
-
-
-def _sparsified(matrix: FloatArray) -> sparse.csr_matrix | FloatArray:
-    """Drop negligible entries; keep the matrix dense if that does not make it sparse."""
-    scale = float(np.max(np.abs(matrix))) if matrix.size else 0.0
-    kept = np.where(np.abs(matrix) > SPARSITY_THRESHOLD * scale, matrix, 0.0)
-    if np.count_nonzero(kept) > 0.25 * kept.size:
-        return kept
-    return sparse.csr_matrix(kept)
+    def _map(
+        self, x: FloatArray, apply: Callable[[GridTransform, FloatArray], FloatArray]
+    ) -> FloatArray:
+        lay = self.layout
+        out = np.array(x, float)
+        out[lay.face] = apply(self._grid, x[lay.face])
+        out[lay.actuator] = apply(self._grid, x[lay.actuator])
+        if lay.sensors:
+            out[lay.sensor] = apply(self._sensors, x[lay.sensor])
+        return out

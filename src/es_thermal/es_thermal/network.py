@@ -17,11 +17,14 @@ Sensors see the actuator field at their positions through a first-order lag ``ta
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields, replace
+from collections.abc import Callable
+from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 import numpy.typing as npt
-from scipy import sparse
+from scipy import fft, sparse
+
+from es_thermal.interpolation import sampling_matrix
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -131,13 +134,16 @@ def continuous_model(
     sampling: FloatArray,
     sensor_tau: float,
 ) -> tuple[FloatArray, FloatArray, FloatArray, StateLayout]:
-    """Return (A, B, H, layout) of dx/dt = A x + B P, y = H x in grid coordinates.
+    """Return (A, B, H, layout) of dx/dt = A x + B P, y = H x in grid coordinates (dense).
 
     ``sampling`` (S x N) maps the actuator field to the sensors; ``sensor_tau`` [s] is their
     first-order lag (0: no lag states, the sensors see the actuators directly).
     """
-    lap = grid_laplacian(rows, cols).toarray()
-    return _assemble(params, lap, np.ones(rows * cols), sampling, sensor_tau)
+    A, B, H, layout = _assemble(
+        params, grid_laplacian(rows, cols), np.ones(rows * cols),
+        sparse.csr_matrix(sampling), sensor_tau,
+    )
+    return A.toarray(), B.toarray(), H.toarray(), layout
 
 
 def dct_matrix(n: int) -> FloatArray:
@@ -149,71 +155,172 @@ def dct_matrix(n: int) -> FloatArray:
     return np.asarray(c, float)
 
 
-def grid_dct(rows: int, cols: int) -> FloatArray:
-    """Return the orthonormal 2-D DCT-II of a row-major R x C grid as an N x N matrix.
+#: Transforms of at most this many values are formed as a matrix (see :class:`GridTransform`).
+DENSE_TRANSFORM_MAX = 256
 
-    It diagonalises :func:`grid_laplacian`: ``D L D' = diag(laplacian_eigenvalues)``.
+
+@dataclass(frozen=True)
+class GridTransform:
+    """The orthonormal 2-D DCT-II ``T = kron(row, col)`` of a row-major field, or the identity.
+
+    Make one with :meth:`dct` (an R x C grid) or :meth:`eye`.
+
+    Applied by scipy's fast transform, never formed: O(N log N) per field instead of O(N^2),
+    and no N x N matrix in memory at 64 x 64. Up to :data:`DENSE_TRANSFORM_MAX` values the
+    matrix is formed once and applied as one product, which costs less than a small FFT.
+
+    Attributes:
+        row: R x R DCT matrix acting along the rows (:func:`dct_matrix`).
+        col: C x C DCT matrix acting along the columns.
+        identity: True when T is the identity (applied as a copy).
+
     """
-    return np.asarray(np.kron(dct_matrix(rows), dct_matrix(cols)), float)
+
+    row: FloatArray
+    col: FloatArray
+    identity: bool = False
+    dense: FloatArray | None = field(init=False, repr=False, compare=False, default=None)
+
+    def __post_init__(self) -> None:
+        if not self.identity and self.size <= DENSE_TRANSFORM_MAX:
+            object.__setattr__(self, "dense", np.kron(self.row, self.col))
+
+    @classmethod
+    def dct(cls, rows: int, cols: int) -> GridTransform:
+        """Return the 2-D DCT-II of an R x C grid; it diagonalises :func:`grid_laplacian`."""
+        return cls(dct_matrix(rows), dct_matrix(cols))
+
+    @classmethod
+    def eye(cls, size: int) -> GridTransform:
+        """Return the identity on ``size`` values."""
+        return cls(np.eye(size), np.eye(1), identity=True)
+
+    @property
+    def size(self) -> int:
+        """Number of values N = R C."""
+        return self.row.shape[0] * self.col.shape[0]
+
+    def forward(self, values: FloatArray) -> FloatArray:
+        """Return ``T @ values`` for values of shape (N,) or (N, k)."""
+        if self.dense is not None:
+            return np.asarray(self.dense @ values, float)
+        return self._fast(values, fft.dctn)
+
+    def inverse(self, values: FloatArray) -> FloatArray:
+        """Return ``T' @ values`` for values of shape (N,) or (N, k)."""
+        if self.dense is not None:
+            return np.asarray(self.dense.T @ values, float)
+        return self._fast(values, fft.idctn)
+
+    def columns(self, index: npt.NDArray[np.intp]) -> FloatArray:
+        """Return the columns ``T[:, index]`` as a dense (N, len(index)) array."""
+        r, c = np.divmod(index, self.col.shape[0])
+        out = self.row[:, r][:, None, :] * self.col[:, c][None, :, :]
+        return np.asarray(out.reshape(self.size, index.size), float)
+
+    def _fast(self, values: FloatArray, transform: Callable[..., FloatArray]) -> FloatArray:
+        x = np.asarray(values, float)
+        if self.identity:
+            return x.copy()
+        grid = x.reshape(self.row.shape[0], self.col.shape[0], -1)
+        out = transform(grid, type=2, norm="ortho", axes=(0, 1), workers=1)
+        return np.asarray(out, float).reshape(x.shape)
 
 
 def laplacian_eigenvalues(rows: int, cols: int) -> FloatArray:
-    """Return the eigenvalues of :func:`grid_laplacian` in :func:`grid_dct` mode order (N,)."""
+    """Return the eigenvalues of :func:`grid_laplacian` in :meth:`GridTransform.dct` order (N,)."""
     lam_r = 2.0 - 2.0 * np.cos(np.pi * np.arange(rows) / rows)
     lam_c = 2.0 - 2.0 * np.cos(np.pi * np.arange(cols) / cols)
     return np.asarray((lam_r[:, None] + lam_c[None, :]).ravel(), float)
 
 
-def sensor_transform(positions: FloatArray) -> FloatArray:
-    """Return an orthonormal S x S transform of the sensor vector that keeps modes apart.
+def _regular_axes(positions: FloatArray) -> tuple[FloatArray, FloatArray] | None:
+    """Return (row positions, column positions) of a full regular grid listed row-major."""
+    rows_at = np.unique(positions[:, 0])
+    cols_at = np.unique(positions[:, 1])
+    if rows_at.size * cols_at.size != positions.shape[0]:
+        return None
+    r, c = np.meshgrid(rows_at, cols_at, indexing="ij")
+    if not np.array_equal(np.column_stack([r.ravel(), c.ravel()]), positions):
+        return None
+    return rows_at, cols_at
+
+
+def sensor_transform(positions: FloatArray) -> GridTransform:
+    """Return an orthonormal transform of the sensor vector that keeps modes apart.
 
     Sensors on a full regular grid, listed row-major (one per actuator, or one per block),
     get the 2-D DCT of that grid: sensor modes then see only a few actuator modes each.
     Any other layout gets the identity.
     """
-    rows_at = np.unique(positions[:, 0])
-    cols_at = np.unique(positions[:, 1])
-    if rows_at.size * cols_at.size == positions.shape[0]:
-        r, c = np.meshgrid(rows_at, cols_at, indexing="ij")
-        if np.array_equal(np.column_stack([r.ravel(), c.ravel()]), positions):
-            return grid_dct(rows_at.size, cols_at.size)
-    return np.eye(positions.shape[0])
+    axes = _regular_axes(positions)
+    if axes is None:
+        return GridTransform.eye(positions.shape[0])
+    return GridTransform.dct(axes[0].size, axes[1].size)
+
+
+def modal_sampling(
+    rows: int, cols: int, positions: FloatArray, sensors: GridTransform
+) -> sparse.csr_matrix:
+    """Return the sensors' view of the actuator field in modes, ``Ts S D'`` (S x N, sparse).
+
+    ``S`` is the bilinear sampling (:func:`es_thermal.interpolation.sampling_matrix`), ``D``
+    the grid DCT and ``Ts`` the sensor transform. On a regular sensor grid the bilinear map
+    is a Kronecker product of one-dimensional ones, and so is its modal form: no S x N dense
+    product. Entries at round-off level (relative 1e-12) are dropped: they are not coupling.
+    """
+    grid = GridTransform.dct(rows, cols)
+    axes = _regular_axes(positions)
+    if axes is None or sensors.identity:
+        dense = grid.forward(sampling_matrix(rows, cols, positions).T).T
+        return sparse.csr_matrix(_drop_roundoff(sensors.forward(dense)))
+    factors = []
+    for n, at, own, theirs in (
+        (rows, axes[0], grid.row, sensors.row), (cols, axes[1], grid.col, sensors.col)
+    ):
+        weights = sampling_matrix(n, 1, np.column_stack([at, np.zeros_like(at)]))
+        factors.append(sparse.csr_matrix(_drop_roundoff(theirs @ weights @ own.T)))
+    return sparse.csr_matrix(sparse.kron(factors[0], factors[1]))
+
+
+def _drop_roundoff(matrix: FloatArray) -> FloatArray:
+    """Return ``matrix`` with entries below 1e-12 of its largest set to zero (in place)."""
+    matrix[np.abs(matrix) < 1e-12 * np.max(np.abs(matrix))] = 0.0
+    return matrix
 
 
 def modal_model(
     params: NetworkParams,
     rows: int,
     cols: int,
-    sampling: FloatArray,
+    positions: FloatArray,
     sensor_tau: float,
     *,
-    sensors: FloatArray,
-) -> tuple[FloatArray, FloatArray, FloatArray, StateLayout]:
-    """Return :func:`continuous_model` in modal coordinates.
+    sensors: GridTransform,
+) -> tuple[sparse.csr_matrix, sparse.csr_matrix, sparse.csr_matrix, StateLayout]:
+    """Return :func:`continuous_model` in modal coordinates, as sparse matrices.
 
-    Face and actuator fields are expressed in grid DCT modes (``grid_dct``), lag states and
-    measurements through the sensor transform ``sensors`` (S x S, orthonormal). The network
-    is then block diagonal: mode k of the face sheet couples only to mode k of the actuators,
-    the base plate only to mode 0, and a sensor mode only to the few actuator modes that
-    alias onto it. The input is the heat load in modes as well.
+    Face and actuator fields are expressed in grid DCT modes (:meth:`GridTransform.dct`), lag
+    states and measurements through the sensor transform ``sensors``. The network is then
+    block diagonal: mode k of the face sheet couples only to mode k of the actuators, the
+    base plate only to mode 0, and a sensor mode only to the few actuator modes that alias
+    onto it. The input is the heat load in modes as well.
     """
-    dct = grid_dct(rows, cols)
-    lam = np.diag(laplacian_eigenvalues(rows, cols))
+    lam = sparse.diags(laplacian_eigenvalues(rows, cols))
     uniform = np.zeros(rows * cols)
     uniform[0] = np.sqrt(rows * cols)  # a uniform field is all mode 0 (exactly, not ~1e-16)
-    sampled = sensors @ sampling @ dct.T
-    sampled[np.abs(sampled) < 1e-12 * np.max(np.abs(sampled))] = 0.0  # round-off, not coupling
+    sampled = modal_sampling(rows, cols, positions, sensors)
     return _assemble(params, lam, uniform, sampled, sensor_tau)
 
 
 def _assemble(
     params: NetworkParams,
-    lap: FloatArray,
+    lap: sparse.spmatrix,
     base_coupling: FloatArray,
-    sampling: FloatArray,
+    sampling: sparse.spmatrix,
     sensor_tau: float,
-) -> tuple[FloatArray, FloatArray, FloatArray, StateLayout]:
-    """Build (A, B, H, layout) in any orthonormal basis of the grid.
+) -> tuple[sparse.csr_matrix, sparse.csr_matrix, sparse.csr_matrix, StateLayout]:
+    """Build sparse (A, B, H, layout) in any orthonormal basis of the grid.
 
     ``lap`` is the Laplacian, ``base_coupling`` a uniform unit field and ``sampling`` the
     sensors' view of the actuator field, all in that basis.
@@ -221,25 +328,36 @@ def _assemble(
     cells = lap.shape[0]
     count = sampling.shape[0]
     layout = StateLayout(cells, count if sensor_tau > 0.0 else 0)
-    eye = np.eye(cells)
+    eye = sparse.identity(cells, format="csr")
     p = params
-    A = np.zeros((layout.size, layout.size))
-    m, a, b = layout.face, layout.actuator, layout.base
-    A[m, m] = -(p.face_to_actuator * eye + p.face_lateral * lap) / p.face_capacitance
-    A[m, a] = p.face_to_actuator * eye / p.face_capacitance
-    A[a, m] = p.face_to_actuator * eye / p.actuator_capacitance
-    A[a, a] = -(
+    base = sparse.csr_matrix(base_coupling[:, None])
+    face_face = -(p.face_to_actuator * eye + p.face_lateral * lap) / p.face_capacitance
+    act_act = -(
         (p.face_to_actuator + p.actuator_to_base) * eye + p.actuator_lateral * lap
     ) / p.actuator_capacitance
-    A[a, b] = base_coupling * p.actuator_to_base / p.actuator_capacitance
-    B = np.zeros((layout.size, cells))
-    B[m, :] = eye / p.face_capacitance
-    H = np.zeros((count, layout.size))
+    blocks: list[list[sparse.spmatrix | None]] = [
+        [face_face, p.face_to_actuator * eye / p.face_capacitance, None, None],
+        [p.face_to_actuator * eye / p.actuator_capacitance, act_act, None,
+         base * p.actuator_to_base / p.actuator_capacitance],
+    ]
+    lag_eye = sparse.identity(count, format="csr")
     if layout.sensors:
-        s = layout.sensor
-        A[s, a] = sampling / sensor_tau
-        A[s, s] = -np.eye(count) / sensor_tau
-        H[:, s] = np.eye(count)
+        blocks.append([None, sampling / sensor_tau, -lag_eye / sensor_tau, None])
+    blocks.append([None, None, None, sparse.csr_matrix((1, 1))])
+    if not layout.sensors:
+        blocks = [[b for j, b in enumerate(row) if j != 2] for row in blocks]
+    A = sparse.csr_matrix(sparse.bmat(blocks, format="csr"))
+    B = sparse.vstack(
+        [eye / p.face_capacitance, sparse.csr_matrix((layout.size - cells, cells))], format="csr"
+    )
+    if layout.sensors:
+        H = sparse.hstack(
+            [sparse.csr_matrix((count, 2 * cells)), lag_eye, sparse.csr_matrix((count, 1))],
+            format="csr",
+        )
     else:
-        H[:, a] = sampling
-    return A, B, H, layout
+        H = sparse.hstack(
+            [sparse.csr_matrix((count, cells)), sampling, sparse.csr_matrix((count, 1))],
+            format="csr",
+        )
+    return A, sparse.csr_matrix(B), sparse.csr_matrix(H), layout
