@@ -9,6 +9,7 @@ from es_feedforward.compensation import (
     CompensationParams,
     CouplingInverse,
     HysteresisInverse,
+    RelaxationInverse,
     TemperatureLead,
     drift_factor,
 )
@@ -159,3 +160,78 @@ def test_three_operator_hysteresis_is_inverted_exactly() -> None:
         worst = max(worst, float(np.max(np.abs(got - v_eff))))
     assert worst < 1e-9
     np.testing.assert_allclose(inverse.play, states)
+
+
+def relaxed(voltages: np.ndarray, dt: float, r: float, fc: float) -> np.ndarray:
+    """The drive's first-order relaxation written out: V_eff = V - r highpass(V), held steps.
+
+    The state starts at the first drive (as the feedforward's inverse assumes).
+    """
+    decay = np.exp(-2 * np.pi * fc * dt)
+    state = voltages[0].copy()
+    out = np.empty_like(voltages)
+    for i, v in enumerate(voltages):
+        out[i] = (1 - r) * v + r * state
+        state = v + (state - v) * decay
+    return out
+
+
+def test_relaxation_inverse_undoes_the_forward_filter() -> None:
+    r, fc, dt = 0.4, 15.0, 0.01
+    inverse = RelaxationInverse(r, fc, (4,))
+    rng = np.random.default_rng(3)
+    wanted = 150.0 + np.cumsum(rng.normal(0.0, 15.0, (200, 4)), axis=0)
+    sent = np.empty_like(wanted)
+    for i, v_eff in enumerate(wanted):
+        sent[i] = inverse.invert(v_eff, i * dt)
+        inverse.apply(sent[i], i * dt)
+    assert np.max(np.abs(sent - wanted)) > 5.0  # the inverse does reshape the drive
+    np.testing.assert_allclose(relaxed(sent, dt, r, fc), wanted, rtol=0, atol=1e-9)
+
+
+def test_relaxation_inverse_keeps_its_state_over_a_hold() -> None:
+    r, fc = 0.5, 2.0
+    inverse = RelaxationInverse(r, fc, (1,))
+    inverse.apply(np.array([0.0]), 0.0)
+    inverse.apply(np.array([100.0]), 1.0)
+    # held at 100 V for 0.5 s: state 100 (1 - exp(-2 pi fc 0.5)); the same output needs less
+    decayed = 100.0 * (1 - np.exp(-2 * np.pi * fc * 0.5))
+    expected = (100.0 - r * decayed) / (1 - r)
+    np.testing.assert_allclose(inverse.invert(np.array([100.0]), 1.5), [expected])
+
+
+def test_dispersion_is_undone_by_the_feedforward_along_a_trajectory() -> None:
+    r, fc, dt = 0.3, 10.0, 0.01
+    wanted = np.array(
+        [smooth_setpoint() * (1 + 0.6 * np.sin(2 * np.pi * k / 20)) for k in range(150)]
+    )
+    ff = feedforward(dispersion_fraction=r, dispersion_corner_hz=fc)
+    volts = np.array([ff.command(z, k * dt).voltage for k, z in enumerate(wanted)])
+    got = hyperbolic_forward(relaxed(volts, dt, r, fc), TEMPERATURE, PARAMS)
+    plain = feedforward()
+    flat = np.array([plain.command(z, k * dt).voltage for k, z in enumerate(wanted)])
+    uncompensated = hyperbolic_forward(relaxed(flat, dt, r, fc), TEMPERATURE, PARAMS)
+    assert np.max(np.abs(uncompensated - wanted)) > 1.0 * NM
+    assert np.max(np.abs(got - wanted)) < 1e-3 * NM
+
+
+def test_dispersion_with_hysteresis_is_undone_in_plant_order() -> None:
+    a, thr, r, fc, dt = 0.2, 15.0, 0.3, 10.0, 0.01
+    wanted = np.array(
+        [smooth_setpoint() * (1 + 0.6 * np.sin(2 * np.pi * k / 30)) for k in range(120)]
+    )
+    ff = feedforward(
+        hysteresis_weight=a,
+        hysteresis_threshold_v=thr,
+        dispersion_fraction=r,
+        dispersion_corner_hz=fc,
+    )
+    volts = np.array([ff.command(z, k * dt).voltage for k, z in enumerate(wanted)])
+    # plant order: play operator first, then the relaxation, then the law
+    state = np.zeros(SHAPE)
+    played = np.empty_like(volts)
+    for k, v in enumerate(volts):
+        state = play(state, v, thr)
+        played[k] = (1 - a) * v + a * state
+    got = hyperbolic_forward(relaxed(played, dt, r, fc), TEMPERATURE, PARAMS)
+    assert np.max(np.abs(got - wanted)) < 1e-3 * NM

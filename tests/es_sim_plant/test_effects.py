@@ -180,3 +180,20 @@ def test_sensor_lag_delays_the_reading() -> None:
     assert np.all(res.temperature_raw[10:] < ref.temperature_raw[10:] - 0.5)
     truth = ref.actuator_temperature[ref.sensor_step, 0, 0]
     np.testing.assert_allclose(ref.temperature_raw[:, 0], truth, atol=1e-9)
+
+
+def test_frequency_dispersion_lowers_the_gain_of_fast_drive_only() -> None:
+    """V_eff = V - r highpass_fc(V): DC passes, far above f_c the gain is 1 - r."""
+    r, fc = 0.3, 2.0
+    on = {"frequency_dispersion": {"enabled": True, "fraction": r, "corner_hz": fc}}
+    plant, dc = run(bench(on), np.full(200, 200.0))  # 2 s of DC: settled after ~12 tau
+    np.testing.assert_allclose(
+        dc.displacement[-1], hyperbolic_forward(200.0, 45.0, plant.true_params), rtol=1e-9
+    )
+    # a 50 Hz square wave (25 x f_c) around 150 V: the swing of V_eff shrinks to 1 - r
+    volts = np.where(np.arange(200) % 2 == 0, 170.0, 130.0)
+    _, fast = run(bench(on), volts)
+    _, ref = run(bench(), volts)
+    z, z_ref = fast.displacement[-20:, 0, 0], ref.displacement[-20:, 0, 0]
+    ratio = np.ptp(z) / np.ptp(z_ref)
+    assert 0.68 < ratio < 0.74  # about 1 - r, plus the little relaxation within a step

@@ -36,6 +36,7 @@ from es_feedforward.compensation import (
     CouplingInverse,
     DelayPredictor,
     HysteresisInverse,
+    RelaxationInverse,
     TemperatureLead,
     drift_factor,
 )
@@ -189,6 +190,7 @@ class Feedforward:
     _lead: TemperatureLead
     _delay: DelayPredictor
     _hysteresis: HysteresisInverse
+    _relaxation: RelaxationInverse
     _integral: FloatArray
     _last_voltage: FloatArray
     _last_status: StatusArray
@@ -215,6 +217,9 @@ class Feedforward:
             )
             self._delay = previous._delay.retuned(comp.delay_s)
             self._hysteresis = previous._hysteresis.retuned(*comp.hysteresis_operators())
+            self._relaxation = previous._relaxation.retuned(
+                comp.dispersion_fraction, comp.dispersion_corner_hz
+            )
             self._integral = previous._integral
             self._last_voltage = previous._last_voltage
             self._last_status = previous._last_status
@@ -231,6 +236,9 @@ class Feedforward:
             self._lead = TemperatureLead(comp.temperature_lead_s, comp.temperature_lead_filter_s)
             self._delay = DelayPredictor(comp.delay_s)
             self._hysteresis = HysteresisInverse(*comp.hysteresis_operators(), shape)
+            self._relaxation = RelaxationInverse(
+                comp.dispersion_fraction, comp.dispersion_corner_hz, shape
+            )
             self._integral = np.zeros(shape)
             self._last_voltage = np.zeros(shape)
             self._last_status = np.zeros(shape, np.int8)
@@ -338,17 +346,20 @@ class Feedforward:
         # the model inverses already return finite voltages in [0, v_limit]; only the
         # hysteresis inverse can leave that range
         voltage, status = result.voltage, result.status
-        if self._hysteresis.active:
-            voltage, status = self._hysteresis_and_limits(result)
+        reshaped = self._hysteresis.active or self._relaxation.active
+        if reshaped:
+            voltage, status = self._drive_and_limits(result, t)
         if raw_status is not None:
             np.maximum(status, raw_status, out=status)
-        maybe_invalid = raw_status is not None or laws.flagged or self._hysteresis.active
+        maybe_invalid = raw_status is not None or laws.flagged or reshaped
         if maybe_invalid and status.size and status.max() >= CODE_INVALID:
             invalid = status == CODE_INVALID
             voltage[invalid] = self._last_voltage[invalid]
             if model_error is not None:
                 model_error[invalid] = 0.0
         self._hysteresis.apply(voltage)
+        if self._relaxation.active:
+            self._relaxation.apply(self._hysteresis.output(voltage), t)
         # shared with the caller without a copy: frozen so that nobody changes the state
         voltage.flags.writeable = False
         status.flags.writeable = False
@@ -419,10 +430,12 @@ class Feedforward:
         model_error = laws.hyperbolic_forward(voltage) - target * target
         return limit_voltages(voltage, reach.status, v_limit), np.asarray(model_error, np.float64)
 
-    def _hysteresis_and_limits(self, result: InverseResult) -> tuple[FloatArray, StatusArray]:
-        """Undo the hysteresis, then keep every voltage finite and within [0, v_limit]."""
+    def _drive_and_limits(
+        self, result: InverseResult, t: float
+    ) -> tuple[FloatArray, StatusArray]:
+        """Undo the relaxation and the hysteresis, then keep every voltage in [0, v_limit]."""
         status = result.status
-        voltage = self._hysteresis.invert(result.voltage)
+        voltage = self._hysteresis.invert(self._relaxation.invert(result.voltage, t))
         v_limit = self.config.v_limit
         if voltage.size and not (voltage.min() >= 0.0 and voltage.max() <= v_limit):
             bad = ~np.isfinite(voltage)
