@@ -235,3 +235,41 @@ def test_dispersion_with_hysteresis_is_undone_in_plant_order() -> None:
         played[k] = (1 - a) * v + a * state
     got = hyperbolic_forward(relaxed(played, dt, r, fc), TEMPERATURE, PARAMS)
     assert np.max(np.abs(got - wanted)) < 1e-3 * NM
+
+
+def excess_temperature(volts: np.ndarray, dt: float, g: float, tau: float, window: float):
+    """Self-heating written out: dT at each command time, heat from the switch before it.
+
+    The switch to V_k heats at g |V_k - V_(k-1)| |(V_k + V_(k-1))/2 - mean| / (2 dt) over the
+    following step; dT relaxes towards it with tau; mean is a running mean of the drive.
+    """
+    out = np.zeros_like(volts)
+    excess, power, mean = np.zeros(volts.shape[1:]), np.zeros(volts.shape[1:]), volts[0].copy()
+    keep, mean_keep = np.exp(-dt / tau), np.exp(-dt / window)
+    for k in range(1, len(volts)):
+        excess = g * power + (excess - g * power) * keep
+        out[k] = excess
+        swing = np.abs(volts[k] - volts[k - 1])
+        power = 0.5 * swing * np.abs(0.5 * (volts[k] + volts[k - 1]) - mean) / dt
+        mean = volts[k] + (mean - volts[k]) * mean_keep
+    return out
+
+
+def test_self_heating_is_undone_along_a_fast_trajectory() -> None:
+    g, tau, window, dt = 2e-5, 0.3, 1.0, 0.01
+    wanted = np.array(
+        [smooth_setpoint() * (1 + 0.5 * np.sin(2 * np.pi * k / 4)) for k in range(200)]
+    )
+    ff = feedforward(self_heating_gain=g, self_heating_tau_s=tau, self_heating_mean_window_s=window)
+    volts = np.array([ff.command(z, k * dt).voltage for k, z in enumerate(wanted)])
+    # the law sees the command at the actuator's temperature, the sensor's plus the excess
+    excess = excess_temperature(volts, dt, g, tau, window)
+    got = hyperbolic_forward(volts, TEMPERATURE + excess, PARAMS)
+    assert excess[-50:].mean() > 0.5  # a warm actuator, so the test has something to undo
+    plain = feedforward()
+    flat = np.array([plain.command(z, k * dt).voltage for k, z in enumerate(wanted)])
+    heated = hyperbolic_forward(
+        flat, TEMPERATURE + excess_temperature(flat, dt, g, tau, window), PARAMS
+    )
+    assert np.max(np.abs(heated - wanted)) > 1.0 * NM
+    assert np.max(np.abs(got - wanted)) < 1e-3 * NM

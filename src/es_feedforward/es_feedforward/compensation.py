@@ -9,6 +9,8 @@ around the model inverse:
 3. thermal expansion: alpha (T_used - T_ref) subtracted from the set point;
 4. drift: set point divided by 1 - a (1 - exp(-(t / tau)^nu)) (z is proportional to M);
 5. coupling: (I + c lap) z_free = z_ref solved with a sparse LU factorised once per grid;
+0. self-heating: the law at T_used + dT, dT the excess estimated from the drive sent
+   (:class:`es_physics.effects.self_heating.HeatingEstimate`);
 6. frequency dispersion: exact inverse of the first-order relaxation
    V_law = (1 - r) V_pi + r s on the voltage the law needs (per-actuator states);
 7. hysteresis: exact inverse of the Prandtl-Ishlinskii operator
@@ -65,6 +67,10 @@ class CompensationParams:
         drift_epoch_s: ROS time [s] at which the drift started (t = now - epoch).
         dispersion_fraction: relaxing fraction r of the gain (0 = off).
         dispersion_corner_hz: relaxation corner frequency f_c [Hz].
+        self_heating_gain: excess actuator temperature per drive power measure
+            [degC s/V^2] (0 = off).
+        self_heating_tau_s: time constant of the excess temperature [s].
+        self_heating_mean_window_s: running-mean window of the drive [s].
 
     """
 
@@ -86,6 +92,9 @@ class CompensationParams:
     drift_epoch_s: float = 0.0
     dispersion_fraction: float = 0.0
     dispersion_corner_hz: float = 20.0
+    self_heating_gain: float = 0.0
+    self_heating_tau_s: float = 1.0
+    self_heating_mean_window_s: float = 1.0
 
     @classmethod
     def from_mapping(cls, values: dict[str, float]) -> CompensationParams:

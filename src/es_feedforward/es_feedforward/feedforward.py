@@ -40,6 +40,7 @@ from es_feedforward.compensation import (
     TemperatureLead,
     drift_factor,
 )
+from es_physics.effects.self_heating import HeatingEstimate
 from es_physics.laws import (
     CODE_CLIPPED_HIGH,
     CODE_CLIPPED_LOW,
@@ -191,6 +192,7 @@ class Feedforward:
     _delay: DelayPredictor
     _hysteresis: HysteresisInverse
     _relaxation: RelaxationInverse
+    _heating: HeatingEstimate
     _integral: FloatArray
     _last_voltage: FloatArray
     _last_status: StatusArray
@@ -209,6 +211,7 @@ class Feedforward:
         self._reference_T = np.full(shape, config.reference_temperature)
         self._reference_laws = self._laws_compiled.at(self._reference_T)
         self._coupling = CouplingInverse(comp.coupling, shape)
+        heating = (comp.self_heating_gain, comp.self_heating_tau_s, comp.self_heating_mean_window_s)
         if previous is not None and previous.config.shape == shape:
             # Carry the states over into new objects: ``previous`` stays untouched and usable
             # until the caller swaps this one in (a rejected reload changes nothing).
@@ -220,6 +223,7 @@ class Feedforward:
             self._relaxation = previous._relaxation.retuned(
                 comp.dispersion_fraction, comp.dispersion_corner_hz
             )
+            self._heating = previous._heating.retuned(*heating)
             self._integral = previous._integral
             self._last_voltage = previous._last_voltage
             self._last_status = previous._last_status
@@ -239,6 +243,7 @@ class Feedforward:
             self._relaxation = RelaxationInverse(
                 comp.dispersion_fraction, comp.dispersion_corner_hz, shape
             )
+            self._heating = HeatingEstimate(*heating)
             self._integral = np.zeros(shape)
             self._last_voltage = np.zeros(shape)
             self._last_status = np.zeros(shape, np.int8)
@@ -321,6 +326,9 @@ class Feedforward:
             laws, T = self._laws, self._temperature
         else:
             laws, T = self._reference_laws, self._reference_T
+        if self._heating.active:
+            T = T + self._heating.at(t)
+            laws = self._laws_compiled.at(T)
 
         lo, hi = (z.min(), z.max()) if z.size else (0.0, 0.0)
         raw_status: StatusArray | None = None
@@ -360,6 +368,8 @@ class Feedforward:
         self._hysteresis.apply(voltage)
         if self._relaxation.active:
             self._relaxation.apply(self._hysteresis.output(voltage), t)
+        if self._heating.active:
+            self._heating.apply(voltage, t)
         # shared with the caller without a copy: frozen so that nobody changes the state
         voltage.flags.writeable = False
         status.flags.writeable = False
