@@ -9,12 +9,13 @@ around the model inverse:
 3. thermal expansion: alpha (T_used - T_ref) subtracted from the set point;
 4. drift: set point divided by 1 - a (1 - exp(-(t / tau)^nu)) (z is proportional to M);
 5. coupling: (I + c lap) z_free = z_ref solved with a sparse LU factorised once per grid;
-0. self-heating: the law at T_used + dT, dT the excess estimated from the drive sent
-   (:class:`es_physics.effects.self_heating.HeatingEstimate`);
 6. frequency dispersion: exact inverse of the first-order relaxation
    V_law = (1 - r) V_pi + r s on the voltage the law needs (per-actuator states);
 7. hysteresis: exact inverse of the Prandtl-Ishlinskii operator
    V_pi = (1 - sum a_i) V + sum a_i play_(r_i)(V), per-actuator play states.
+
+Self-heating moves the temperature the law is evaluated at: T_used + dT, dT the excess the
+drive sent causes (:class:`es_physics.effects.self_heating.HeatingEstimate`, in feedforward).
 """
 
 from __future__ import annotations

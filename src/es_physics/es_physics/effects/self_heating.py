@@ -28,7 +28,8 @@ class HeatingEstimate:
     The drive is held between commands. A command V_k sent at t_k dissipates, until the next
     one, the power measure |V_k - V_(k-1)| |(V_k + V_(k-1)) / 2 - V_mean| / (2 dt) with dt
     the last command interval (the coming one is not known yet) and V_mean a running mean of
-    time constant ``mean_window_s``; dT relaxes towards g times it (exact for a held power).
+    time constant ``mean_window_s``; dT relaxes towards g times it over that interval (exact
+    for a held power) and towards 0 after it while no new drive comes.
     """
 
     def __init__(self, gain: float, tau_s: float, mean_window_s: float) -> None:
@@ -49,6 +50,8 @@ class HeatingEstimate:
         #: dT [degC] when the last drive was sent, the power measure since [V^2/s], the drive
         #: [V] and its time [s], and the running mean [V]; None before the first drive.
         self._state: tuple[FloatArray, FloatArray, FloatArray, float, FloatArray] | None = None
+        #: the last command interval [s], over which the last switch's loss is spread
+        self._interval = 0.0
 
     @property
     def active(self) -> bool:
@@ -63,7 +66,7 @@ class HeatingEstimate:
 
         """
         other = HeatingEstimate(gain, tau_s, mean_window_s)
-        other._state = self._state
+        other._state, other._interval = self._state, self._interval
         return other
 
     def at(self, t: float) -> FloatArray | float:
@@ -71,9 +74,11 @@ class HeatingEstimate:
         if self._state is None:
             return 0.0
         excess, power, _, sent, _ = self._state
+        elapsed = max(t - sent, 0.0)
+        heated = min(elapsed, self._interval)  # the switch's loss lasts one command interval
         target = self.gain * power
-        keep = float(np.exp(-max(t - sent, 0.0) / self.tau_s))
-        return np.asarray(target + (excess - target) * keep, np.float64)
+        warm = target + (excess - target) * float(np.exp(-heated / self.tau_s))
+        return np.asarray(warm * float(np.exp(-(elapsed - heated) / self.tau_s)), np.float64)
 
     def apply(self, drive: FloatArray, t: float) -> None:
         """Take the drive [V] sent at ``t`` [s] (call in time order)."""
@@ -92,6 +97,7 @@ class HeatingEstimate:
         power = 0.5 * swing * level / dt
         mean = drive + (mean - drive) * float(np.exp(-dt / self.mean_window_s))
         self._state = (excess, power, drive, t, mean)
+        self._interval = dt
 
 
 class SelfHeating(Effect):
