@@ -10,7 +10,7 @@ around the model inverse:
 4. drift: set point divided by 1 - a (1 - exp(-(t / tau)^nu)) (z is proportional to M);
 5. coupling: (I + c lap) z_free = z_ref solved with a sparse LU factorised once per grid;
 6. frequency dispersion: exact inverse of the first-order relaxation
-   V_law = (1 - r) V_pi + r s on the voltage the law needs (per-actuator states);
+   V_law = V_pi - r D (V_pi - s) at the end of the command interval (per-actuator states);
 7. hysteresis: exact inverse of the Prandtl-Ishlinskii operator
    V_pi = (1 - sum a_i) V + sum a_i play_(r_i)(V), per-actuator play states.
 
@@ -33,7 +33,6 @@ from es_physics.effects.frequency_dispersion import (
     relaxation_advance,
     relaxation_decay,
     relaxation_inverse,
-    relaxation_output,
 )
 from es_physics.effects.hysteresis import pi_inverse
 from es_physics.params import FloatArray
@@ -332,7 +331,8 @@ class HysteresisInverse:
 class RelaxationInverse:
     """Exact inverse of the drive's first-order relaxation (effect ``frequency_dispersion``).
 
-    V_out = (1 - r) V + r s with ds/dt = 2 pi f_c (V - s), the drive held between commands;
+    V_out = V - r D (V - s) at the end of a command interval h (D = exp(-2 pi f_c h), h taken
+    as the last interval), ds/dt = 2 pi f_c (V - s) with the drive held between commands;
     per-actuator states s [V] (``shape``), advanced with the drive actually sent.
     """
 
@@ -342,6 +342,7 @@ class RelaxationInverse:
         self.state: FloatArray | None = None
         self.shape = shape
         self._last: tuple[FloatArray, float] | None = None
+        self._interval = 0.0
 
     @property
     def active(self) -> bool:
@@ -351,7 +352,7 @@ class RelaxationInverse:
     def retuned(self, fraction: float, corner_hz: float) -> RelaxationInverse:
         """Return a copy with new parameters and this one's state (this one is unchanged)."""
         other = RelaxationInverse(fraction, corner_hz, self.shape)
-        other.state, other._last = self.state, self._last
+        other.state, other._last, other._interval = self.state, self._last, self._interval
         return other
 
     def _state_at(self, t: float) -> FloatArray | None:
@@ -364,24 +365,20 @@ class RelaxationInverse:
         return relaxation_advance(drive, self.state, relaxation_decay(self.corner_hz, t - sent))
 
     def invert(self, v_out: FloatArray, t: float) -> FloatArray:
-        """Return the drive that makes the relaxation output ``v_out`` [V] at time ``t`` [s].
+        """Return the drive sent at ``t`` [s] that makes the output ``v_out`` [V] an interval on.
 
         Before any drive was sent the state starts at ``v_out`` (bumpless: drive = v_out).
         """
         state = self._state_at(t)
         if not self.active or state is None:
             return v_out
-        return relaxation_inverse(v_out, state, self.fraction)
-
-    def output(self, drive: FloatArray, t: float) -> FloatArray:
-        """Return the relaxation's output [V] for ``drive`` sent at time ``t`` [s]."""
-        state = self._state_at(t)
-        if not self.active or state is None:
-            return drive
-        return relaxation_output(drive, state, self.fraction)
+        decay = relaxation_decay(self.corner_hz, self._interval)
+        return relaxation_inverse(v_out, state, self.fraction, decay)
 
     def apply(self, drive: FloatArray, t: float) -> None:
         """Advance the state to ``t`` [s] and hold ``drive`` [V] (the voltage sent) from then."""
         state = self._state_at(t)
+        if self._last is not None and t > self._last[1]:
+            self._interval = t - self._last[1]
         self.state = np.array(drive, np.float64) if state is None else state
         self._last = (np.array(drive, np.float64), t)

@@ -8,12 +8,13 @@ through a low-pass of corner ``f_c``, so the voltage in effect is
 i.e. V_eff = V - r highpass_(f_c)(V): unity gain at DC, 1 - r far above f_c. Discretised
 for a drive held over steps of dt (exact for the held drive): the output of a step uses
 the state at its start, then s <- s + (1 - exp(-2 pi f_c dt)) (V - s)
-(:func:`relaxation_output`, :func:`relaxation_advance`). Because the output depends on the
-step's own input only through (1 - r) V, the filter is exactly invertible for r < 1:
-V = (V_eff - r s) / (1 - r) (:func:`relaxation_inverse`).
+(:func:`relaxation_output`, :func:`relaxation_advance`). The output at a time h into a
+held step is V - r D (V - s), D = exp(-2 pi f_c h): exactly invertible for r < 1,
+V = (V_eff - r D s) / (1 - r D) (:func:`relaxation_inverse`).
 
 Plant: the filter acts on the drive after any hysteresis, at the plant's internal rate.
-Feedforward: its inverse on the voltage the law needs, at the command rate
+Feedforward: its inverse on the voltage the law needs at the end of the coming command
+interval (taken as long as the last one), where the displacement is observed
 (``compensation.dispersion_fraction``, ``compensation.dispersion_corner_hz``). No
 calibration model yet.
 """
@@ -48,9 +49,15 @@ def relaxation_decay(corner_hz: float, dt: float) -> float:
     return float(np.exp(-2.0 * np.pi * corner_hz * dt))
 
 
-def relaxation_output(voltage: FloatArray, state: FloatArray, fraction: float) -> FloatArray:
-    """Return V_eff = (1 - r) V + r s for the drive ``voltage`` and the state ``state`` [V]."""
-    return np.asarray((1.0 - fraction) * voltage + fraction * state, np.float64)
+def relaxation_output(
+    voltage: FloatArray, state: FloatArray, fraction: float, decay: float = 1.0
+) -> FloatArray:
+    """Return V_eff = V - r D (V - s) for the drive ``voltage`` held from the state ``state``.
+
+    ``decay`` D = :func:`relaxation_decay` of the time since the drive started: D = 1 (the
+    default) gives the output as the drive starts, (1 - r) V + r s [V].
+    """
+    return np.asarray(voltage - fraction * decay * (voltage - state), np.float64)
 
 
 def relaxation_advance(voltage: FloatArray, state: FloatArray, decay: float) -> FloatArray:
@@ -58,16 +65,24 @@ def relaxation_advance(voltage: FloatArray, state: FloatArray, decay: float) -> 
     return np.asarray(voltage + (state - voltage) * decay, np.float64)
 
 
-def relaxation_inverse(v_eff: FloatArray, state: FloatArray, fraction: float) -> FloatArray:
+def relaxation_inverse(
+    v_eff: FloatArray, state: FloatArray, fraction: float, decay: float = 1.0
+) -> FloatArray:
     """Return the drive V that makes :func:`relaxation_output` give ``v_eff`` [V].
 
+    V = (V_eff - r D s) / (1 - r D), D = ``decay`` in [0, 1].
+
     Raises:
-        ValueError: ``fraction`` not in [0, 1) (the inverse does not exist).
+        ValueError: ``fraction`` not in [0, 1) (the inverse does not exist) or ``decay``
+            not in [0, 1].
 
     """
     if not 0.0 <= fraction < 1.0:
         raise ValueError(f"relaxation fraction {fraction!r} must be in [0, 1)")
-    return np.asarray((v_eff - fraction * state) / (1.0 - fraction), np.float64)
+    if not 0.0 <= decay <= 1.0:
+        raise ValueError(f"relaxation decay {decay!r} must be in [0, 1]")
+    rd = fraction * decay
+    return np.asarray((v_eff - rd * state) / (1.0 - rd), np.float64)
 
 
 class FrequencyDispersion(Effect):
