@@ -9,6 +9,7 @@ from es_feedforward.compensation import (
     CompensationParams,
     CouplingInverse,
     HysteresisInverse,
+    RelaxationInverse,
     TemperatureLead,
     drift_factor,
 )
@@ -159,3 +160,122 @@ def test_three_operator_hysteresis_is_inverted_exactly() -> None:
         worst = max(worst, float(np.max(np.abs(got - v_eff))))
     assert worst < 1e-9
     np.testing.assert_allclose(inverse.play, states)
+
+
+def relaxed(voltages: np.ndarray, dt: float, r: float, fc: float) -> np.ndarray:
+    """The drive's first-order relaxation written out, seen at the end of each held step.
+
+    V_eff = V - r highpass(V): the low-passed state s relaxes towards the drive held over
+    the step, and the output at the step's end is (1 - r) V + r s_end. The state starts at
+    the first drive (as the feedforward's inverse assumes).
+    """
+    decay = np.exp(-2 * np.pi * fc * dt)
+    state = voltages[0].copy()
+    out = np.empty_like(voltages)
+    for i, v in enumerate(voltages):
+        state = v + (state - v) * decay
+        out[i] = (1 - r) * v + r * state
+    return out
+
+
+def test_relaxation_inverse_undoes_the_forward_filter() -> None:
+    r, fc, dt = 0.4, 15.0, 0.01
+    inverse = RelaxationInverse(r, fc, (4,))
+    rng = np.random.default_rng(3)
+    wanted = 150.0 + np.cumsum(rng.normal(0.0, 15.0, (200, 4)), axis=0)
+    sent = np.empty_like(wanted)
+    for i, v_eff in enumerate(wanted):
+        sent[i] = inverse.invert(v_eff, i * dt)
+        inverse.apply(sent[i], i * dt)
+    assert np.max(np.abs(sent - wanted)) > 5.0  # the inverse does reshape the drive
+    # from the third command on the inverse knows the command interval
+    np.testing.assert_allclose(relaxed(sent, dt, r, fc)[2:], wanted[2:], rtol=0, atol=1e-9)
+
+
+def test_relaxation_inverse_keeps_its_state_over_a_hold() -> None:
+    r, fc = 0.5, 2.0
+    inverse = RelaxationInverse(r, fc, (1,))
+    inverse.apply(np.array([0.0]), 0.0)
+    inverse.apply(np.array([100.0]), 1.0)
+    # held at 100 V for 0.5 s: state 100 (1 - exp(-2 pi fc 0.5)); to get 100 V one interval
+    # (1 s, the last one) on, the drive must overshoot by the part still relaxing then
+    decayed = 100.0 * (1 - np.exp(-2 * np.pi * fc * 0.5))
+    late = r * np.exp(-2 * np.pi * fc * 1.0)
+    expected = (100.0 - late * decayed) / (1 - late)
+    np.testing.assert_allclose(inverse.invert(np.array([100.0]), 1.5), [expected])
+
+
+def test_dispersion_is_undone_by_the_feedforward_along_a_trajectory() -> None:
+    r, fc, dt = 0.3, 10.0, 0.01
+    wanted = np.array(
+        [smooth_setpoint() * (1 + 0.6 * np.sin(2 * np.pi * k / 20)) for k in range(150)]
+    )
+    ff = feedforward(dispersion_fraction=r, dispersion_corner_hz=fc)
+    volts = np.array([ff.command(z, k * dt).voltage for k, z in enumerate(wanted)])
+    got = hyperbolic_forward(relaxed(volts, dt, r, fc), TEMPERATURE, PARAMS)
+    plain = feedforward()
+    flat = np.array([plain.command(z, k * dt).voltage for k, z in enumerate(wanted)])
+    uncompensated = hyperbolic_forward(relaxed(flat, dt, r, fc), TEMPERATURE, PARAMS)
+    assert np.max(np.abs(uncompensated - wanted)) > 1.0 * NM
+    # from the third command on (the inverse knows the command interval then)
+    assert np.max(np.abs(got - wanted)[2:]) < 1e-3 * NM
+
+
+def test_dispersion_with_hysteresis_is_undone_in_plant_order() -> None:
+    a, thr, r, fc, dt = 0.2, 15.0, 0.3, 10.0, 0.01
+    wanted = np.array(
+        [smooth_setpoint() * (1 + 0.6 * np.sin(2 * np.pi * k / 30)) for k in range(120)]
+    )
+    ff = feedforward(
+        hysteresis_weight=a,
+        hysteresis_threshold_v=thr,
+        dispersion_fraction=r,
+        dispersion_corner_hz=fc,
+    )
+    volts = np.array([ff.command(z, k * dt).voltage for k, z in enumerate(wanted)])
+    # plant order: play operator first, then the relaxation, then the law
+    state = np.zeros(SHAPE)
+    played = np.empty_like(volts)
+    for k, v in enumerate(volts):
+        state = play(state, v, thr)
+        played[k] = (1 - a) * v + a * state
+    got = hyperbolic_forward(relaxed(played, dt, r, fc), TEMPERATURE, PARAMS)
+    assert np.max(np.abs(got - wanted)[2:]) < 1e-3 * NM
+
+
+def excess_temperature(volts: np.ndarray, dt: float, g: float, tau: float, window: float):
+    """Self-heating written out: dT at each command time, heat from the switch before it.
+
+    The switch to V_k heats at g |V_k - V_(k-1)| |(V_k + V_(k-1))/2 - mean| / (2 dt) over the
+    following step; dT relaxes towards it with tau; mean is a running mean of the drive.
+    """
+    out = np.zeros_like(volts)
+    excess, power, mean = np.zeros(volts.shape[1:]), np.zeros(volts.shape[1:]), volts[0].copy()
+    keep, mean_keep = np.exp(-dt / tau), np.exp(-dt / window)
+    for k in range(1, len(volts)):
+        excess = g * power + (excess - g * power) * keep
+        out[k] = excess
+        swing = np.abs(volts[k] - volts[k - 1])
+        power = 0.5 * swing * np.abs(0.5 * (volts[k] + volts[k - 1]) - mean) / dt
+        mean = volts[k] + (mean - volts[k]) * mean_keep
+    return out
+
+
+def test_self_heating_is_undone_along_a_fast_trajectory() -> None:
+    g, tau, window, dt = 2e-5, 0.3, 1.0, 0.01
+    wanted = np.array(
+        [smooth_setpoint() * (1 + 0.5 * np.sin(2 * np.pi * k / 4)) for k in range(200)]
+    )
+    ff = feedforward(self_heating_gain=g, self_heating_tau_s=tau, self_heating_mean_window_s=window)
+    volts = np.array([ff.command(z, k * dt).voltage for k, z in enumerate(wanted)])
+    # the law sees the command at the actuator's temperature, the sensor's plus the excess
+    excess = excess_temperature(volts, dt, g, tau, window)
+    got = hyperbolic_forward(volts, TEMPERATURE + excess, PARAMS)
+    assert excess[-50:].mean() > 0.5  # a warm actuator, so the test has something to undo
+    plain = feedforward()
+    flat = np.array([plain.command(z, k * dt).voltage for k, z in enumerate(wanted)])
+    heated = hyperbolic_forward(
+        flat, TEMPERATURE + excess_temperature(flat, dt, g, tau, window), PARAMS
+    )
+    assert np.max(np.abs(heated - wanted)) > 1.0 * NM
+    assert np.max(np.abs(got - wanted)) < 1e-3 * NM

@@ -38,13 +38,15 @@ BUILT_IN = (
     "drift",
     "temperature_curvature",
     "self_heating",
+    "frequency_dispersion",
 )
 
 
 def test_built_in_effects_are_registered_under_their_canonical_names() -> None:
     assert names()[: len(BUILT_IN)] == BUILT_IN
     assert set(BUILT_IN) <= set(EFFECT_NAMES)
-    assert "self_heating" not in candidates()  # simulated only: no calibration model yet
+    for plant_only in ("self_heating", "frequency_dispersion"):  # no calibration model yet
+        assert plant_only not in candidates()
     assert candidates() == CANDIDATES
     with pytest.raises(UnknownEffectError, match="magic"):
         get("magic")

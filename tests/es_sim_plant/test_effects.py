@@ -7,6 +7,8 @@ from typing import Any
 import numpy as np
 import pytest
 
+from es_feedforward.compensation import CompensationParams
+from es_feedforward.feedforward import Feedforward, FeedforwardConfig
 from es_physics.effects.coupling import grid_laplacian
 from es_physics.effects.drift import drift_factor
 from es_physics.laws import hyperbolic_forward
@@ -180,3 +182,41 @@ def test_sensor_lag_delays_the_reading() -> None:
     assert np.all(res.temperature_raw[10:] < ref.temperature_raw[10:] - 0.5)
     truth = ref.actuator_temperature[ref.sensor_step, 0, 0]
     np.testing.assert_allclose(ref.temperature_raw[:, 0], truth, atol=1e-9)
+
+
+def test_frequency_dispersion_lowers_the_gain_of_fast_drive_only() -> None:
+    """V_eff = V - r highpass_fc(V): DC passes, far above f_c the gain is 1 - r."""
+    r, fc = 0.3, 2.0
+    on = {"frequency_dispersion": {"enabled": True, "fraction": r, "corner_hz": fc}}
+    plant, dc = run(bench(on), np.full(200, 200.0))  # 2 s of DC: settled after ~12 tau
+    np.testing.assert_allclose(
+        dc.displacement[-1], hyperbolic_forward(200.0, 45.0, plant.true_params), rtol=1e-9
+    )
+    # a 50 Hz square wave (25 x f_c) around 150 V: the swing of V_eff shrinks to 1 - r
+    volts = np.where(np.arange(200) % 2 == 0, 170.0, 130.0)
+    _, fast = run(bench(on), volts)
+    _, ref = run(bench(), volts)
+    z, z_ref = fast.displacement[-20:, 0, 0], ref.displacement[-20:, 0, 0]
+    ratio = np.ptp(z) / np.ptp(z_ref)
+    assert 0.68 < ratio < 0.74  # about 1 - r, plus the little relaxation within a step
+
+
+def test_feedforward_undoes_the_plants_frequency_dispersion() -> None:
+    """The feedforward's inverse (command rate) against the plant's filter (internal rate)."""
+    r, fc = 0.3, 5.0
+    scenario = bench({"frequency_dispersion": {"enabled": True, "fraction": r, "corner_hz": fc}})
+    params = Plant(scenario).true_params
+    z_ref = (60 + 30 * np.sin(2 * np.pi * 10.0 * np.arange(200) / 100.0)) * 1e-9
+    rms = []
+    for comp in ({}, {"dispersion_fraction": r, "dispersion_corner_hz": fc}):
+        config = FeedforwardConfig(
+            shape=(1, 1), params=params, compensation=CompensationParams(**comp)
+        )
+        ff = Feedforward(config)
+        ff.update_temperature(np.full((1, 1), 45.0), 0.0)
+        volts = [ff.command(np.full((1, 1), z), k * 0.01).voltage for k, z in enumerate(z_ref)]
+        _, res = run(scenario, np.array(volts))
+        rms.append(float(np.sqrt(np.mean((res.displacement[100:, 0, 0] - z_ref[100:]) ** 2))))
+    uncompensated, compensated = rms
+    assert uncompensated > 2e-9  # 10 Hz is well above f_c: the gain is down by about r
+    assert compensated < 0.1 * uncompensated

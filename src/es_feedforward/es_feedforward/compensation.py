@@ -9,8 +9,13 @@ around the model inverse:
 3. thermal expansion: alpha (T_used - T_ref) subtracted from the set point;
 4. drift: set point divided by 1 - a (1 - exp(-(t / tau)^nu)) (z is proportional to M);
 5. coupling: (I + c lap) z_free = z_ref solved with a sparse LU factorised once per grid;
-6. hysteresis: exact inverse of the Prandtl-Ishlinskii operator
-   V_eff = (1 - sum a_i) V + sum a_i play_(r_i)(V), per-actuator play states.
+6. frequency dispersion: exact inverse of the first-order relaxation
+   V_law = V_pi - r D (V_pi - s) at the end of the command interval (per-actuator states);
+7. hysteresis: exact inverse of the Prandtl-Ishlinskii operator
+   V_pi = (1 - sum a_i) V + sum a_i play_(r_i)(V), per-actuator play states.
+
+Self-heating moves the temperature the law is evaluated at: T_used + dT, dT the excess the
+drive sent causes (:class:`es_physics.effects.self_heating.HeatingEstimate`, in feedforward).
 """
 
 from __future__ import annotations
@@ -24,6 +29,11 @@ from scipy.sparse import csc_matrix, diags, identity
 from scipy.sparse.linalg import splu
 
 from es_physics.effects import registry
+from es_physics.effects.frequency_dispersion import (
+    relaxation_advance,
+    relaxation_decay,
+    relaxation_inverse,
+)
 from es_physics.effects.hysteresis import pi_inverse
 from es_physics.params import FloatArray
 
@@ -55,6 +65,12 @@ class CompensationParams:
         drift_tau_s: drift time constant tau [s].
         drift_nu: stretching exponent nu of the drift.
         drift_epoch_s: ROS time [s] at which the drift started (t = now - epoch).
+        dispersion_fraction: relaxing fraction r of the gain (0 = off).
+        dispersion_corner_hz: relaxation corner frequency f_c [Hz].
+        self_heating_gain: excess actuator temperature per drive power measure
+            [degC s/V^2] (0 = off).
+        self_heating_tau_s: time constant of the excess temperature [s].
+        self_heating_mean_window_s: running-mean window of the drive [s].
 
     """
 
@@ -74,6 +90,11 @@ class CompensationParams:
     drift_tau_s: float = 3600.0
     drift_nu: float = 1.0
     drift_epoch_s: float = 0.0
+    dispersion_fraction: float = 0.0
+    dispersion_corner_hz: float = 20.0
+    self_heating_gain: float = 0.0
+    self_heating_tau_s: float = 1.0
+    self_heating_mean_window_s: float = 1.0
 
     @classmethod
     def from_mapping(cls, values: dict[str, float]) -> CompensationParams:
@@ -298,3 +319,66 @@ class HysteresisInverse:
         if self.active:
             r = self.thresholds.reshape((-1,) + (1,) * voltage.ndim)
             self.play = np.clip(self.play, voltage - r, voltage + r)
+
+    def output(self, voltage: FloatArray) -> FloatArray:
+        """Return the operator's output for ``voltage`` once :meth:`apply` has taken it [V]."""
+        if not self.active:
+            return voltage
+        w = self.weights.reshape((-1,) + (1,) * voltage.ndim)
+        return np.asarray((1.0 - self.weights.sum()) * voltage + (w * self.play).sum(0), np.float64)
+
+
+class RelaxationInverse:
+    """Exact inverse of the drive's first-order relaxation (effect ``frequency_dispersion``).
+
+    V_out = V - r D (V - s) at the end of a command interval h (D = exp(-2 pi f_c h), h taken
+    as the last interval), ds/dt = 2 pi f_c (V - s) with the drive held between commands;
+    per-actuator states s [V] (``shape``), advanced with the drive actually sent.
+    """
+
+    def __init__(self, fraction: float, corner_hz: float, shape: tuple[int, ...]) -> None:
+        self.fraction = fraction
+        self.corner_hz = corner_hz
+        self.state: FloatArray | None = None
+        self.shape = shape
+        self._last: tuple[FloatArray, float] | None = None
+        self._interval = 0.0
+
+    @property
+    def active(self) -> bool:
+        """Whether the relaxation does anything."""
+        return self.fraction > 0.0
+
+    def retuned(self, fraction: float, corner_hz: float) -> RelaxationInverse:
+        """Return a copy with new parameters and this one's state (this one is unchanged)."""
+        other = RelaxationInverse(fraction, corner_hz, self.shape)
+        other.state, other._last, other._interval = self.state, self._last, self._interval
+        return other
+
+    def _state_at(self, t: float) -> FloatArray | None:
+        """Return the state at time ``t`` [s]: the last drive held since it was sent."""
+        if self._last is None or self.state is None:
+            return None
+        drive, sent = self._last
+        if t <= sent:
+            return self.state
+        return relaxation_advance(drive, self.state, relaxation_decay(self.corner_hz, t - sent))
+
+    def invert(self, v_out: FloatArray, t: float) -> FloatArray:
+        """Return the drive sent at ``t`` [s] that makes the output ``v_out`` [V] an interval on.
+
+        Before any drive was sent the state starts at ``v_out`` (bumpless: drive = v_out).
+        """
+        state = self._state_at(t)
+        if not self.active or state is None:
+            return v_out
+        decay = relaxation_decay(self.corner_hz, self._interval)
+        return relaxation_inverse(v_out, state, self.fraction, decay)
+
+    def apply(self, drive: FloatArray, t: float) -> None:
+        """Advance the state to ``t`` [s] and hold ``drive`` [V] (the voltage sent) from then."""
+        state = self._state_at(t)
+        if self._last is not None and t > self._last[1]:
+            self._interval = t - self._last[1]
+        self.state = np.array(drive, np.float64) if state is None else state
+        self._last = (np.array(drive, np.float64), t)

@@ -36,9 +36,11 @@ from es_feedforward.compensation import (
     CouplingInverse,
     DelayPredictor,
     HysteresisInverse,
+    RelaxationInverse,
     TemperatureLead,
     drift_factor,
 )
+from es_physics.effects.self_heating import HeatingEstimate
 from es_physics.laws import (
     CODE_CLIPPED_HIGH,
     CODE_CLIPPED_LOW,
@@ -189,6 +191,8 @@ class Feedforward:
     _lead: TemperatureLead
     _delay: DelayPredictor
     _hysteresis: HysteresisInverse
+    _relaxation: RelaxationInverse
+    _heating: HeatingEstimate
     _integral: FloatArray
     _last_voltage: FloatArray
     _last_status: StatusArray
@@ -207,6 +211,7 @@ class Feedforward:
         self._reference_T = np.full(shape, config.reference_temperature)
         self._reference_laws = self._laws_compiled.at(self._reference_T)
         self._coupling = CouplingInverse(comp.coupling, shape)
+        heating = (comp.self_heating_gain, comp.self_heating_tau_s, comp.self_heating_mean_window_s)
         if previous is not None and previous.config.shape == shape:
             # Carry the states over into new objects: ``previous`` stays untouched and usable
             # until the caller swaps this one in (a rejected reload changes nothing).
@@ -215,6 +220,10 @@ class Feedforward:
             )
             self._delay = previous._delay.retuned(comp.delay_s)
             self._hysteresis = previous._hysteresis.retuned(*comp.hysteresis_operators())
+            self._relaxation = previous._relaxation.retuned(
+                comp.dispersion_fraction, comp.dispersion_corner_hz
+            )
+            self._heating = previous._heating.retuned(*heating)
             self._integral = previous._integral
             self._last_voltage = previous._last_voltage
             self._last_status = previous._last_status
@@ -231,6 +240,10 @@ class Feedforward:
             self._lead = TemperatureLead(comp.temperature_lead_s, comp.temperature_lead_filter_s)
             self._delay = DelayPredictor(comp.delay_s)
             self._hysteresis = HysteresisInverse(*comp.hysteresis_operators(), shape)
+            self._relaxation = RelaxationInverse(
+                comp.dispersion_fraction, comp.dispersion_corner_hz, shape
+            )
+            self._heating = HeatingEstimate(*heating)
             self._integral = np.zeros(shape)
             self._last_voltage = np.zeros(shape)
             self._last_status = np.zeros(shape, np.int8)
@@ -313,6 +326,9 @@ class Feedforward:
             laws, T = self._laws, self._temperature
         else:
             laws, T = self._reference_laws, self._reference_T
+        if self._heating.active:
+            T = T + self._heating.at(t)
+            laws = self._laws_compiled.at(T)
 
         lo, hi = (z.min(), z.max()) if z.size else (0.0, 0.0)
         raw_status: StatusArray | None = None
@@ -338,17 +354,22 @@ class Feedforward:
         # the model inverses already return finite voltages in [0, v_limit]; only the
         # hysteresis inverse can leave that range
         voltage, status = result.voltage, result.status
-        if self._hysteresis.active:
-            voltage, status = self._hysteresis_and_limits(result)
+        reshaped = self._hysteresis.active or self._relaxation.active
+        if reshaped:
+            voltage, status = self._drive_and_limits(result, t)
         if raw_status is not None:
             np.maximum(status, raw_status, out=status)
-        maybe_invalid = raw_status is not None or laws.flagged or self._hysteresis.active
+        maybe_invalid = raw_status is not None or laws.flagged or reshaped
         if maybe_invalid and status.size and status.max() >= CODE_INVALID:
             invalid = status == CODE_INVALID
             voltage[invalid] = self._last_voltage[invalid]
             if model_error is not None:
                 model_error[invalid] = 0.0
         self._hysteresis.apply(voltage)
+        if self._relaxation.active:
+            self._relaxation.apply(self._hysteresis.output(voltage), t)
+        if self._heating.active:
+            self._heating.apply(voltage, t)
         # shared with the caller without a copy: frozen so that nobody changes the state
         voltage.flags.writeable = False
         status.flags.writeable = False
@@ -419,10 +440,12 @@ class Feedforward:
         model_error = laws.hyperbolic_forward(voltage) - target * target
         return limit_voltages(voltage, reach.status, v_limit), np.asarray(model_error, np.float64)
 
-    def _hysteresis_and_limits(self, result: InverseResult) -> tuple[FloatArray, StatusArray]:
-        """Undo the hysteresis, then keep every voltage finite and within [0, v_limit]."""
+    def _drive_and_limits(
+        self, result: InverseResult, t: float
+    ) -> tuple[FloatArray, StatusArray]:
+        """Undo the relaxation and the hysteresis, then keep every voltage in [0, v_limit]."""
         status = result.status
-        voltage = self._hysteresis.invert(result.voltage)
+        voltage = self._hysteresis.invert(self._relaxation.invert(result.voltage, t))
         v_limit = self.config.v_limit
         if voltage.size and not (voltage.min() >= 0.0 and voltage.max() <= v_limit):
             bad = ~np.isfinite(voltage)

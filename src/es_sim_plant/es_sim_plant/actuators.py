@@ -10,7 +10,8 @@ a 100 Hz control rate). The amplifier holds the command over the step and satura
 ``v_limit``; the transport delay is resolved to one internal step, so within a plant step the
 applied voltage switches once, from the older to the newer delayed command, at a known
 internal step. Hysteresis (a rate-independent play operator) therefore changes state at most
-twice per step and is evaluated exactly; the dielectric loss of that switch heats the
+twice per step and is evaluated exactly; the frequency dispersion (a first-order relaxation)
+filters its output at every internal step; the dielectric loss of that switch heats the
 actuator (effect ``self_heating``). Displacements can be returned for every internal step
 (a high-rate "interferometer") or only for the end of the step.
 """
@@ -25,6 +26,11 @@ import numpy.typing as npt
 
 from es_physics.effects.coupling import grid_laplacian
 from es_physics.effects.drift import drift_factor
+from es_physics.effects.frequency_dispersion import (
+    relaxation_advance,
+    relaxation_decay,
+    relaxation_output,
+)
 from es_physics.effects.hysteresis import (
     MAX_OPERATORS,
     hysteresis_weight,
@@ -159,6 +165,10 @@ class ActuatorGrid:
         self._play = np.zeros((len(self._operators), *shape))
         self._mean_voltage = np.zeros(shape)
         self._mean_decay = float(np.exp(-dt / effects.self_heating.mean_window_s))
+        dispersion = effects.frequency_dispersion
+        self._relaxation_decay = relaxation_decay(dispersion.corner_hz, dt / self.substeps)
+        #: Relaxation state of the drive (effect ``frequency_dispersion``) [V], (R, C).
+        self._relaxation = np.zeros(shape)
         self.command = np.zeros(shape)
         #: Actuator heat from dielectric loss over the current step [W], (R, C).
         self.heating_power = np.zeros(shape)
@@ -203,7 +213,10 @@ class ActuatorGrid:
 
         """
         n = self.substeps
-        ends = np.arange(1, n + 1) if all_substeps else np.array([n])
+        dispersion = self.effects.frequency_dispersion
+        # the relaxation filters every internal step, so then they are all computed
+        every = all_substeps or dispersion.enabled
+        ends = np.arange(1, n + 1) if every else np.array([n])
         frac = (ends / n)[:, None, None]
         T = T_start + frac * (T_end - T_start)
         before_switch = (ends - 1 < self._switch)[:, None, None]
@@ -221,6 +234,13 @@ class ActuatorGrid:
                 played = np.where(before_switch, first, second)
                 total, mix = (a, a * played) if k == 0 else (total + a, mix + a * played)
             V = (1.0 - total) * V + mix
+        if dispersion.enabled:
+            V = np.array(np.broadcast_to(V, T.shape))
+            for i in range(n):  # over time; vectorised over the grid
+                drive = V[i].copy()
+                V[i] = relaxation_output(drive, self._relaxation, dispersion.fraction)
+                decay = self._relaxation_decay
+                self._relaxation = relaxation_advance(drive, self._relaxation, decay)
         z = hyperbolic_forward(V, T, self.params)
         if self.effects.drift.enabled:
             times = np.asarray(t_start + ends * (self.dt / n), np.float64)
@@ -231,4 +251,6 @@ class ActuatorGrid:
         if self.effects.thermal_expansion.enabled:
             alpha = self.effects.thermal_expansion.alpha_m_per_degc
             z = z + alpha * (T - self.reference_temperature)
+        if every and not all_substeps:
+            z = z[-1:]
         return np.asarray(z, np.float64)

@@ -19,6 +19,7 @@ from es_physics.effects.base import Effect, EffectError, Role, UnknownEffectErro
 from es_physics.effects.coupling import Coupling
 from es_physics.effects.delay import Delay
 from es_physics.effects.drift import Drift
+from es_physics.effects.frequency_dispersion import FrequencyDispersion
 from es_physics.effects.hysteresis import Hysteresis
 from es_physics.effects.self_heating import SelfHeating
 from es_physics.effects.sensor_lag import SensorLag
@@ -38,6 +39,7 @@ BUILT_IN: Final[tuple[type[Effect], ...]] = (
     Drift,
     TemperatureCurvature,
     SelfHeating,
+    FrequencyDispersion,
 )
 
 

@@ -1,0 +1,117 @@
+"""Frequency dispersion of the permittivity: the gain falls as the drive gets faster.
+
+A first-order (Debye-like) relaxation: part ``r`` of the polarisation follows the drive only
+through a low-pass of corner ``f_c``, so the voltage in effect is
+
+    V_eff = (1 - r) V + r s,    ds/dt = 2 pi f_c (V - s),
+
+i.e. V_eff = V - r highpass_(f_c)(V): unity gain at DC, 1 - r far above f_c. Discretised
+for a drive held over steps of dt (exact for the held drive): the output of a step uses
+the state at its start, then s <- s + (1 - exp(-2 pi f_c dt)) (V - s)
+(:func:`relaxation_output`, :func:`relaxation_advance`). The output at a time h into a
+held step is V - r D (V - s), D = exp(-2 pi f_c h): exactly invertible for r < 1,
+V = (V_eff - r D s) / (1 - r D) (:func:`relaxation_inverse`).
+
+Plant: the filter acts on the drive after any hysteresis, at the plant's internal rate.
+Feedforward: its inverse on the voltage the law needs at the end of the coming command
+interval (taken as long as the last one), where the displacement is observed
+(``compensation.dispersion_fraction``, ``compensation.dispersion_corner_hz``). No
+calibration model yet.
+"""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+import numpy as np
+
+from es_physics.effects.base import Effect, FittedEffect, FloatArray, Parameter, Role
+
+#: Highest relaxation fraction the compensation accepts (its inverse gains 1 / (1 - r)).
+MAX_FRACTION = 0.9
+
+
+def relaxation_decay(corner_hz: float, dt: float) -> float:
+    """Return exp(-2 pi f_c dt): how much of the state's gap to the drive survives a step.
+
+    Args:
+        corner_hz: relaxation corner frequency f_c [Hz] (> 0).
+        dt: step length [s] (>= 0).
+
+    Raises:
+        ValueError: f_c not positive or dt negative (or either not finite).
+
+    """
+    if not (np.isfinite(corner_hz) and corner_hz > 0.0):
+        raise ValueError(f"corner frequency {corner_hz!r} Hz must be > 0")
+    if not (np.isfinite(dt) and dt >= 0.0):
+        raise ValueError(f"step {dt!r} s must be >= 0")
+    return float(np.exp(-2.0 * np.pi * corner_hz * dt))
+
+
+def relaxation_output(
+    voltage: FloatArray, state: FloatArray, fraction: float, decay: float = 1.0
+) -> FloatArray:
+    """Return V_eff = V - r D (V - s) for the drive ``voltage`` held from the state ``state``.
+
+    ``decay`` D = :func:`relaxation_decay` of the time since the drive started: D = 1 (the
+    default) gives the output as the drive starts, (1 - r) V + r s [V].
+    """
+    return np.asarray(voltage - fraction * decay * (voltage - state), np.float64)
+
+
+def relaxation_advance(voltage: FloatArray, state: FloatArray, decay: float) -> FloatArray:
+    """Return the state after a step of held drive: V + (s - V) decay [V]."""
+    return np.asarray(voltage + (state - voltage) * decay, np.float64)
+
+
+def relaxation_inverse(
+    v_eff: FloatArray, state: FloatArray, fraction: float, decay: float = 1.0
+) -> FloatArray:
+    """Return the drive V that makes :func:`relaxation_output` give ``v_eff`` [V].
+
+    V = (V_eff - r D s) / (1 - r D), D = ``decay`` in [0, 1].
+
+    Raises:
+        ValueError: ``fraction`` not in [0, 1) (the inverse does not exist) or ``decay``
+            not in [0, 1].
+
+    """
+    if not 0.0 <= fraction < 1.0:
+        raise ValueError(f"relaxation fraction {fraction!r} must be in [0, 1)")
+    if not 0.0 <= decay <= 1.0:
+        raise ValueError(f"relaxation decay {decay!r} must be in [0, 1]")
+    rd = fraction * decay
+    return np.asarray((v_eff - rd * state) / (1.0 - rd), np.float64)
+
+
+class FrequencyDispersion(Effect):
+    """First-order relaxation of the actuator's gain with drive frequency."""
+
+    name: ClassVar[str] = "frequency_dispersion"
+    summary: ClassVar[str] = "permittivity relaxes: the gain falls by r above a corner f_c"
+    role: ClassVar[Role] = Role.PLANT_ONLY
+    simulated: ClassVar[bool] = True
+    plant: ClassVar[tuple[Parameter, ...]] = (
+        Parameter("fraction", "", 0.0, 1.0, 0.1, "relaxing fraction r of the gain", high_open=True),
+        Parameter("corner_hz", "Hz", 0.0, 1e6, 20.0, "relaxation corner f_c", low_open=True),
+    )
+    compensation: ClassVar[tuple[Parameter, ...]] = (
+        Parameter(
+            "dispersion_fraction", "", 0.0, MAX_FRACTION, 0.0, "relaxing fraction r (0 = off)"
+        ),
+        Parameter("dispersion_corner_hz", "Hz", 1e-6, 1e6, 20.0, "relaxation corner f_c"),
+    )
+
+    def reported(self, fit: FittedEffect) -> dict[str, float]:
+        """Return the values as given (the effect has no calibration model yet)."""
+        return {k: float(v) for k, v in fit.values.items()}
+
+    def compensation_values(
+        self, reported: dict[str, float], start_time: float
+    ) -> dict[str, float]:
+        """Invert the reported relaxation."""
+        return {
+            "dispersion_fraction": reported["fraction"],
+            "dispersion_corner_hz": reported["corner_hz"],
+        }
