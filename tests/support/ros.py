@@ -13,15 +13,25 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from typing import IO
 
 import rclpy
 from rclpy.node import Node
+from rclpy.publisher import Publisher
+from rclpy.subscription import Subscription
 
 PREFIX = Path(sys.prefix)
+
+#: One bounded wait for DDS readiness (endpoints matched, first data), wall seconds. Generous:
+#: discovery on a loaded machine takes seconds; a wait that ends early costs nothing.
+READY_TIMEOUT = 60.0
+
+
+class NotReadyError(AssertionError):
+    """A DDS endpoint never matched, or awaited data never came, within the bounded wait."""
 
 
 def executable(package: str, name: str) -> Path:
@@ -95,3 +105,72 @@ def spin_until(node: Node, done: Callable[[], bool], timeout: float) -> bool:
     finally:
         executor.remove_node(node)
     return done()
+
+
+def _matched(endpoint: Publisher | Subscription) -> int:
+    if isinstance(endpoint, Publisher):
+        return endpoint.get_subscription_count()
+    return endpoint.get_publisher_count()
+
+
+def _describe(endpoint: Publisher | Subscription, wanted: int) -> str:
+    if isinstance(endpoint, Publisher):
+        return (f"publisher {endpoint.topic_name}: {_matched(endpoint)} of {wanted} "
+                "subscriptions matched")
+    return (f"subscription {endpoint.topic_name}: {_matched(endpoint)} of {wanted} "
+            "publishers matched")
+
+
+def wait_until(
+    node: Node,
+    done: Callable[[], bool],
+    what: str,
+    timeout: float = READY_TIMEOUT,
+    processes: Iterable[NodeProcess] = (),
+) -> None:
+    """Spin ``node`` until ``done()``; fail naming ``what`` never came.
+
+    Raises:
+        NotReadyError: ``timeout`` seconds passed, or one of ``processes`` exited first (its
+            output is in the message).
+
+    """
+    watched = list(processes)
+    deadline = time.monotonic() + timeout
+    while not done():
+        for proc in watched:
+            if proc.process.poll() is not None:
+                raise NotReadyError(
+                    f"{what}: never came; {proc.command[0]} exited "
+                    f"{proc.process.returncode} first:\n{proc.output()}"
+                )
+        if time.monotonic() >= deadline:
+            raise NotReadyError(f"{what}: never came within {timeout:g} s")
+        spin_until(node, done, timeout=min(0.2, max(deadline - time.monotonic(), 0.0)))
+
+
+def wait_matched(
+    node: Node,
+    endpoints: Iterable[Publisher | Subscription],
+    count: int = 1,
+    timeout: float = READY_TIMEOUT,
+    processes: Iterable[NodeProcess] = (),
+) -> None:
+    """Spin ``node`` until each endpoint has matched ``count`` peers (subscriptions of a
+    publisher, publishers of a subscription).
+
+    Raises:
+        NotReadyError: within ``timeout`` seconds some endpoint did not match (the message
+            names each such endpoint and its matched count), or a watched process exited.
+
+    """
+    pending = list(endpoints)
+
+    def all_matched() -> bool:
+        return all(_matched(e) >= count for e in pending)
+
+    try:
+        wait_until(node, all_matched, "endpoints matched", timeout, processes)
+    except NotReadyError as err:
+        unmatched = "; ".join(_describe(e, count) for e in pending if _matched(e) < count)
+        raise NotReadyError(f"{err} ({unmatched})") from None

@@ -45,24 +45,28 @@ TOPIC_TYPES: Final[dict[str, str]] = {
     CLOCK: CLOCK_TYPE,
 }
 
-#: QoS of every /dm topic: reliable, keep last 10, volatile.
+#: History depth of every /dm endpoint: one second of the fastest stream (set points and
+#: commands at 1 kHz). Reliable delivery resends only what the writer still holds, and a
+#: reader drops its oldest sample when its history is full: with the contract's default of
+#: 10, a reader that is not serviced for 10 periods (10 ms at 1 kHz, one scheduler stall on
+#: a busy machine) loses messages. A history only fills while samples are unacknowledged or
+#: untaken, so the memory bound, DM_DEPTH messages per endpoint (32 MiB at 4096 doubles),
+#: is reached only during such a stall.
+DM_DEPTH: Final = 1000
+
+#: QoS of every /dm topic, publishers and subscriptions alike: reliable, volatile, keep last
+#: DM_DEPTH (the contract's keep-last-10 exception, documented in docs/architecture.md).
+#: History depth is not part of QoS matching, so endpoints of other nodes with the
+#: contract's depth of 10 still match.
 DM_QOS: Final = QoSProfile(
     history=HistoryPolicy.KEEP_LAST,
-    depth=10,
+    depth=DM_DEPTH,
     reliability=ReliabilityPolicy.RELIABLE,
     durability=DurabilityPolicy.VOLATILE,
 )
 
-#: QoS of the nodes' own /dm publishers: the contract's, with a deeper history. Reliable
-#: delivery can resend only what the publisher still holds; a subscriber that falls behind
-#: for a moment (a recorder on a loaded machine) would otherwise lose what was sent before
-#: (compatible with keep-last-10 subscribers; the history only fills while unacknowledged).
-DM_PUBLISHER_QOS: Final = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=1000,
-    reliability=ReliabilityPolicy.RELIABLE,
-    durability=DurabilityPolicy.VOLATILE,
-)
+#: QoS of the nodes' own /dm publishers: the same profile as their subscriptions.
+DM_PUBLISHER_QOS: Final = DM_QOS
 
 #: QoS of /diagnostics, as diagnostic_updater uses it.
 DIAGNOSTICS_QOS: Final = QoSProfile(

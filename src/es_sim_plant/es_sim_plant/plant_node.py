@@ -14,8 +14,9 @@ nothing publishes the awaited topic at all, the plant does not wait for it (WARN
 crashed controller costs no timeouts. After the last step it publishes the final clock and
 displacement, logs a summary and, with ``exit_when_done``, exits 0.
 
-Real time (``lockstep: false``): a wall timer at the control rate publishes the outputs of
-step k and applies the newest valid command.
+Real time (``lockstep: false``): once the peers are present as in lockstep (or after
+``start_timeout``), a wall timer at the control rate publishes the outputs of step k and
+applies the newest valid command.
 
 Scenarios with an ``excitation`` (test-stand runs such as ``characterisation``) need no
 controller: the plant plays the voltage program itself and publishes it on /dm/command, as
@@ -162,7 +163,7 @@ SPECS: tuple[ParameterSpec, ...] = (
     ParameterSpec(
         "start_timeout",
         10.0,
-        "Lockstep: wall seconds to wait at start for the command (and temperature) publishers "
+        "Wall seconds to wait at start for the command (and temperature) publishers "
         "and the set-point subscriber before stepping anyway.",
         low=0.0,
         high=600.0,
@@ -171,7 +172,7 @@ SPECS: tuple[ParameterSpec, ...] = (
     ParameterSpec(
         "start_subscribers",
         0,
-        "Lockstep: at start also wait until every /dm topic the plant publishes has this many "
+        "At start also wait until every /dm topic the plant publishes has this many "
         "matched subscriptions beyond the controllers' (1: a recorder misses nothing).",
         0,
         100,
@@ -281,12 +282,20 @@ class PlantNode(Node):
             if self._test_stand
             else None
         )
-        if not self._test_stand:
-            self.create_subscription(Float64MultiArray, topics.COMMAND, self._on_command, qos)
-        if self.lockstep and self.sync_temperature:
+        self._command_sub = (
+            None
+            if self._test_stand
+            else self.create_subscription(
+                Float64MultiArray, topics.COMMAND, self._on_command, qos
+            )
+        )
+        self._temperature_sub = (
             self.create_subscription(
                 Float64MultiArray, topics.TEMPERATURE, self._on_temperature, qos
             )
+            if self.lockstep and self.sync_temperature
+            else None
+        )
 
         # Command state: the last valid command stays applied until a valid one replaces it.
         self._held = np.zeros(self.plant.shape)
@@ -319,9 +328,6 @@ class PlantNode(Node):
         if self.lockstep:
             self.create_timer(_WATCHDOG_PERIOD, self._watchdog, clock=wall)
         else:
-            self._phase = Phase.BEGIN
-            self._run_wall_start = time.monotonic()
-            self._run_cpu_start = time.process_time()
             self.create_timer(self.plant.dt, self._realtime_tick, clock=wall)
         self.get_logger().info(
             f"scenario '{scenario.name}': {scenario.rows} x {scenario.cols}, "
@@ -380,13 +386,32 @@ class PlantNode(Node):
             needed.append((self._pub_command, extra))
         if any(pub.get_subscription_count() < count for pub, count in needed):
             return False
-        if self._test_stand:
-            temperature = self.count_publishers(self._temperature_topic)
+        # Sources: publishers matched by the plant's own subscription (nothing sent before
+        # the match is lost), the graph's count where the plant does not subscribe.
+        temperature = (
+            self._temperature_sub.get_publisher_count()
+            if self._temperature_sub is not None
+            else self.count_publishers(self._temperature_topic)
+        )
+        if self._command_sub is None:
             return not self.sync_temperature or temperature > 0
-        ready = self.count_publishers(self._command_topic) > 0
+        ready = self._command_sub.get_publisher_count() > 0
         if self.sync_temperature:
-            ready = ready and self.count_publishers(self._temperature_topic) > 0
+            ready = ready and temperature > 0
         return ready
+
+    def _started(self, now: float) -> bool:
+        """Begin the run once the peers are present or ``start_timeout`` passed (WARN)."""
+        if not self._peers_ready():
+            if now - self._start_wall < self.start_timeout:
+                return False
+            self.get_logger().warning(
+                f"start: peers not all present after {self.start_timeout:g} s; stepping anyway"
+            )
+        self._phase = Phase.BEGIN
+        self._run_wall_start = now
+        self._run_cpu_start = time.process_time()
+        return True
 
     def _refresh_graph(self, now: float) -> None:
         self._graph_checked = now
@@ -398,16 +423,8 @@ class PlantNode(Node):
         if now - self._graph_checked >= _GRAPH_PERIOD:
             self._refresh_graph(now)
         if self._phase is Phase.STARTING:
-            if self._peers_ready() or now - self._start_wall >= self.start_timeout:
-                if not self._peers_ready():
-                    self.get_logger().warning(
-                        f"start: peers not all present after {self.start_timeout:g} s; "
-                        "stepping anyway"
-                    )
+            if self._started(now):
                 self._refresh_graph(now)
-                self._phase = Phase.BEGIN
-                self._run_wall_start = now
-                self._run_cpu_start = time.process_time()
                 self._advance()
             return
         if self._paced:
@@ -509,6 +526,8 @@ class PlantNode(Node):
 
     # --- real time ------------------------------------------------------------------------
     def _realtime_tick(self) -> None:
+        if self._phase is Phase.STARTING and not self._started(time.monotonic()):
+            return
         if self._phase is not Phase.BEGIN:
             return
         if self.plant.done:
