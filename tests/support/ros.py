@@ -149,6 +149,20 @@ def wait_until(
         spin_until(node, done, timeout=min(0.2, max(deadline - time.monotonic(), 0.0)))
 
 
+def poll_until(done: Callable[[], bool], what: str, timeout: float = READY_TIMEOUT) -> None:
+    """Poll ``done()`` every 50 ms (no ROS node involved, e.g. a file being written).
+
+    Raises:
+        NotReadyError: ``timeout`` seconds passed without ``done()``.
+
+    """
+    deadline = time.monotonic() + timeout
+    while not done():
+        if time.monotonic() >= deadline:
+            raise NotReadyError(f"{what}: never came within {timeout:g} s")
+        time.sleep(0.05)
+
+
 def wait_matched(
     node: Node,
     endpoints: Iterable[Publisher | Subscription],
