@@ -107,18 +107,26 @@ def spin_until(node: Node, done: Callable[[], bool], timeout: float) -> bool:
     return done()
 
 
-def _matched(endpoint: Publisher | Subscription) -> int:
+def matched(endpoint: Publisher | Subscription) -> int:
+    """Peers matched by ``endpoint``: subscriptions of a publisher, publishers of a subscription."""
     if isinstance(endpoint, Publisher):
         return endpoint.get_subscription_count()
     return endpoint.get_publisher_count()
 
 
-def _describe(endpoint: Publisher | Subscription, wanted: int) -> str:
-    if isinstance(endpoint, Publisher):
-        return (f"publisher {endpoint.topic_name}: {_matched(endpoint)} of {wanted} "
-                "subscriptions matched")
-    return (f"subscription {endpoint.topic_name}: {_matched(endpoint)} of {wanted} "
-            "publishers matched")
+def unmatched(wanted: Iterable[tuple[Publisher | Subscription, int]]) -> list[str]:
+    """Describe every endpoint of ``(endpoint, peers wanted)`` that matched fewer peers."""
+    out = []
+    for endpoint, count in wanted:
+        have = matched(endpoint)
+        if have < count:
+            kind, peers = (
+                ("publisher", "subscriptions")
+                if isinstance(endpoint, Publisher)
+                else ("subscription", "publishers")
+            )
+            out.append(f"{kind} {endpoint.topic_name}: {have} of {count} {peers} matched")
+    return out
 
 
 def wait_until(
@@ -178,13 +186,8 @@ def wait_matched(
             names each such endpoint and its matched count), or a watched process exited.
 
     """
-    pending = list(endpoints)
-
-    def all_matched() -> bool:
-        return all(_matched(e) >= count for e in pending)
-
+    wanted = [(endpoint, count) for endpoint in endpoints]
     try:
-        wait_until(node, all_matched, "endpoints matched", timeout, processes)
+        wait_until(node, lambda: not unmatched(wanted), "endpoints matched", timeout, processes)
     except NotReadyError as err:
-        unmatched = "; ".join(_describe(e, count) for e in pending if _matched(e) < count)
-        raise NotReadyError(f"{err} ({unmatched})") from None
+        raise NotReadyError(f"{err} ({'; '.join(unmatched(wanted))})") from None
