@@ -4,16 +4,18 @@ Usage (from the repository root; ``scripts/soak`` bootstraps the venv and calls 
 
     .venv/bin/python bench/soak.py [--minutes M] [-o OUT] [--keep-bag]
 
-Runs ``bringup`` on ``dm_exposure`` (12 x 12, 100 Hz) with ``lockstep:=false`` (the plant
-free-runs on the wall clock) and ``duration`` M minutes of sim time, recorder on, and checks:
+Runs the bring-up's graph on ``dm_exposure`` (12 x 12, 100 Hz) below its own namespace with
+``lockstep: false`` (the plant free-runs on the wall clock) and ``duration`` M minutes of sim
+time, recorder on, and checks:
 
 - counts: for every /dm topic, published (the nodes' exit logs) == received and written
   (the recorder's exit log) == messages in the bag, and no loss reported by the middleware;
 - memory: every node's resident set (VmRSS of ``/proc/<pid>/status``, sampled every
   ``--sample-s`` seconds) grows by less than ``--max-growth`` between the first and the last
   minute after the warm-up (``--warmup-minutes``, default a sixth of the run, at most 5);
-- diagnostics: no ERROR status in the recorded /diagnostics once the plant's clock runs
-  (the ones before, while the controllers wait for the plant, are listed apart).
+- diagnostics: no ERROR status in the recorded /diagnostics between the plant's first and
+  last step (the ones before and after, while the controllers wait for the plant or it has
+  finished, are listed apart).
 
 Writes ``soak.json`` (settings, figures, RSS samples, failures) and ``soak.md`` into OUT
 (default ``out/soak-<UTC timestamp>``); the bag is deleted afterwards unless ``--keep-bag``
@@ -29,7 +31,6 @@ import json
 import os
 import re
 import shutil
-import subprocess
 import sys
 import threading
 import time
@@ -88,71 +89,82 @@ def rss_mib(pid: int) -> float | None:
 def run_bringup(
     minutes: float, out: Path, sample_s: float
 ) -> tuple[int, dict[str, NodeMemory], list[str], float]:
-    """Run the real-time graph; return (exit code, memory per node, bringup output, wall s)."""
-    from es_sim_plant.bringup import executable
+    """Run the real-time graph; return (exit code, memory per node, bring-up lines, wall s).
 
-    command = [
-        str(executable("es_sim_plant", "bringup")),
-        "--scenario", SCENARIO,
-        "--bag", str(out / "bag"),
-        "--log-dir", str(out / "logs"),
-        "--quiet",
-        "--timeout", str(minutes * 60.0 + 300.0),
-        "--plant-param", "lockstep:=false",
-        "--plant-param", f"duration:={minutes * 60.0}",
-    ]  # fmt: skip
+    The graph runs below its own namespace (``soak<pid>``): whatever else shares the ROS
+    domain (another test's plant, say) cannot publish into it.
+    """
+    from es_sim_plant.bringup import Bringup, GraphConfig
+
+    config = GraphConfig(
+        scenario=SCENARIO,
+        bag=out / "bag",
+        log_dir=out / "logs",
+        plant={"lockstep": False, "duration": minutes * 60.0},
+        namespace=f"soak{os.getpid()}",
+        wall_timeout=minutes * 60.0 + 300.0,
+    )
     memory: dict[str, NodeMemory] = {}
     lines: list[str] = []
+
+    def announce(text: str) -> None:
+        lines.append(text)
+        print(f"[soak] {text}", file=sys.stderr, flush=True)
+        match = _STARTED.search(text)
+        if match:
+            memory[match.group(1)] = NodeMemory(int(match.group(2)))
+
+    bringup = Bringup(config, announce=announce)
+    outcome: list[int] = []
+    runner = threading.Thread(target=lambda: outcome.append(bringup.run().exit_code))
     start = time.monotonic()
-    proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-
-    def read_output() -> None:
-        assert proc.stdout is not None
-        for line in proc.stdout:
-            lines.append(line.rstrip("\n"))
-            match = _STARTED.search(line)
-            if match:
-                memory[match.group(1)] = NodeMemory(int(match.group(2)))
-
-    reader = threading.Thread(target=read_output, daemon=True)
-    reader.start()
+    runner.start()
     try:
-        while proc.poll() is None:
+        while runner.is_alive():
             now = time.monotonic() - start
             for node in list(memory.values()):
                 value = rss_mib(node.pid)
                 if value is not None:
                     node.samples.append((now, value))
-            time.sleep(sample_s)
+            runner.join(sample_s)
     except KeyboardInterrupt:
-        proc.terminate()  # bringup stops its nodes one by one, the recorder last
-        proc.wait()
+        bringup.interrupt()  # stops the nodes one by one, the recorder last
+        runner.join()
         raise
-    reader.join(timeout=10.0)
-    return proc.returncode, memory, lines, time.monotonic() - start
+    return (outcome[0] if outcome else 1), memory, lines, time.monotonic() - start
 
 
-def check_counts(bag: Path, log_dir: Path) -> tuple[dict[str, dict[str, int]], list[str]]:
+def check_counts(
+    bag: Path, log_dir: Path
+) -> tuple[dict[str, dict[str, int]], list[str], float]:
     """Compare published, received, written and bagged counts of every /dm topic.
 
-    One topic at a time is read from the bag (a long run's bag does not fit comfortably in
+    Returns (counts per topic, failures, bag time of the last /dm/displacement [s]). One
+    topic at a time is read from the bag (a long run's bag does not fit comfortably in
     memory at once).
     """
     from es_msgs_py import topics
     from es_msgs_py.bag import BagError, read_bag
     from es_sim_plant.analysis import node_logs
-    from es_sim_plant.invariants import published_counts_from_log, recorder_counts_from_log
+    from es_sim_plant.invariants import (
+        contract_name,
+        published_counts_from_log,
+        recorder_counts_from_log,
+    )
 
     logs = node_logs(log_dir)
+    names = tuple(topics.TOPIC_TYPES)
     published: dict[str, int] = {}
     for node, lines in logs.items():
         if node == "record":
             continue
-        for topic, count in published_counts_from_log(lines, tuple(topics.TOPIC_TYPES)).items():
+        for topic, count in published_counts_from_log(lines, names).items():
             published[topic] = published.get(topic, 0) + count
-    recorder = recorder_counts_from_log(logs.get("record", []))
+    recorder = {contract_name(topic, names): counts
+                for topic, counts in recorder_counts_from_log(logs.get("record", [])).items()}
     figures: dict[str, dict[str, int]] = {}
     failures: list[str] = []
+    end = float("inf")
     for topic in topics.DM_TOPICS:
         try:
             series = read_bag(bag, [topic]).get(topic)
@@ -160,6 +172,9 @@ def check_counts(bag: Path, log_dir: Path) -> tuple[dict[str, dict[str, int]], l
             failures.append(f"{topic}: bag unreadable: {err}")
             continue
         in_bag = 0 if series is None else len(series)
+        if topic == topics.DISPLACEMENT and in_bag:
+            assert series is not None
+            end = float(series.times[-1])
         received, written, lost = recorder.get(topic, (0, 0, 0))
         sent = published.get(topic)
         figures[topic] = {
@@ -176,15 +191,17 @@ def check_counts(bag: Path, log_dir: Path) -> tuple[dict[str, dict[str, int]], l
                 f"{topic}: published {sent}, received {received}, written {written}, "
                 f"in the bag {in_bag}, lost {lost}"
             )
-    return figures, failures
+    return figures, failures, end
 
 
-def diagnostic_errors(bag: Path) -> tuple[dict[str, int], dict[str, int]]:
+def diagnostic_errors(bag: Path, end: float) -> tuple[dict[str, int], dict[str, int]]:
     """Count ERROR statuses in the recorded /diagnostics by ``<status name>: <message>``.
 
-    Returns (start-up, run): start-up ones were recorded before the plant's clock ran (bag
-    time 0: the recorder uses sim time), while the controllers waited for the plant, which
-    the bring-up starts last; every other one is an error of the run.
+    Returns (start-up and shut-down, run). The recorder stamps with sim time: bag time 0 is
+    before the plant's clock ran (the controllers wait for the plant, which the bring-up
+    starts last), ``end`` (the last displacement) and later is after its last step (the
+    controllers hear nothing more while the bring-up stops them one by one). Every other
+    ERROR is an error of the run.
     """
     from es_msgs_py import topics
     from es_msgs_py.bag import read_bag
@@ -196,7 +213,7 @@ def diagnostic_errors(bag: Path) -> tuple[dict[str, int], dict[str, int]]:
     if series is None:
         return startup, run
     for stamp, message in zip(series.times, series.messages, strict=True):
-        errors = startup if stamp <= 0.0 else run
+        errors = startup if stamp <= 0.0 or stamp >= end else run
         for status in message.status:
             if level_of(status) == Level.ERROR:
                 key = f"{status.name}: {status.message}"
@@ -227,7 +244,7 @@ def write_report(out: Path, result: Mapping[str, object]) -> None:
             f"{100 * m['growth']:.2f} % | {m['samples']} |"
         )
     lines += ["", f"diagnostic ERRORs during the run: {result['diagnostic_errors'] or 'none'}",
-              "", "diagnostic ERRORs at start-up (before the plant's clock ran): "
+              "", "diagnostic ERRORs before the plant's first step and after its last: "
               f"{result['startup_diagnostic_errors'] or 'none'}", ""]
     failures = result["failures"]
     assert isinstance(failures, list)
@@ -265,9 +282,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     errors: dict[str, int] = {}
     startup_errors: dict[str, int] = {}
     if bag.exists():
-        counts, count_failures = check_counts(bag, out / "logs")
+        counts, count_failures, end = check_counts(bag, out / "logs")
         failures += count_failures
-        startup_errors, errors = diagnostic_errors(bag)
+        startup_errors, errors = diagnostic_errors(bag, end)
         failures += [f"diagnostic ERROR x{n}: {key}" for key, n in errors.items()]
     else:
         failures.append("no bag was written")
