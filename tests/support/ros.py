@@ -3,6 +3,11 @@
 Processes are started from the installed ``<prefix>/lib/<pkg>/<exe>`` launchers (what
 ``ros2 run`` would run) and ended by their own PID only; they inherit the isolated
 ROS_DOMAIN_ID of the test process (see tests/conftest.py).
+
+Readiness is a fact, not a sleep: :func:`wait_matched` (a test's own publishers and
+subscriptions have matched their peers), :func:`wait_until` (first data or a handshake) and
+:func:`poll_until` (a file, a process) wait at most ``READY_TIMEOUT`` and fail with
+:class:`NotReadyError` naming what never matched or came.
 """
 
 from __future__ import annotations
