@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import fcntl
 import importlib
 import os
-from typing import Final
+import tempfile
+from pathlib import Path
+from typing import IO, Final
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
@@ -29,6 +32,42 @@ def process_domain_id(pid: int | None = None) -> int:
     Tests, benchmarks and the demo isolate their traffic with it.
     """
     return 1 + (os.getpid() if pid is None else pid) % MAX_SAFE_DOMAIN_ID
+
+
+#: Lock files of the domains this process holds (kept open: a lock lives with its file).
+_HELD_DOMAINS: list[IO[bytes]] = []
+
+
+def reserve_domain_id(lock_dir: Path | None = None) -> int:
+    """Return a ROS domain in 1..MAX_SAFE_DOMAIN_ID that no other es_dm process here holds.
+
+    Two processes whose PIDs pick the same domain (:func:`process_domain_id`) would see each
+    other's nodes (on a shared machine or CI runner, a test run of another checkout can
+    publish into this one's graph). This one starts at the PID's domain and takes the first
+    whose lock file ``<lock_dir>/<domain>.lock`` (default: ``es_dm_domains`` in the temporary
+    directory) it can lock; the lock is held until the process exits. When every domain is
+    held it falls back to the PID's.
+    """
+    folder = lock_dir or Path(tempfile.gettempdir()) / "es_dm_domains"
+    first = process_domain_id()
+    try:
+        folder.mkdir(mode=0o777, exist_ok=True)
+    except OSError:
+        return first
+    for offset in range(MAX_SAFE_DOMAIN_ID):
+        domain = 1 + (first - 1 + offset) % MAX_SAFE_DOMAIN_ID
+        try:
+            handle = (folder / f"{domain}.lock").open("ab")
+        except OSError:
+            continue
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            handle.close()
+            continue
+        _HELD_DOMAINS.append(handle)
+        return domain
+    return first
 
 
 #: Every /dm topic of the contract, in data-flow order.
