@@ -79,6 +79,17 @@ def graph(tmp_path: Path) -> Iterator[tuple[Watcher, dict[str, Proc], Path]]:
             TEMPERATURE_RAW: (0, 1),  # thermal
             HEAT_LOAD: (0, 1),  # thermal
         }, list(procs.values()))
+        # the recorder reports the publishers it matched: commands published before its
+        # subscription matched the feedforward's would be missing from the bag
+        wanted = {COMMAND: 1, SETPOINT: 1, TEMPERATURE: 2}
+
+        def recorder_matched() -> bool:
+            with watcher.lock:
+                status = watcher.diagnostics.get("record: bag")
+            values = {} if status is None else {kv.key: kv.value for kv in status.values}
+            return all(int(values.get(f"{t} publishers", "0")) >= n for t, n in wanted.items())
+
+        poll_until(recorder_matched, f"recorder report of matched publishers {wanted}")
         yield watcher, procs, bag
     finally:
         watcher.close()

@@ -114,7 +114,7 @@ class Recorder(Node):
         self._options = options
         self._bag = BagWriter(options.output, options.storage)
         self._counts: dict[str, TopicCount] = {}
-        self._recorded: list[Subscription] = []  # Node owns `_subscriptions`
+        self._recorded: dict[str, Subscription] = {}  # Node owns `_subscriptions`
         self._pending = [t for t in options.topics if t not in topics.TOPIC_TYPES]
         self._write_failed = False
         for topic in options.topics:
@@ -161,15 +161,13 @@ class Recorder(Node):
         def on_lost(status: QoSMessageLostInfo) -> None:
             count.lost = int(status.total_count)
 
-        self._recorded.append(
-            self.create_subscription(
-                topics.message_class(type_name),
-                topic,
-                on_message,
-                qos,
-                raw=True,
-                event_callbacks=SubscriptionEventCallbacks(message_lost=on_lost),
-            )
+        self._recorded[topic] = self.create_subscription(
+            topics.message_class(type_name),
+            topic,
+            on_message,
+            qos,
+            raw=True,
+            event_callbacks=SubscriptionEventCallbacks(message_lost=on_lost),
         )
 
     def _flush(self) -> None:
@@ -197,6 +195,8 @@ class Recorder(Node):
             values[f"{topic} received"] = count.received
             values[f"{topic} written"] = count.written
             values[f"{topic} lost"] = count.lost
+            # publishers matched: what a peer waits for before it publishes (readiness)
+            values[f"{topic} publishers"] = self._recorded[topic].get_publisher_count()
         for topic in self._pending:
             values[f"{topic} received"] = "waiting for publisher"
         unwritten = sum(c.received - c.written for c in self._counts.values())
