@@ -78,8 +78,10 @@ def paced_run(client: DdsClient, rate_hz: float, seconds: float) -> PacedRun:
     start = time.perf_counter()
     count = round(seconds * rate_hz)
     try:
-        latencies, sent_rate = client.paced(rate_hz, seconds)
+        latencies, sent_rate, lost = client.paced(rate_hz, seconds)
     except RuntimeError:  # not every command came back within the client's drain time
+        latencies, lost = None, count - (client.received - first)
+    if latencies is None or lost:
         received = client.received - first
         last = client.received_at[-1] if received else time.perf_counter()
         return PacedRun(count, received, count / seconds, received / (last - start),
@@ -102,7 +104,7 @@ def start_client(shape: tuple[int, int], timeout: float, hold_check: bool) -> Dd
 
     client = DdsClient(shape)
     try:
-        client.wait_for_peer(timeout)
+        client.wait_for_peer(timeout=timeout)
         client.temperature_pub.publish(client.temperature)
         client.executor.spin_once(timeout_sec=0.2)
         client.latencies(WARMUP)  # one at a time

@@ -70,18 +70,22 @@ from bench_scale import section_lockstep_scale, section_scale  # noqa: E402
 
 SECTIONS = ("kernels", "convert", "feedforward", "lockstep", "recorder", "calibrate", "thermal",
             "calibration_loop", "import", "scale", "lockstep_scale", "multihost", "selfsensing",
-            "identify", "teardown")
+            "identify", "teardown", "feedforward_load")
 #: Sections run when ``--only`` is not given (the identification sweep has its own command).
 DEFAULT_SECTIONS = tuple(name for name in SECTIONS if name != "identify")
+
 
 #: Grid shapes of the DDS benchmark (N = 144, 1024, 4096).
 DDS_SHAPES = ((12, 12), (32, 32), (64, 64))
 #: Grids of the lockstep benchmark.
 LOCKSTEP_SHAPES = ((12, 12), (32, 32))
-#: Set points in flight during the rate measurement (below the QoS depth of 10: none dropped).
+#: Set points in flight during the rate measurement (far below the /dm QoS depth).
 RATE_WINDOW = 4
 #: Set-point rate [Hz] of the paced latency run (the issue's 1 kHz).
 PACED_RATE = 1000.0
+#: Grid and CPU hogs of the feedforward-under-load run (4096 doubles, two hogs: issue 17).
+LOAD_SHAPE = (64, 64)
+LOAD_CPU_HOGS = 2
 
 
 @dataclass(frozen=True)
@@ -452,6 +456,7 @@ class DdsClient:
                                                        qos_for(SETPOINT))
         self.temperature_pub = self.node.create_publisher(Float64MultiArray, TEMPERATURE,
                                                           qos_for(TEMPERATURE))
+        self.sent = 0
         self.received = 0
         self.received_at: list[float] = []
         self.last_command: Float64MultiArray | None = None
@@ -470,25 +475,61 @@ class DdsClient:
         self.received_at.append(time.perf_counter())
         self.last_command = msg
 
-    def wait_for_peer(self, timeout: float = 30.0) -> None:
-        """Wait until the node under test subscribes to set points and publishes commands."""
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            if (self.setpoint_pub.get_subscription_count() > 0
-                    and self.command_sub.get_publisher_count() > 0):
-                self.executor.spin_once(timeout_sec=0.3)  # let discovery settle
-                return
-            self.executor.spin_once(timeout_sec=0.05)
-        raise RuntimeError("node under test did not show up on the ROS graph within "
-                           f"{timeout:g} s")
+    def publish(self, msg: Any) -> None:
+        """Publish one set point (counted in ``sent``)."""
+        self.setpoint_pub.publish(msg)
+        self.sent += 1
 
-    def _wait_received(self, count: int, timeout: float) -> None:
+    def wait_for_peer(self, setpoint_readers: int = 1, estimates: bool = False,
+                      timeout: float = 60.0) -> None:
+        """Wait until the client's endpoints matched their peers.
+
+        Peers: ``setpoint_readers`` subscriptions of its set points (the node, a recorder),
+        the node's estimate subscription when ``estimates``, the node's command publisher.
+
+        Raises:
+            RuntimeError: not matched within ``timeout`` (names what is missing).
+
+        """
+        wanted = [("set-point subscriptions", self.setpoint_pub.get_subscription_count,
+                   setpoint_readers),
+                  ("command publishers", self.command_sub.get_publisher_count, 1)]
+        if estimates:
+            wanted.append(("estimate subscriptions",
+                           self.temperature_pub.get_subscription_count, 1))
         deadline = time.monotonic() + timeout
-        while self.received < count:
+        while (missing := [f"{what} {count()} of {n}" for what, count, n in wanted
+                           if count() < n]):
             if time.monotonic() > deadline:
-                raise RuntimeError(f"only {self.received} of {count} commands came back within "
+                raise RuntimeError(f"not matched within {timeout:g} s: {', '.join(missing)}")
+            self.executor.spin_once(timeout_sec=0.05)
+
+    def use_temperature(self, timeout: float = 60.0) -> None:
+        """Send the estimate, then set points until a command shows it was taken (not 0 V).
+
+        Raises:
+            RuntimeError: every command within ``timeout`` was 0 V (the estimate never came).
+
+        """
+        from es_msgs_py.arrays import msg_to_grid
+
+        self.temperature_pub.publish(self.temperature)
+        deadline = time.monotonic() + timeout
+        while True:
+            self.latencies(1)
+            assert self.last_command is not None
+            if np.any(msg_to_grid(self.last_command) > 0.0):
+                return
+            if time.monotonic() > deadline:
+                raise RuntimeError("feedforward holds (all 0 V): temperature not taken within "
                                    f"{timeout:g} s")
+
+    def _wait_received(self, count: int, timeout: float) -> int:
+        """Spin until ``count`` commands arrived or ``timeout`` s; return how many are missing."""
+        deadline = time.monotonic() + timeout
+        while self.received < count and time.monotonic() < deadline:
             self.executor.spin_once(timeout_sec=0.01)
+        return max(count - self.received, 0)
 
     def latencies(self, samples: int) -> np.ndarray:
         """Ping-pong: send one set point, wait for its command; return latencies [s]."""
@@ -496,16 +537,19 @@ class DdsClient:
         for i in range(samples):
             target = self.received + 1
             start = time.perf_counter()
-            self.setpoint_pub.publish(self.messages[i % len(self.messages)])
-            self._wait_received(target, 5.0)
+            self.publish(self.messages[i % len(self.messages)])
+            if self._wait_received(target, 10.0):
+                raise RuntimeError(f"no command came back within 10 s (set point {self.sent})")
             out[i] = self.received_at[-1] - start
         return out
 
-    def paced(self, rate_hz: float, seconds: float) -> tuple[np.ndarray, float]:
-        """Send set points at ``rate_hz`` for ``seconds``; return (latencies [s], rate sent).
+    def paced(self, rate_hz: float, seconds: float) -> tuple[np.ndarray | None, float, int]:
+        """Send set points at ``rate_hz`` for ``seconds``; return (latencies, rate, lost).
 
-        Commands come back in order (reliable QoS, one per set point), so the k-th command
-        answers the k-th set point.
+        Latencies in s, the rate the client achieved in Hz, lost: commands that did not come
+        back within 10 s. Commands come back in order (reliable QoS, one per set point), so
+        the k-th command answers the k-th set point; when some are lost that pairing is gone
+        and the latencies are ``None``.
         """
         period = 1.0 / rate_hz
         count = round(seconds * rate_hz)
@@ -518,14 +562,19 @@ class DdsClient:
             while (left := due - time.perf_counter()) > 0.0:
                 self.executor.spin_once(timeout_sec=left)
             sent_at[k] = time.perf_counter()
-            self.setpoint_pub.publish(self.messages[k % len(self.messages)])
+            self.publish(self.messages[k % len(self.messages)])
         sent_rate = (count - 1) / (sent_at[-1] - sent_at[0])
-        self._wait_received(first + count, 10.0)  # nothing may be lost
+        lost = self._wait_received(first + count, 10.0)
+        if lost:
+            return None, sent_rate, lost
         received_at = np.asarray(self.received_at[first_index:first_index + count])
-        return received_at - sent_at, sent_rate
+        return received_at - sent_at, sent_rate, 0
 
-    def rate(self, seconds: float) -> float:
-        """Keep RATE_WINDOW set points in flight for ``seconds``; return commands per second."""
+    def rate(self, seconds: float) -> tuple[float, int]:
+        """Keep RATE_WINDOW set points in flight for ``seconds``; return (rate, lost).
+
+        Rate: commands per second; lost: commands that did not come back within 10 s.
+        """
         sent = 0
         first = self.received
         start = time.perf_counter()
@@ -533,17 +582,16 @@ class DdsClient:
         seen = self.received
         while time.perf_counter() - start < seconds:
             while sent - (self.received - first) < RATE_WINDOW:
-                self.setpoint_pub.publish(self.messages[sent % len(self.messages)])
+                self.publish(self.messages[sent % len(self.messages)])
                 sent += 1
             self.executor.spin_once(timeout_sec=0.05)
             if self.received != seen:
                 seen, last_progress = self.received, time.monotonic()
             elif time.monotonic() - last_progress > 5.0:
-                raise RuntimeError("commands stopped coming back during the rate run")
+                break  # commands stopped coming back: the drain below counts the lost ones
         elapsed = time.perf_counter() - start
         done = self.received - first
-        self._wait_received(first + sent, 10.0)  # drain: nothing may be lost
-        return done / elapsed
+        return done / elapsed, self._wait_received(first + sent, 10.0)
 
     def close(self) -> None:
         """Destroy the node and shut its context down."""
@@ -562,6 +610,8 @@ class DdsRun:
     p99_s: list[float] = field(default_factory=list)
     paced_p99_s: list[float] = field(default_factory=list)
     paced_rate_hz: list[float] = field(default_factory=list)
+    #: commands that never came back, per repeat (rate and paced runs)
+    lost: list[int] = field(default_factory=list)
     peak_mib: float = 0.0
 
     def add(self, other: DdsRun) -> None:
@@ -571,6 +621,7 @@ class DdsRun:
         self.p99_s += other.p99_s
         self.paced_p99_s += other.paced_p99_s
         self.paced_rate_hz += other.paced_rate_hz
+        self.lost += other.lost
         self.peak_mib = max(self.peak_mib, other.peak_mib)
 
 
@@ -596,25 +647,21 @@ def _measure_node(kind: str, shape: tuple[int, int], settings: Settings, log_dir
                    log_dir)
     try:
         with processes(node):
-            client.wait_for_peer()
+            client.wait_for_peer(estimates=kind == "feedforward")
             if kind == "feedforward":
-                client.temperature_pub.publish(client.temperature)
-                client.executor.spin_once(timeout_sec=0.2)
+                client.use_temperature()
             client.latencies(200)  # warm-up
-            if kind == "feedforward":
-                from es_msgs_py.arrays import msg_to_grid
-
-                assert client.last_command is not None
-                if not np.any(msg_to_grid(client.last_command) > 0.0):
-                    raise RuntimeError("feedforward holds (all 0 V): temperature not taken")
             for _ in range(settings.repeats):
                 lat = client.latencies(settings.dds_latency_samples)
                 run.p50_s.append(float(np.percentile(lat, 50)))
                 run.p99_s.append(float(np.percentile(lat, 99)))
-                run.rate_hz.append(client.rate(settings.dds_rate_seconds))
-                paced, sent_rate = client.paced(PACED_RATE, settings.dds_rate_seconds)
-                run.paced_p99_s.append(float(np.percentile(paced, 99)))
+                rate, lost = client.rate(settings.dds_rate_seconds)
+                run.rate_hz.append(rate)
+                paced, sent_rate, paced_lost = client.paced(PACED_RATE, settings.dds_rate_seconds)
+                if paced is not None:
+                    run.paced_p99_s.append(float(np.percentile(paced, 99)))
                 run.paced_rate_hz.append(sent_rate)
+                run.lost.append(lost + paced_lost)
                 node.sample_rss()
             run.peak_mib = node.peak_mib
     finally:
@@ -647,13 +694,17 @@ def section_feedforward(settings: Settings, results: Results, log_dir: Path) -> 
                 float(np.median(ff_values)) / float(np.median(relay_values))))
             results.references.append(Record.of(f"relay_latency_{label}", n,
                                                 [v * 1e3 for v in relay_values], "ms"))
-        results.records.append(Record.of(
-            "feedforward_paced_latency_p99", n, [v * 1e3 for v in ff.paced_p99_s], "ms",
-            float(np.median(ff.paced_p99_s)) / float(np.median(relay.paced_p99_s))))
+        if ff.paced_p99_s and relay.paced_p99_s:  # none when commands were lost
+            results.records.append(Record.of(
+                "feedforward_paced_latency_p99", n, [v * 1e3 for v in ff.paced_p99_s], "ms",
+                float(np.median(ff.paced_p99_s)) / float(np.median(relay.paced_p99_s))))
+        results.records.append(Record.of("feedforward_lost", n, ff.lost, "commands"))
+        results.references.append(Record.of("relay_lost", n, relay.lost, "commands"))
         results.references.append(Record.of("feedforward_paced_rate", n, ff.paced_rate_hz,
                                             "Hz"))
-        results.references.append(Record.of("relay_paced_latency_p99", n,
-                                            [v * 1e3 for v in relay.paced_p99_s], "ms"))
+        if relay.paced_p99_s:
+            results.references.append(Record.of("relay_paced_latency_p99", n,
+                                                [v * 1e3 for v in relay.paced_p99_s], "ms"))
         results.references.append(Record.of("relay_rate", n, relay.rate_hz, "Hz"))
         if relay_events.rate_hz:
             results.references.append(Record.of("relay_events_rate", n, relay_events.rate_hz,
@@ -674,6 +725,144 @@ def section_feedforward(settings: Settings, results: Results, log_dir: Path) -> 
     )
     if settings.profile:
         _profile_feedforward(results, log_dir)
+
+
+@dataclass
+class LoadRun:
+    """One feedforward run with a recorder beside it, idle or beside CPU hogs."""
+
+    p99_ms: float
+    rate_hz: float
+    paced_p99_ms: float | None
+    paced_rate_hz: float
+    counts: dict[str, int]
+
+    @property
+    def lost(self) -> int:
+        """Set points without a command back, plus messages the recorder did not write."""
+        c = self.counts
+        return ((c["setpoints_sent"] - c["commands_received"])
+                + (c["setpoints_sent"] - c["setpoints_in_bag"])
+                + (c["commands_published"] - c["commands_in_bag"]))
+
+
+def _wait_recorder_has(client: DdsClient, recorder: Process, timeout: float = 60.0) -> None:
+    """Wait until the recorder's /diagnostics report every command the client received.
+
+    Then it matched the node's command publisher before the first command went out: what it
+    misses later is a loss, not start-up.
+
+    Raises:
+        RuntimeError: the recorder did not report them within ``timeout``.
+
+    """
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    from es_msgs_py.topics import COMMAND, DIAGNOSTICS, qos_for
+
+    reported = -1
+
+    def on_report(msg: Any) -> None:
+        nonlocal reported
+        for status in msg.status:
+            for pair in status.values:
+                if pair.key == f"{COMMAND} received" and pair.value.isdigit():
+                    reported = int(pair.value)
+
+    sub = client.node.create_subscription(DiagnosticArray, DIAGNOSTICS, on_report,
+                                          qos_for(DIAGNOSTICS))
+    deadline = time.monotonic() + timeout
+    try:
+        while reported < client.received:
+            if time.monotonic() > deadline or not recorder.running():
+                raise RuntimeError(f"recorder reports {reported} of {client.received} commands "
+                                   f"after {timeout:g} s: it matched the node late")
+            client.executor.spin_once(timeout_sec=0.1)
+    finally:
+        client.node.destroy_subscription(sub)
+
+
+def _load_run(loaded: bool, settings: Settings, log_dir: Path, paced_s: float) -> LoadRun:
+    """Feedforward at LOAD_SHAPE with a recorder on set points and commands, hogs or not."""
+    from load import hogs
+
+    from es_msgs_py.bag import read_bag
+    from es_msgs_py.topics import COMMAND, SETPOINT
+    from es_sim_plant.invariants import published_counts_from_log, recorder_counts_from_log
+
+    rows, cols = LOAD_SHAPE
+    label = "loaded" if loaded else "idle"
+    with tempfile.TemporaryDirectory(prefix="bench_load_") as tmp, \
+            hogs(cpu=LOAD_CPU_HOGS if loaded else 0):
+        bag = Path(tmp) / "bag"
+        recorder = Process(f"record_{label}", [launcher("es_msgs_py", "record"), "-o", str(bag),
+                                               SETPOINT, COMMAND], log_dir)
+        node = Process(f"feedforward_{label}_{rows}x{cols}", [
+            launcher("es_feedforward", "feedforward_node"), "--ros-args", "-p", f"rows:={rows}",
+            "-p", f"cols:={cols}", "-p", "temperature_timeout:=0.0"], log_dir)
+        client = DdsClient(LOAD_SHAPE)
+        try:
+            with processes(node, recorder):  # the node stops first, the recorder last
+                client.wait_for_peer(setpoint_readers=2, estimates=True)
+                client.use_temperature()
+                _wait_recorder_has(client, recorder)
+                lat = client.latencies(settings.dds_latency_samples)
+                rate, _ = client.rate(settings.dds_rate_seconds)
+                paced, paced_rate, _ = client.paced(PACED_RATE, paced_s)
+                client._wait_received(client.sent, 10.0)  # every late command, before the stop
+                node.stop()
+                recorder.stop()
+            published = published_counts_from_log(node.output().splitlines(), (COMMAND,))
+            recorded = recorder_counts_from_log(recorder.output().splitlines())
+            in_bag = read_bag(bag, [SETPOINT, COMMAND])
+            counts = {
+                "setpoints_sent": client.sent,
+                "commands_published": published.get(COMMAND, -1),
+                "commands_received": client.received,
+                "setpoints_recorded": recorded.get(SETPOINT, (-1, -1, -1))[1],
+                "commands_recorded": recorded.get(COMMAND, (-1, -1, -1))[1],
+                "setpoints_in_bag": len(in_bag[SETPOINT]) if SETPOINT in in_bag else 0,
+                "commands_in_bag": len(in_bag[COMMAND]) if COMMAND in in_bag else 0,
+            }
+        finally:
+            client.close()
+    return LoadRun(float(np.percentile(lat, 99)) * 1e3, rate,
+                   None if paced is None else float(np.percentile(paced, 99)) * 1e3,
+                   paced_rate, counts)
+
+
+def section_feedforward_load(settings: Settings, results: Results, log_dir: Path) -> None:
+    """Feedforward at 4096 with a recorder, idle and beside two CPU hogs: rate, p99, loss."""
+    paced_s = 10.0 if settings.repeats > 1 else 3.0
+    runs: dict[bool, list[LoadRun]] = {False: [], True: []}
+    for _ in range(settings.repeats):
+        for loaded in (False, True):  # in turns: a change of the machine's load hits both
+            runs[loaded].append(_load_run(loaded, settings, log_dir, paced_s))
+    n = LOAD_SHAPE[0] * LOAD_SHAPE[1]
+    for loaded, label in ((False, "idle"), (True, "loaded")):
+        done = runs[loaded]
+        results.records.append(Record.of(f"load_{label}_rate", n, [r.rate_hz for r in done],
+                                         "Hz"))
+        results.records.append(Record.of(f"load_{label}_latency_p99", n,
+                                         [r.p99_ms for r in done], "ms"))
+        paced = [r.paced_p99_ms for r in done if r.paced_p99_ms is not None]
+        if paced:
+            results.records.append(Record.of(f"load_{label}_paced_latency_p99", n, paced, "ms"))
+        results.records.append(Record.of(f"load_{label}_lost", n, [r.lost for r in done],
+                                         "messages"))
+        for i, r in enumerate(done):
+            counts = ", ".join(f"{k} {v}" for k, v in r.counts.items())
+            results.notes.append(f"load_{label} run {i + 1}: {counts}; client sent "
+                                 f"{r.paced_rate_hz:.0f} Hz in the paced run")
+    results.notes.append(
+        f"load_*: the feedforward node at {LOAD_SHAPE[0]} x {LOAD_SHAPE[1]} with a recorder on "
+        f"/dm/setpoint and /dm/command, idle and beside {LOAD_CPU_HOGS} CPU hogs "
+        "(bench/load.py), in turns; latency_p99 one set point at a time, rate with "
+        f"{RATE_WINDOW} in flight, paced_latency_p99 while set points stream at "
+        f"{PACED_RATE:g} Hz for {paced_s:g} s; lost: set points without a command back plus "
+        "set points and commands missing from the bag (published == received == recorded "
+        "when 0); a paced p99 is left out of a run that lost commands (no pairing)."
+    )
 
 
 def _profile_feedforward(results: Results, log_dir: Path) -> None:
@@ -1012,6 +1201,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "kernels": lambda: section_kernels(settings, results),
         "convert": lambda: section_convert(settings, results),
         "feedforward": lambda: section_feedforward(settings, results, log_dir),
+        "feedforward_load": lambda: section_feedforward_load(settings, results, log_dir),
         "lockstep": lambda: section_lockstep(settings, results, log_dir),
         "recorder": lambda: section_recorder(results, log_dir),
         "calibrate": lambda: section_calibrate(settings, results),

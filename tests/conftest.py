@@ -1,7 +1,8 @@
 """Test-wide set-up: isolate ROS 2 traffic of this test process.
 
-Each pytest process gets its own ROS_DOMAIN_ID (derived from its PID) and discovery stays on
-localhost, so parallel test runs and other ROS users on the machine never see each other.
+Each pytest process gets its own ROS_DOMAIN_ID (one no other es_dm process on the machine
+holds, see ``reserve_domain_id``) and discovery stays on localhost, so parallel test runs of
+any checkout never see each other.
 Node processes started by tests inherit this environment.
 """
 
@@ -10,9 +11,9 @@ from __future__ import annotations
 import os
 import subprocess
 
-from es_msgs_py.topics import process_domain_id
+from es_msgs_py.topics import reserve_domain_id
 
-os.environ["ROS_DOMAIN_ID"] = str(process_domain_id())
+os.environ["ROS_DOMAIN_ID"] = str(reserve_domain_id())
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 os.environ.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
 os.environ.setdefault("PYTHONUNBUFFERED", "1")

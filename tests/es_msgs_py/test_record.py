@@ -15,11 +15,11 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Float64MultiArray
-from support.ros import NodeProcess, executable, spin_until
+from support.ros import NodeProcess, executable, poll_until, wait_matched, wait_until
 from support.ros import test_node as ros_node
 
 from es_msgs_py.arrays import grid_to_msg, msg_to_grid, msg_to_sensors, sensors_to_msg
-from es_msgs_py.bag import decode_float64_multi_arrays, read_bag
+from es_msgs_py.bag import BagError, decode_float64_multi_arrays, read_bag
 from es_msgs_py.record import TopicCount
 from es_msgs_py.topics import CLOCK, COMMAND, DIAGNOSTICS, DM_QOS, TEMPERATURE_RAW, qos_for
 
@@ -47,12 +47,16 @@ def test_dds_round_trip_in_process() -> None:
         )
         command = node.create_publisher(Float64MultiArray, COMMAND, PUBLISHER_QOS)
         temperature = node.create_publisher(Float64MultiArray, TEMPERATURE_RAW, PUBLISHER_QOS)
-        assert spin_until(node, lambda: command.get_subscription_count() == 2, 10.0)
+        wait_matched(node, [command], count=2)
+        wait_matched(node, [temperature])
         for grid in grids:
             command.publish(grid_to_msg(grid))
         temperature.publish(sensors_to_msg(sensors))
-        assert spin_until(
-            node, lambda: len(received) == len(raw) == 5 and len(got_sensors) == 1, 10.0
+        wait_until(
+            node,
+            lambda: len(received) == len(raw) == 5 and len(got_sensors) == 1,
+            f"5 commands twice and 1 sensor message (got {len(received)}, {len(raw)}, "
+            f"{len(got_sensors)})",
         )
     for msg, grid in zip(received, grids, strict=True):
         np.testing.assert_array_equal(msg_to_grid(msg, (3, 4)), grid)
@@ -76,24 +80,32 @@ def _record_and_publish(
 ) -> None:
     """Publish every message of ``topics`` and wait until the recorder reports them written."""
     latest: dict[str, int] = {}
-    node.create_subscription(
+    reports = node.create_subscription(
         DiagnosticArray,
         DIAGNOSTICS,
         lambda msg: latest.update(_written_counts(msg)),
         qos_for(DIAGNOSTICS),
     )
     publishers = {t: node.create_publisher(Float64MultiArray, t, PUBLISHER_QOS) for t in topics}
-    assert spin_until(
-        node, lambda: all(p.get_subscription_count() >= 1 for p in publishers.values()), 20.0
-    ), recorder.output()
+    wait_matched(node, [reports, *publishers.values()], processes=[recorder])
     for i in range(max(len(m) for m in topics.values())):
         for topic, msgs in topics.items():
             if i < len(msgs):
                 publishers[topic].publish(msgs[i])
-        time.sleep(0.001)  # about 1 kHz
-    expected = {t: len(m) for t, m in topics.items()}
-    done = spin_until(node, lambda: all(latest.get(t) == n for t, n in expected.items()), 30.0)
-    assert done, f"recorder reports {latest}, published {expected}\n{recorder.output()}"
+        time.sleep(0.001)  # the scenario: about 1 kHz
+    _wait_written(node, recorder, latest, {t: len(m) for t, m in topics.items()})
+
+
+def _wait_written(
+    node: Node, recorder: NodeProcess, latest: dict[str, int], expected: dict[str, int]
+) -> None:
+    """Spin until the recorder's reports (``latest``, kept up to date) show ``expected``."""
+    wait_until(
+        node,
+        lambda: all(latest.get(t) == n for t, n in expected.items()),
+        f"recorder report of {expected} written (last report {latest})",
+        processes=[recorder],
+    )
 
 
 def test_recorder_writes_every_message_and_closes_on_sigint(tmp_path: Path) -> None:
@@ -149,12 +161,18 @@ def test_recorder_reports_what_it_missed_by_joining_late(tmp_path: Path) -> None
         for k in range(7):  # nobody records these
             command.publish(grid_to_msg(np.full((2, 2), float(k))))
         recorder = NodeProcess("es_msgs_py", "record", ["-o", str(bag), COMMAND])
+        latest: dict[str, int] = {}
+        reports = node.create_subscription(
+            DiagnosticArray,
+            DIAGNOSTICS,
+            lambda msg: latest.update(_written_counts(msg)),
+            qos_for(DIAGNOSTICS),
+        )
         try:
-            assert spin_until(node, lambda: command.get_subscription_count() >= 1, 20.0)
-            spin_until(node, lambda: False, 0.5)
+            wait_matched(node, [command, reports], processes=[recorder])
             for k in range(3):
                 command.publish(grid_to_msg(np.full((2, 2), float(k))))
-            spin_until(node, lambda: False, 1.0)
+            _wait_written(node, recorder, latest, {COMMAND: 3})
         finally:
             assert recorder.stop(signal.SIGINT) == 0, recorder.output()
     assert "/dm/command: received 3, written 3, lost before reception 0, missed 7" in (
@@ -170,22 +188,32 @@ def test_recorder_stamps_with_sim_time(tmp_path: Path) -> None:
         with ros_node("es_record_clock") as node:
             clock = node.create_publisher(Clock, CLOCK, qos_for(CLOCK))
             command = node.create_publisher(Float64MultiArray, COMMAND, PUBLISHER_QOS)
+            latest: dict[str, int] = {}
+            stamps: list[float] = []
+
+            def on_report(msg: DiagnosticArray) -> None:
+                stamps.append(msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9)
+                latest.update(_written_counts(msg))
+
+            reports = node.create_subscription(
+                DiagnosticArray, DIAGNOSTICS, on_report, qos_for(DIAGNOSTICS)
+            )
 
             def tick() -> None:
                 clock.publish(Clock(clock=Time(sec=100, nanosec=250_000_000)))
 
             node.create_timer(0.02, tick)
-            assert spin_until(
+            wait_matched(node, [clock, command, reports], processes=[recorder])
+            # its reports carry its clock: once one says 100.25 s, so does every stamp after
+            wait_until(
                 node,
-                lambda: (
-                    clock.get_subscription_count() >= 1 and command.get_subscription_count() >= 1
-                ),
-                20.0,
-            ), recorder.output()
-            spin_until(node, lambda: False, 0.5)  # the recorder's clock reaches t = 100.25 s
+                lambda: bool(stamps) and stamps[-1] == 100.25,
+                f"recorder report stamped 100.25 s (last {stamps[-1:]})",
+                processes=[recorder],
+            )
             for k in range(20):
                 command.publish(grid_to_msg(np.full((2, 2), float(k))))
-            spin_until(node, lambda: False, 1.0)
+            _wait_written(node, recorder, latest, {COMMAND: 20})
     finally:
         assert recorder.stop(signal.SIGINT) == 0, recorder.output()
     series = read_bag(bag)[COMMAND]
@@ -215,6 +243,14 @@ def test_recorder_throughput_loses_nothing(tmp_path: Path) -> None:
     np.testing.assert_array_equal(values[:, 0, 0], np.arange(1000.0))
 
 
+def _bag_count(bag: Path, topic: str) -> int:
+    """Messages of ``topic`` readable from a bag that may still be being written (0: none)."""
+    try:
+        return len(read_bag(bag, [topic])[topic])
+    except (BagError, KeyError):
+        return 0
+
+
 def test_sigkilled_recorder_bag_is_readable_up_to_last_flush(tmp_path: Path) -> None:
     grids = np.random.default_rng(3).normal(size=(200, 3, 3))
     bag = tmp_path / "bag"
@@ -224,7 +260,7 @@ def test_sigkilled_recorder_bag_is_readable_up_to_last_flush(tmp_path: Path) -> 
     try:
         with ros_node("es_record_kill") as node:
             _record_and_publish(node, recorder, {COMMAND: [grid_to_msg(g) for g in grids]})
-        time.sleep(0.5)  # several flush periods after the last message was written
+        poll_until(lambda: _bag_count(bag, COMMAND) == len(grids), "every message flushed")
     finally:
         code = recorder.stop(signal.SIGKILL)
     assert code == -signal.SIGKILL

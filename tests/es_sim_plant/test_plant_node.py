@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.publisher import Publisher
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Float64MultiArray
@@ -58,7 +59,7 @@ def test_lockstep_run_with_echo_source_rejects_and_holds(tmp_path: Path) -> None
         "-p", f"scenario:={scenario}",
         "-p", "sync_temperature:=false",
         "-p", "exit_when_done:=true",
-        "-p", "command_timeout:=0.3",
+        "-p", "command_timeout:=1.0",
     ]  # fmt: skip
     with ros.test_node("plant_echo") as node:
         commands: list[np.ndarray] = []
@@ -66,7 +67,7 @@ def test_lockstep_run_with_echo_source_rejects_and_holds(tmp_path: Path) -> None
         clocks: list[float] = []
         raw: list[np.ndarray] = []
         warn_values: list[dict[str, str]] = []
-        publisher = node.create_publisher(Float64MultiArray, topics.COMMAND, topics.DM_QOS)
+        publishers: list[Publisher] = []  # created once the listeners have matched
 
         def on_setpoint(msg: Float64MultiArray) -> None:
             step = len(commands)
@@ -74,7 +75,8 @@ def test_lockstep_run_with_echo_source_rejects_and_holds(tmp_path: Path) -> None
             commands.append(setpoint * 1.0e9)  # 50 nm -> 50 V: valid and recognisable
             if step == SILENT_STEP:
                 return
-            publisher.publish(grid_to_msg(commands[-1]) if step < BAD_FROM else bad_command(step))
+            reply = grid_to_msg(commands[-1]) if step < BAD_FROM else bad_command(step)
+            publishers[0].publish(reply)
 
         def on_diagnostics(msg: DiagnosticArray) -> None:
             for status in msg.status:
@@ -82,27 +84,35 @@ def test_lockstep_run_with_echo_source_rejects_and_holds(tmp_path: Path) -> None
                     warn_values.append({kv.key: kv.value for kv in status.values})
 
         qos = topics.DM_QOS
-        node.create_subscription(Float64MultiArray, topics.SETPOINT, on_setpoint, qos)
-        node.create_subscription(
-            Float64MultiArray,
-            topics.DISPLACEMENT,
-            lambda m: displacements.append(msg_to_grid(m, (2, 2))),
-            qos,
-        )
-        node.create_subscription(
-            Float64MultiArray, topics.TEMPERATURE_RAW, lambda m: raw.append(m.data), qos
-        )
-        node.create_subscription(
-            Clock,
-            topics.CLOCK,
-            lambda m: clocks.append(m.clock.sec + m.clock.nanosec * 1e-9),
-            CLOCK_LISTENER_QOS,
-        )
-        node.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, on_diagnostics, 10)
+        listeners = [
+            node.create_subscription(Float64MultiArray, topics.SETPOINT, on_setpoint, qos),
+            node.create_subscription(
+                Float64MultiArray,
+                topics.DISPLACEMENT,
+                lambda m: displacements.append(msg_to_grid(m, (2, 2))),
+                qos,
+            ),
+            node.create_subscription(
+                Float64MultiArray, topics.TEMPERATURE_RAW, lambda m: raw.append(m.data), qos
+            ),
+            node.create_subscription(
+                Clock,
+                topics.CLOCK,
+                lambda m: clocks.append(m.clock.sec + m.clock.nanosec * 1e-9),
+                CLOCK_LISTENER_QOS,
+            ),
+            node.create_subscription(
+                DiagnosticArray, topics.DIAGNOSTICS, on_diagnostics, topics.DIAGNOSTICS_QOS
+            ),
+        ]
         with ros.node_process("es_sim_plant", "plant_node", args) as plant:
+            # The plant steps once a command source has matched: be that source only when
+            # every listener has matched the plant, so that no message goes unseen.
+            ros.wait_matched(node, listeners, processes=[plant])
+            publishers.append(node.create_publisher(Float64MultiArray, topics.COMMAND, qos))
             deadline = time.monotonic() + 60.0
             ros.spin_until(node, lambda: plant.process.poll() is not None, timeout=60.0)
-            ros.spin_until(node, lambda: len(displacements) >= 101, timeout=2.0)
+            ros.spin_until(node, lambda: len(displacements) >= 101, timeout=10.0)
             assert time.monotonic() < deadline
             assert plant.process.returncode == 0, plant.output()
             log = plant.output()
@@ -137,22 +147,29 @@ def test_sync_temperature_barrier_orders_setpoints_after_estimates(tmp_path: Pat
     args = ["--ros-args", "-p", f"scenario:={scenario}", "-p", "exit_when_done:=true"]
     with ros.test_node("plant_sync") as node:
         qos = topics.DM_QOS
-        estimates = node.create_publisher(Float64MultiArray, topics.TEMPERATURE, qos)
-        commands = node.create_publisher(Float64MultiArray, topics.COMMAND, qos)
+        publishers: dict[str, Publisher] = {}  # created once the listeners have matched
         replies: list[int] = []
         replies_seen_at_setpoint: list[int] = []
 
         def on_raw(msg: Float64MultiArray) -> None:
-            estimates.publish(grid_to_msg(np.full((2, 2), float(msg.data[0]))))
+            estimate = grid_to_msg(np.full((2, 2), float(msg.data[0])))
+            publishers[topics.TEMPERATURE].publish(estimate)
             replies.append(1)
 
         def on_setpoint(msg: Float64MultiArray) -> None:
             replies_seen_at_setpoint.append(len(replies))
-            commands.publish(grid_to_msg(msg_to_grid(msg, (2, 2)) * 1.0e9))
+            publishers[topics.COMMAND].publish(grid_to_msg(msg_to_grid(msg, (2, 2)) * 1.0e9))
 
-        node.create_subscription(Float64MultiArray, topics.TEMPERATURE_RAW, on_raw, qos)
-        node.create_subscription(Float64MultiArray, topics.SETPOINT, on_setpoint, qos)
+        listeners = [
+            node.create_subscription(Float64MultiArray, topics.TEMPERATURE_RAW, on_raw, qos),
+            node.create_subscription(Float64MultiArray, topics.SETPOINT, on_setpoint, qos),
+            # the plant waits for a thermal node's heat-load subscription as well
+            node.create_subscription(Float64MultiArray, topics.HEAT_LOAD, lambda _m: None, qos),
+        ]
         with ros.node_process("es_sim_plant", "plant_node", args) as plant:
+            ros.wait_matched(node, listeners, processes=[plant])
+            for topic in (topics.TEMPERATURE, topics.COMMAND):
+                publishers[topic] = node.create_publisher(Float64MultiArray, topic, qos)
             ros.spin_until(node, lambda: plant.process.poll() is not None, timeout=60.0)
             assert plant.process.returncode == 0, plant.output()
             log = plant.output()
@@ -220,28 +237,32 @@ def test_a_node_that_never_says_ready_is_named_when_the_start_times_out(
 def test_real_time_mode_runs_on_the_wall_clock(tmp_path: Path) -> None:
     scenario = tmp_path / "node_test.yaml"
     scenario.write_text(SCENARIO.replace("duration: 1.0", "duration: 2.0"))
+    # No controller comes: the plant waits start_timeout for one, then runs on its own.
     args = [
         "--ros-args", "-p", f"scenario:={scenario}", "-p", "lockstep:=false",
-        "-p", "exit_when_done:=true",
+        "-p", "exit_when_done:=true", "-p", "start_timeout:=3.0",
     ]  # fmt: skip
     with ros.test_node("plant_rt") as node:
         clocks: list[float] = []
-        node.create_subscription(
+        subscription = node.create_subscription(
             Clock,
             topics.CLOCK,
             lambda m: clocks.append(m.clock.sec + m.clock.nanosec * 1e-9),
             CLOCK_LISTENER_QOS,
         )
         with ros.node_process("es_sim_plant", "plant_node", args) as plant:
-            ros.spin_until(node, lambda: plant.process.poll() is not None, timeout=30.0)
+            ros.wait_matched(node, [subscription], processes=[plant])
+            ros.spin_until(node, lambda: plant.process.poll() is not None, timeout=60.0)
             assert plant.process.returncode == 0, plant.output()
             log = plant.output()
     assert "real time" in log
+    assert "peers not all present after 3 s" in log
     # Near 1x real time: the wall timer paces it (200 steps of 10 ms), never faster.
     speed = float(log.split("x real time")[0].rsplit("(", 1)[1])
     assert 0.3 < speed < 1.05
-    # A subscriber that joined while it ran sees the clock advance up to the end (2 s).
-    assert clocks and 1.0 <= max(clocks) <= 2.0 + 1e-9
+    # A subscriber matched before the plant ended sees the clock advance up to the end (2 s).
+    assert clocks, "no /clock message received after the subscription matched"
+    assert 1.0 <= max(clocks) <= 2.0 + 1e-9
 
 
 @pytest.mark.parametrize(

@@ -12,7 +12,7 @@ import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.node import Node
 from std_msgs.msg import Float64MultiArray
-from support.ros import NodeProcess, node_process, spin_until
+from support.ros import READY_TIMEOUT, NodeProcess, node_process, spin_until, wait_matched
 from support.ros import test_node as ros_node
 
 from es_msgs_py import topics
@@ -43,7 +43,7 @@ class Harness:
             lambda msg: self.estimates.append(msg_to_grid(msg, SHAPE)),
             topics.qos_for(topics.TEMPERATURE),
         )
-        node.create_subscription(
+        self.diag_sub = node.create_subscription(
             DiagnosticArray, topics.DIAGNOSTICS, self._on_diag, topics.qos_for(topics.DIAGNOSTICS)
         )
         self.raw = node.create_publisher(
@@ -58,28 +58,28 @@ class Harness:
             if status.name.startswith("thermal: "):
                 self.diagnostics[status.name.removeprefix("thermal: ")] = status
 
-    def wait_connected(self) -> None:
-        assert spin_until(
-            self.node,
-            lambda: (
-                self.raw.get_subscription_count() > 0
-                and self.heat.get_subscription_count() > 0
-                # matched, not merely on the graph: an estimate sent before is lost
-                and self.estimate_sub.get_publisher_count() > 0
-            ),
-            30.0,
-        )
+    def wait_connected(self, proc: NodeProcess) -> None:
+        """Wait until every endpoint matched the node's (matched, not merely on the graph:
+        a message sent before is lost)."""
+        endpoints = [self.raw, self.heat, self.estimate_sub, self.diag_sub]
+        wait_matched(self.node, endpoints, processes=[proc])
 
     def exchange(self, msg: Float64MultiArray, expect: bool = True) -> np.ndarray | None:
         """Publish one raw message; return the estimate it produced (None if none came)."""
         before = len(self.estimates)
         self.raw.publish(msg)
-        got = spin_until(self.node, lambda: len(self.estimates) > before, 5.0 if expect else 0.5)
+        # an estimate comes within the bounded wait; a rejected message gets none (checked
+        # for 0.5 s: absence cannot be waited for)
+        timeout = READY_TIMEOUT if expect else 0.5
+        got = spin_until(self.node, lambda: len(self.estimates) > before, timeout)
         assert got == expect, f"estimate {'missing' if expect else 'published'}"
         return self.estimates[-1] if got else None
 
     def diagnostic(
-        self, aspect: str, check: Callable[[DiagnosticStatus], bool], timeout: float = 5.0
+        self,
+        aspect: str,
+        check: Callable[[DiagnosticStatus], bool],
+        timeout: float = READY_TIMEOUT,
     ) -> DiagnosticStatus:
         self.diagnostics.pop(aspect, None)
         assert spin_until(
@@ -108,7 +108,7 @@ def harness() -> Iterator[tuple[Harness, NodeProcess]]:
     ]  # fmt: skip
     with node_process("es_thermal", "thermal_node", args) as proc, ros_node("thermal_test") as node:
         h = Harness(node)
-        h.wait_connected()
+        h.wait_connected(proc)
         yield h, proc
 
 
@@ -154,7 +154,7 @@ def test_node_estimates_faults_and_recovery(harness: tuple[Harness, NodeProcess]
     h.diagnostic("sensors", is_level(Level.OK))
 
     # No raw message for longer than the stale timeout: ERROR, then recovery.
-    time.sleep(1.3)
+    time.sleep(1.3)  # the scenario, not a wait for readiness: the input ages past 1 s
     assert "no /dm/temperature/raw" in h.diagnostic("sensors", is_level(Level.ERROR)).message
     assert h.exchange(sensors_to_msg(readings())) is not None
     h.diagnostic("sensors", is_level(Level.OK))
@@ -198,16 +198,16 @@ def test_timer_mode_publishes_at_its_rate_until_the_input_goes_stale() -> None:
         "-p", "publish_rate:=20.0", "-p", "fault.stale_timeout:=0.5",
     ]  # fmt: skip
     with (
-        node_process("es_thermal", "thermal_node", args),
+        node_process("es_thermal", "thermal_node", args) as proc,
         ros_node("thermal_timer_test") as node,
     ):
         h = Harness(node)
-        h.wait_connected()
+        h.wait_connected(proc)
         h.raw.publish(sensors_to_msg(readings()))
         # One raw message, several estimates at 20 Hz ...
-        assert spin_until(node, lambda: len(h.estimates) >= 3, 10.0)
+        assert spin_until(node, lambda: len(h.estimates) >= 3, READY_TIMEOUT)
         # ... until the raw stream is stale (0.5 s): then the estimates stop.
-        deadline = time.monotonic() + 10.0
+        deadline = time.monotonic() + READY_TIMEOUT
         stopped = False
         while not stopped and time.monotonic() < deadline:
             before = len(h.estimates)

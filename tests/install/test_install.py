@@ -11,13 +11,15 @@ import os
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
 from ament_index_python.packages import get_package_prefix, get_packages_with_prefixes
-from support.ros import NodeProcess, spin_until
+from diagnostic_msgs.msg import DiagnosticArray
+from support.ros import NodeProcess, wait_matched, wait_until
 from support.ros import test_node as ros_node
+
+from es_msgs_py import topics
 
 ROOT = Path(__file__).resolve().parents[2]
 PACKAGES = sorted(p.name for p in (ROOT / "src").iterdir() if (p / "package.xml").is_file())
@@ -153,15 +155,19 @@ def test_node_executable_joins_the_graph_and_exits_on_sigint(
 ) -> None:
     args = ["-o", str(tmp_path / "bag"), "/dm/command"] if exe == "record" else []
     with ros_node("es_install_probe") as probe:
+        reporters: set[str] = set()
+
+        def on_report(msg: DiagnosticArray) -> None:
+            reporters.update(status.name.split(":", 1)[0] for status in msg.status)
+
+        reports = probe.create_subscription(
+            DiagnosticArray, topics.DIAGNOSTICS, on_report, topics.DIAGNOSTICS_QOS
+        )
         proc = NodeProcess(package, exe, args)
         try:
-            others = lambda: set(probe.get_node_names()) - {"es_install_probe"}  # noqa: E731
-            started = spin_until(
-                probe, lambda: bool(others()) or proc.process.poll() is not None, 30.0
-            )
-            assert started and proc.process.poll() is None, proc.output()
-            assert others(), proc.output()
-            time.sleep(0.5)  # let it finish start-up before the signal
+            # Started and spinning: its diagnostics (every node reports them) arrive.
+            wait_matched(probe, [reports], processes=[proc])
+            wait_until(probe, lambda: bool(reporters), f"/diagnostics from {exe}", processes=[proc])
         finally:
             code = proc.stop(signal.SIGINT, timeout=20.0)
     assert code == 0, proc.output()

@@ -15,7 +15,7 @@ import subprocess
 import tempfile
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import IO
 
@@ -25,8 +25,11 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rcl_interfaces.srv import SetParameters
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
+from rclpy.publisher import Publisher
+from rclpy.subscription import Subscription
 from rosgraph_msgs.msg import Clock as ClockMsg
 from std_msgs.msg import Float64MultiArray
+from support.ros import READY_TIMEOUT, NotReadyError, poll_until, unmatched
 
 from es_msgs_py import topics
 from es_msgs_py.arrays import LayoutError, msg_to_grid
@@ -143,18 +146,23 @@ class Watcher:
         self.clock = -1.0
         self.diagnostics: dict[str, DiagnosticStatus] = {}
         node = self.node
-        node.create_subscription(Float64MultiArray, topics.COMMAND, self._on_command,
-                                 topics.qos_for(topics.COMMAND))
-        node.create_subscription(Float64MultiArray, topics.TEMPERATURE, self._on_temperature,
-                                 topics.qos_for(topics.TEMPERATURE))
-        node.create_subscription(ClockMsg, topics.CLOCK, self._on_clock,
-                                 topics.qos_for(topics.CLOCK))
-        node.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, self._on_diagnostics,
-                                 topics.qos_for(topics.DIAGNOSTICS))
+        self.subscriptions: dict[str, Subscription] = {
+            topics.COMMAND: node.create_subscription(
+                Float64MultiArray, topics.COMMAND, self._on_command,
+                topics.qos_for(topics.COMMAND)),
+            topics.TEMPERATURE: node.create_subscription(
+                Float64MultiArray, topics.TEMPERATURE, self._on_temperature,
+                topics.qos_for(topics.TEMPERATURE)),
+            topics.CLOCK: node.create_subscription(
+                ClockMsg, topics.CLOCK, self._on_clock, topics.qos_for(topics.CLOCK)),
+            topics.DIAGNOSTICS: node.create_subscription(
+                DiagnosticArray, topics.DIAGNOSTICS, self._on_diagnostics,
+                topics.qos_for(topics.DIAGNOSTICS)),
+        }
         if plant_peer:
             for topic in PLANT_OUTPUTS:
-                node.create_subscription(Float64MultiArray, topic, lambda _msg: None,
-                                         topics.qos_for(topic))
+                self.subscriptions[topic] = node.create_subscription(
+                    Float64MultiArray, topic, lambda _msg: None, topics.qos_for(topic))
         self.publishers = {
             topic: node.create_publisher(Float64MultiArray, topic, topics.qos_for(topic))
             for topic in (topics.SETPOINT, topics.TEMPERATURE, topics.TEMPERATURE_RAW,
@@ -214,6 +222,36 @@ class Watcher:
         """Finite /dm/temperature messages beyond PLAUSIBLE_DEGC not injected by the watcher."""
         with self.lock:
             return self.implausible_temperatures - self.injected_implausible_temperatures
+
+    def wait_matched(self, wanted: Mapping[str, tuple[int, int]], procs: Sequence[Proc],
+                     timeout: float = READY_TIMEOUT) -> None:
+        """Wait until the watcher's endpoints matched their peers: ``{topic: (publishers its
+        subscription needs, subscriptions its publisher needs)}``; the watcher's own
+        publisher and subscription of a topic match each other and count.
+
+        Raises:
+            NotReadyError: within ``timeout`` some endpoint did not match (each is named), or
+                one of ``procs`` died first.
+
+        """
+        pairs: list[tuple[Publisher | Subscription, int]] = []
+        for topic, (publishers, subscriptions) in wanted.items():
+            if publishers:
+                pairs.append((self.subscriptions[topic], publishers))
+            if subscriptions:
+                pairs.append((self.publishers[topic], subscriptions))
+
+        def ready() -> bool:
+            dead = [p for p in procs if not p.alive()]
+            if dead:
+                raise NotReadyError(f"{dead[0].name} exited while the graph started:\n"
+                                    f"{dead[0].output()[-1500:]}")
+            return not unmatched(pairs)
+
+        try:
+            poll_until(ready, "watcher endpoints matched", timeout)
+        except NotReadyError as err:
+            raise NotReadyError(f"{err} ({'; '.join(unmatched(pairs))})") from None
 
     def wait_for(self, condition: Callable[[], bool], timeout: float) -> bool:
         """Poll ``condition`` (the watcher keeps spinning) until true or ``timeout`` s pass."""

@@ -11,6 +11,7 @@ feedforward published must be in the bag.
 
 from __future__ import annotations
 
+import contextlib
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -20,12 +21,19 @@ import numpy as np
 import pytest
 from rclpy.parameter import Parameter
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
-from support.ros import executable
+from support.ros import READY_TIMEOUT, NotReadyError, executable, poll_until
 
 from es_feedforward.feedforward import Feedforward, FeedforwardConfig
 from es_msgs_py.arrays import grid_to_msg, sensors_to_msg
 from es_msgs_py.bag import read_bag
-from es_msgs_py.topics import COMMAND, HEAT_LOAD, SETPOINT, TEMPERATURE, TEMPERATURE_RAW
+from es_msgs_py.topics import (
+    COMMAND,
+    DIAGNOSTICS,
+    HEAT_LOAD,
+    SETPOINT,
+    TEMPERATURE,
+    TEMPERATURE_RAW,
+)
 
 from .graph import Proc, Watcher
 
@@ -63,15 +71,25 @@ def graph(tmp_path: Path) -> Iterator[tuple[Watcher, dict[str, Proc], Path]]:
     }
     watcher = Watcher(SHAPE)
     try:
-        node = watcher.node
-        ready = watcher.wait_for(
-            lambda: (node.count_subscribers(TEMPERATURE_RAW) > 0
-                     and node.count_subscribers(SETPOINT) >= 2  # feedforward and recorder
-                     and node.count_publishers(TEMPERATURE) >= 2  # thermal and watcher
-                     and node.count_subscribers(COMMAND) >= 2),
-            60.0,
-        )
-        assert ready, {name: p.output()[-600:] for name, p in procs.items()}
+        watcher.wait_matched({
+            COMMAND: (1, 0),  # from the feedforward
+            TEMPERATURE: (2, 3),  # thermal and watcher; feedforward, recorder and watcher
+            DIAGNOSTICS: (3, 0),  # every node
+            SETPOINT: (0, 2),  # feedforward and recorder
+            TEMPERATURE_RAW: (0, 1),  # thermal
+            HEAT_LOAD: (0, 1),  # thermal
+        }, list(procs.values()))
+        # the recorder reports the publishers it matched: commands published before its
+        # subscription matched the feedforward's would be missing from the bag
+        wanted = {COMMAND: 1, SETPOINT: 1, TEMPERATURE: 2}
+
+        def recorder_matched() -> bool:
+            with watcher.lock:
+                status = watcher.diagnostics.get("record: bag")
+            values = {} if status is None else {kv.key: kv.value for kv in status.values}
+            return all(int(values.get(f"{t} publishers", "0")) >= n for t, n in wanted.items())
+
+        poll_until(recorder_matched, f"recorder report of matched publishers {wanted}")
         yield watcher, procs, bag
     finally:
         watcher.close()
@@ -92,7 +110,7 @@ class Injector:
         before = self.w.command_count()
         self.w.publish(SETPOINT, msg)
         self.setpoints_sent += 1
-        if not self.w.wait_for(lambda: self.w.command_count() > before, 5.0):
+        if not self.w.wait_for(lambda: self.w.command_count() > before, READY_TIMEOUT):
             return None
         with self.w.lock:
             return None if self.w.commands.last is None else self.w.commands.last.copy()
@@ -108,13 +126,43 @@ class Injector:
             self.w.publish(HEAT_LOAD, grid_to_msg(heat))
         msg = readings if isinstance(readings, Float64MultiArray) else sensors_to_msg(readings)
         self.w.publish(TEMPERATURE_RAW, msg)
-        got = self.w.wait_for(lambda: self.w.temperatures > before,
-                              3.0 if expect_estimate else 0.4)
-        self.w.wait_for(lambda: False, 0.05)  # the feedforward takes it too before what follows
-        return got
+        # an estimate comes within the bounded wait; a rejected reading gets none (checked for
+        # 0.4 s: absence cannot be waited for)
+        return self.w.wait_for(lambda: self.w.temperatures > before,
+                               READY_TIMEOUT if expect_estimate else 0.4)
+
+    def use_temperature(self, temperature: np.ndarray) -> None:
+        """Inject an estimate and wait until the feedforward computes with it: probe set
+        points until one's command is the core's for that temperature (a handshake; the
+        probe is small enough for any v_limit the cases set).
+
+        Raises:
+            NotReadyError: no probe's command showed the estimate within READY_TIMEOUT.
+
+        """
+        core = Feedforward(FeedforwardConfig(shape=SHAPE))
+        core.update_temperature(temperature, 0.0)
+        probe = np.full(SHAPE, 20 * NM)
+        expected = core.command(probe, 0.0).voltage
+        self.w.publish(TEMPERATURE, grid_to_msg(temperature))
+        deadline = time.monotonic() + READY_TIMEOUT
+        command = self.setpoint(grid_to_msg(probe))
+        while command is None or not np.allclose(command, expected):
+            if time.monotonic() > deadline:
+                raise NotReadyError(f"the feedforward never computed with {temperature.flat[0]} "
+                                    f"degC: probe command {command}, expected {expected}")
+            command = self.setpoint(grid_to_msg(probe))
 
     def readings(self) -> np.ndarray:
         return 45.0 + 0.05 * self.rng.standard_normal(SENSORS)
+
+
+def _bag_commands(bag: Path) -> int:
+    """Commands readable from a bag still being written (0: none yet)."""
+    try:
+        return len(read_bag(bag, [COMMAND])[COMMAND])
+    except (ValueError, KeyError):
+        return 0
 
 
 def _message(watcher: Watcher, status_name: str) -> str:
@@ -141,12 +189,12 @@ def test_faults_into_thermal_and_feedforward_nodes(
     inject = Injector(watcher, np.random.default_rng(10))
     area = "nodes over DDS"
 
-    # Baseline: readings through the thermal node give a computed (non-zero) command. The graph
-    # shows every endpoint before each pair of them has matched, so the first estimates may not
-    # reach the feedforward yet (it then holds 0 V): retry for a while.
+    # Baseline: readings through the thermal node give a computed (non-zero) command. The
+    # watcher cannot see whether the thermal node's writer has matched the feedforward's
+    # reader: until one estimate got through, the feedforward holds 0 V (a handshake: retry).
     first = None
     estimated = False
-    deadline = time.monotonic() + 20.0
+    deadline = time.monotonic() + READY_TIMEOUT
     while not (first is not None and np.all(first > 0.0)) and time.monotonic() < deadline:
         estimated = inject.raw(inject.readings(), heat=np.zeros(SHAPE))
         first = inject.good_setpoint()
@@ -211,7 +259,7 @@ def test_faults_into_thermal_and_feedforward_nodes(
         readings = inject.readings()
         readings[3] = 44.0
         stuck_ok &= inject.raw(readings)
-        watcher.wait_for(lambda: False, 0.05)
+        watcher.wait_for(lambda: False, 0.05)  # the scenario: the value stays for > 0.3 s
     fault_cases.expect(area, "stuck sensor", stuck_ok and procs["thermal"].alive())
     for name, msg in (("sensors all NaN", sensors_to_msg(np.full(SENSORS, np.nan))),
                       ("sensor message wrong length", sensors_to_msg(np.full(8, 45.0))),
@@ -228,21 +276,20 @@ def test_faults_into_thermal_and_feedforward_nodes(
     # --- stale temperature: the feedforward holds its last good command ---------------------
     assert inject.raw(inject.readings())
     good = inject.good_setpoint()
-    watcher.wait_for(lambda: False, TEMPERATURE_TIMEOUT + 0.5)
+    watcher.wait_for(lambda: False, TEMPERATURE_TIMEOUT + 0.5)  # the scenario: it goes stale
     held = inject.good_setpoint()
     fault_cases.expect(area, "stale temperature (no estimate for longer than the timeout)",
                        good is not None and held is not None and np.array_equal(good, held),
                        "the last good command held")
     # the diagnostic follows the command it explains: wait for it
     diagnosed = watcher.wait_for(lambda: "stale" in _message(watcher, "feedforward: temperature"),
-                                 3.0)
+                                 READY_TIMEOUT)
     fault_cases.expect(area, "stale temperature diagnosed", diagnosed,
                        _message(watcher, "feedforward: temperature"))
 
     # --- burst of set points faster than the node processes ---------------------------------
     temperature = np.full(SHAPE, 46.0)
-    watcher.publish(TEMPERATURE, grid_to_msg(temperature))
-    watcher.wait_for(lambda: False, 0.2)
+    inject.use_temperature(temperature)
     burst = [grid_to_msg(np.full(SHAPE, (20 + k % 100) * NM)) for k in range(299)]
     final = np.linspace(10, 150, 9).reshape(SHAPE) * NM
     burst.append(grid_to_msg(final))
@@ -250,7 +297,8 @@ def test_faults_into_thermal_and_feedforward_nodes(
     for msg in burst:
         watcher.publish(SETPOINT, msg)
     inject.setpoints_sent += len(burst)
-    settled = watcher.wait_for(lambda: watcher.command_count() - before >= len(burst), 8.0)
+    settled = watcher.wait_for(lambda: watcher.command_count() - before >= len(burst),
+                               READY_TIMEOUT)
     core = Feedforward(FeedforwardConfig(shape=SHAPE))
     core.update_temperature(temperature, 0.0)
     expected = core.command(final, 0.0).voltage
@@ -288,8 +336,7 @@ def test_faults_into_thermal_and_feedforward_nodes(
         fault_cases.expect(area, f"parameter {name}", not successful and bool(reason.strip()),
                            f"successful={successful}, reason={reason!r}")
     (accepted,) = watcher.set_parameters("feedforward", [Parameter("v_limit", value=100.0)])
-    watcher.publish(TEMPERATURE, grid_to_msg(temperature))
-    watcher.wait_for(lambda: False, 0.2)
+    inject.use_temperature(temperature)
     limited = inject.setpoint(grid_to_msg(np.full(SHAPE, 200 * NM)))
     fault_cases.expect(area, "v_limit lowered to 100 V at run time",
                        accepted[0] and limited is not None and float(limited.max()) <= 100.0,
@@ -308,7 +355,9 @@ def test_faults_into_thermal_and_feedforward_nodes(
             fault_cases.crashed()
     ff_exit = procs["feedforward"].stop()
     published = procs["feedforward"].published(COMMAND)
-    watcher.wait_for(lambda: False, 1.0)  # > 2 flush intervals: everything flushed
+    # SIGKILL once everything is flushed: then nothing may be missing (a loss counts below)
+    with contextlib.suppress(NotReadyError):
+        poll_until(lambda: _bag_commands(bag) == published, f"{published} commands flushed")
     procs["record"].kill()
     try:
         recorded = len(read_bag(bag, [COMMAND])[COMMAND])

@@ -47,7 +47,7 @@ from es_msgs_py.params import declare_parameters
 from es_msgs_py.topics import (
     COMMAND,
     DIAGNOSTICS,
-    DM_PUBLISHER_QOS,
+    DM_QOS,
     SETPOINT,
     TEMPERATURE,
     qos_for,
@@ -92,7 +92,7 @@ class FeedforwardNode(Node):
         self.add_post_set_parameters_callback(self._swap_configuration)
 
         # deep publisher history: a recorder that lags for a moment still gets every command
-        self._command_pub = self.create_publisher(Float64MultiArray, COMMAND, DM_PUBLISHER_QOS)
+        self._command_pub = self.create_publisher(Float64MultiArray, COMMAND, DM_QOS)
         self._command_msg = grid_to_msg(np.zeros(config.shape))
         self._command_grid = np.frombuffer(self._command_msg.data, np.float64).reshape(
             config.shape

@@ -246,6 +246,8 @@ class Recorder(Node):
             values[f"{topic} written"] = count.written
             values[f"{topic} lost"] = count.lost
             values[f"{topic} missed"] = count.missed_text()
+            # publishers matched: what a peer waits for before it publishes (readiness)
+            values[f"{topic} publishers"] = self._recorded[topic].get_publisher_count()
         for topic in self._pending:
             values[f"{topic} received"] = "waiting for publisher"
         unwritten = sum(c.received - c.written for c in self._counts.values())

@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import fcntl
 import importlib
 import os
-from typing import Final
+import tempfile
+from pathlib import Path
+from typing import IO, Final
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
@@ -34,6 +37,42 @@ def process_domain_id(pid: int | None = None) -> int:
     return 1 + (os.getpid() if pid is None else pid) % MAX_SAFE_DOMAIN_ID
 
 
+#: Lock files of the domains this process holds (kept open: a lock lives with its file).
+_HELD_DOMAINS: list[IO[bytes]] = []
+
+
+def reserve_domain_id(lock_dir: Path | None = None) -> int:
+    """Return a ROS domain in 1..MAX_SAFE_DOMAIN_ID that no other es_dm process here holds.
+
+    Two processes whose PIDs pick the same domain (:func:`process_domain_id`) would see each
+    other's nodes (on a shared machine or CI runner, a test run of another checkout can
+    publish into this one's graph). This one starts at the PID's domain and takes the first
+    whose lock file ``<lock_dir>/<domain>.lock`` (default: ``es_dm_domains`` in the temporary
+    directory) it can lock; the lock is held until the process exits. When every domain is
+    held it falls back to the PID's.
+    """
+    folder = lock_dir or Path(tempfile.gettempdir()) / "es_dm_domains"
+    first = process_domain_id()
+    try:
+        folder.mkdir(mode=0o777, exist_ok=True)
+    except OSError:
+        return first
+    for offset in range(MAX_SAFE_DOMAIN_ID):
+        domain = 1 + (first - 1 + offset) % MAX_SAFE_DOMAIN_ID
+        try:
+            handle = (folder / f"{domain}.lock").open("ab")
+        except OSError:
+            continue
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            handle.close()
+            continue
+        _HELD_DOMAINS.append(handle)
+        return domain
+    return first
+
+
 #: Every /dm topic of the contract, in data-flow order.
 DM_TOPICS: Final = (HEAT_LOAD, TEMPERATURE_RAW, TEMPERATURE, SETPOINT, COMMAND, DISPLACEMENT)
 #: /dm topics of optional features, recorded only when asked for (the self-sensing input).
@@ -51,24 +90,26 @@ TOPIC_TYPES: Final[dict[str, str]] = {
     CLOCK: CLOCK_TYPE,
 }
 
-#: QoS of every /dm topic: reliable, keep last 10, volatile.
+#: History depth of every /dm endpoint: one second of the fastest stream (set points and
+#: commands at 1 kHz). Reliable delivery resends only what the writer still holds, and a
+#: reader drops its oldest sample when its history is full: with the contract's default of
+#: 10, a reader that is not serviced for 10 periods (10 ms at 1 kHz, one scheduler stall on
+#: a busy machine) loses messages. A history only fills while samples are unacknowledged or
+#: untaken, so the memory bound, DM_DEPTH messages per endpoint (32 MiB at 4096 doubles),
+#: is reached only during such a stall.
+DM_DEPTH: Final = 1000
+
+#: QoS of every /dm topic, publishers and subscriptions alike: reliable, volatile, keep last
+#: DM_DEPTH (the contract's keep-last-10 exception, documented in docs/architecture.md).
+#: History depth is not part of QoS matching, so endpoints of other nodes with the
+#: contract's depth of 10 still match.
 DM_QOS: Final = QoSProfile(
     history=HistoryPolicy.KEEP_LAST,
-    depth=10,
+    depth=DM_DEPTH,
     reliability=ReliabilityPolicy.RELIABLE,
     durability=DurabilityPolicy.VOLATILE,
 )
 
-#: QoS of the nodes' own /dm publishers: the contract's, with a deeper history. Reliable
-#: delivery can resend only what the publisher still holds; a subscriber that falls behind
-#: for a moment (a recorder on a loaded machine) would otherwise lose what was sent before
-#: (compatible with keep-last-10 subscribers; the history only fills while unacknowledged).
-DM_PUBLISHER_QOS: Final = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST,
-    depth=1000,
-    reliability=ReliabilityPolicy.RELIABLE,
-    durability=DurabilityPolicy.VOLATILE,
-)
 
 #: QoS of /diagnostics, as diagnostic_updater uses it.
 DIAGNOSTICS_QOS: Final = QoSProfile(

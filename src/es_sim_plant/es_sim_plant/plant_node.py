@@ -18,8 +18,9 @@ nothing publishes the awaited topic at all, the plant does not wait for it (WARN
 crashed controller costs no timeouts. After the last step it publishes the final clock and
 displacement, logs a summary and, with ``exit_when_done``, exits 0.
 
-Real time (``lockstep: false``): a wall timer at the control rate publishes the outputs of
-step k and applies the newest valid command.
+Real time (``lockstep: false``): once the peers are present as in lockstep (or after
+``start_timeout``), a wall timer at the control rate publishes the outputs of step k and
+applies the newest valid command.
 
 Scenarios with an ``excitation`` (test-stand runs such as ``characterisation``) need no
 controller: the plant plays the voltage program itself and publishes it on /dm/command, as
@@ -173,7 +174,7 @@ SPECS: tuple[ParameterSpec, ...] = (
     ParameterSpec(
         "start_timeout",
         10.0,
-        "Lockstep: wall seconds to wait at start for the command (and temperature) publishers "
+        "Wall seconds to wait at start for the command (and temperature) publishers "
         "and the set-point subscriber before stepping anyway.",
         low=0.0,
         high=600.0,
@@ -191,7 +192,7 @@ SPECS: tuple[ParameterSpec, ...] = (
     ParameterSpec(
         "start_subscribers",
         0,
-        "Lockstep: at start also wait until every /dm topic the plant publishes has this many "
+        "At start also wait until every /dm topic the plant publishes has this many "
         "matched subscriptions beyond the controllers' (1: a recorder misses nothing).",
         0,
         100,
@@ -306,7 +307,7 @@ class PlantNode(Node):
         # Graph queries take the topic names as remapped (a namespaced graph, -r rules).
         self._command_topic = self.resolve_topic_name(topics.COMMAND)
         self._temperature_topic = self.resolve_topic_name(topics.TEMPERATURE)
-        qos = topics.DM_PUBLISHER_QOS  # deep history: a lagging recorder loses nothing
+        qos = topics.DM_QOS  # deep history: a lagging recorder loses nothing
         self._pub_clock = self.create_publisher(ClockMsg, topics.CLOCK, topics.CLOCK_QOS)
         self._pub_displacement = self.create_publisher(Float64MultiArray, topics.DISPLACEMENT, qos)
         self._pub_raw = self.create_publisher(Float64MultiArray, topics.TEMPERATURE_RAW, qos)
@@ -326,12 +327,20 @@ class PlantNode(Node):
             if self._test_stand
             else None
         )
-        if not self._test_stand:
-            self.create_subscription(Float64MultiArray, topics.COMMAND, self._on_command, qos)
-        if self.lockstep and self.sync_temperature:
+        self._command_sub = (
+            None
+            if self._test_stand
+            else self.create_subscription(
+                Float64MultiArray, topics.COMMAND, self._on_command, qos
+            )
+        )
+        self._temperature_sub = (
             self.create_subscription(
                 Float64MultiArray, topics.TEMPERATURE, self._on_temperature, qos
             )
+            if self.lockstep and self.sync_temperature
+            else None
+        )
         if self.lockstep and self._wait_ready:
             self.create_subscription(
                 DiagnosticArray, topics.DIAGNOSTICS, self._on_readiness, topics.DIAGNOSTICS_QOS
@@ -368,9 +377,6 @@ class PlantNode(Node):
         if self.lockstep:
             self.create_timer(_WATCHDOG_PERIOD, self._watchdog, clock=wall)
         else:
-            self._phase = Phase.BEGIN
-            self._run_wall_start = time.monotonic()
-            self._run_cpu_start = time.process_time()
             self.create_timer(self.plant.dt, self._realtime_tick, clock=wall)
         self.get_logger().info(
             f"scenario '{scenario.name}': {scenario.rows} x {scenario.cols}, "
@@ -439,13 +445,35 @@ class PlantNode(Node):
             needed.append((self._pub_command, extra))
         if any(pub.get_subscription_count() < count for pub, count in needed):
             return False
-        if self._test_stand:
-            temperature = self.count_publishers(self._temperature_topic)
+        # Sources: publishers matched by the plant's own subscription (nothing sent before
+        # the match is lost), the graph's count where the plant does not subscribe.
+        temperature = (
+            self._temperature_sub.get_publisher_count()
+            if self._temperature_sub is not None
+            else self.count_publishers(self._temperature_topic)
+        )
+        if self._command_sub is None:
             return not self.sync_temperature or temperature > 0
-        ready = self.count_publishers(self._command_topic) > 0
+        ready = self._command_sub.get_publisher_count() > 0
         if self.sync_temperature:
-            ready = ready and self.count_publishers(self._temperature_topic) > 0
+            ready = ready and temperature > 0
         return ready
+
+    def _started(self, now: float) -> bool:
+        """Begin the run once the peers are present and ready, or ``start_timeout`` passed."""
+        if not (self._peers_ready() and not self._not_ready()):
+            if now - self._start_wall < self.start_timeout:
+                return False
+            not_ready = self._not_ready()
+            self.get_logger().warning(
+                f"start: peers not all present after {self.start_timeout:g} s"
+                + (f" (not ready: {', '.join(not_ready)})" if not_ready else "")
+                + "; stepping anyway"
+            )
+        self._phase = Phase.BEGIN
+        self._run_wall_start = now
+        self._run_cpu_start = time.process_time()
+        return True
 
     def _refresh_graph(self, now: float) -> None:
         self._graph_checked = now
@@ -457,19 +485,8 @@ class PlantNode(Node):
         if now - self._graph_checked >= _GRAPH_PERIOD:
             self._refresh_graph(now)
         if self._phase is Phase.STARTING:
-            ready = self._peers_ready() and not self._not_ready()
-            if ready or now - self._start_wall >= self.start_timeout:
-                if not ready:
-                    not_ready = self._not_ready()
-                    self.get_logger().warning(
-                        f"start: peers not all present after {self.start_timeout:g} s"
-                        + (f" (not ready: {', '.join(not_ready)})" if not_ready else "")
-                        + "; stepping anyway"
-                    )
+            if self._started(now):
                 self._refresh_graph(now)
-                self._phase = Phase.BEGIN
-                self._run_wall_start = now
-                self._run_cpu_start = time.process_time()
                 self._advance()
             return
         if self._paced:
@@ -574,6 +591,8 @@ class PlantNode(Node):
 
     # --- real time ------------------------------------------------------------------------
     def _realtime_tick(self) -> None:
+        if self._phase is Phase.STARTING and not self._started(time.monotonic()):
+            return
         if self._phase is not Phase.BEGIN:
             return
         if self.plant.done:

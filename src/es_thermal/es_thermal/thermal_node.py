@@ -333,7 +333,7 @@ class ThermalNode(Node):
         self._levels: dict[str, Level] = {}
         # deep publisher history: a recorder that lags for a moment still gets every estimate
         self._pub = self.create_publisher(
-            Float64MultiArray, topics.TEMPERATURE, topics.DM_PUBLISHER_QOS
+            Float64MultiArray, topics.TEMPERATURE, topics.DM_QOS
         )
         self._pub_diag = self.create_publisher(
             DiagnosticArray, topics.DIAGNOSTICS, topics.qos_for(topics.DIAGNOSTICS)
