@@ -19,7 +19,7 @@ import faulthandler
 import sys
 import time
 from collections.abc import Callable, Sequence
-from typing import Final, Protocol
+from typing import Final
 
 import rclpy
 import rclpy.logging
@@ -72,13 +72,6 @@ class PublishCounter:
     def log_lines(self) -> list[str]:
         """Return ``published <topic>: <count>`` for every topic, sorted by topic."""
         return [f"published {topic}: {count}" for topic, count in sorted(self.counts.items())]
-
-
-class Closable(Protocol):
-    """A node with resources to release before the process exits (bags, files)."""
-
-    def close(self) -> None:
-        """Flush and release everything; called once, after spinning stopped."""
 
 
 def executor_kind(node: Node) -> str:

@@ -77,16 +77,6 @@ class ActuatorParams:
             },
         )
 
-    def to_dict(self) -> dict[str, float | list[float]]:
-        """Return the fields as JSON-ready scalars or flat lists."""
-        out: dict[str, float | list[float]] = {}
-        for f in fields(self):
-            value = getattr(self, f.name)
-            out[f.name] = (
-                np.asarray(value, np.float64).ravel().tolist() if np.ndim(value) else float(value)
-            )
-        return out
-
     def t_star(self, T: npt.ArrayLike) -> FloatArray:
         """Return T* = T - Tm."""
         return np.asarray(T, np.float64) - self.Tm

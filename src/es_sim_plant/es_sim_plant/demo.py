@@ -553,7 +553,7 @@ class Demo:
         return text, runs
 
     def goal_markdown(self, results: Sequence[RunResult], calibrated: dict[str, Calibrated]) -> str:
-        """Return the goal check of issue 7.3 with where the remaining variation comes from."""
+        """Return the goal check against the thesis and where the remaining variation comes from."""
         from dataclasses import replace as with_changes
 
         from es_feedforward.feedforward import Mode
@@ -801,7 +801,7 @@ def story_markdown(
 
 
 def loop_markdown(calibrated: Calibrated, runs: Sequence[RunResult], bag: Path) -> str:
-    """Return the calibration loop part of the report (issue 8.4)."""
+    """Return the calibration loop part of the report."""
     summary = calibrated.summary
     lines = [
         f"## 3. One calibration loop end to end: `{LOOP_EFFECT}`",

@@ -234,7 +234,7 @@ def section_markdown(
     lines += [
         "",
         f"(b) against (a): {ratio_a:.1f}x lower RMS error; (b)'s variation is {ratio_c:.2f}x "
-        "(c)'s. Goals (issue 20): RMS <= 0.02 degC, worst <= 0.05 degC, >= 5x better than (a), "
+        "(c)'s. Goals: RMS <= 0.02 degC, worst <= 0.05 degC, >= 5x better than (a), "
         "variation within 1.2x of (c).",
         "",
         f"![self-sensing temperature error maps]({figure})",

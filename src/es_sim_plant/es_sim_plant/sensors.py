@@ -161,10 +161,6 @@ class SensorArray:
         else:
             self._lagged = site + (self._lagged - site) * self._decay
 
-    def true_reading(self) -> FloatArray:
-        """Return what the sensors would read without noise and quantisation (S,)."""
-        return self._lagged + self.offsets
-
     def read(self) -> FloatArray:
         """Return one noisy, quantised sample (S,) [degC] (draws from the noise stream)."""
         value = self._lagged + self.offsets
