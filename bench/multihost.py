@@ -17,6 +17,7 @@ from __future__ import annotations
 import json
 import os
 import subprocess
+import time
 from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -40,6 +41,9 @@ MAX_PARTICIPANTS_PER_HOST = 16
 #: UDP socket buffers [bytes]: a 64 x 64 grid is 32 KiB a message, so the kernel's default
 #: receive buffer (208 KiB) holds a burst of six; capped by net.core.rmem_max/wmem_max.
 SOCKET_BUFFER_BYTES = 4 * 1024 * 1024
+
+#: Longest wait for a link end to come operationally up after ``ip link set up`` [s].
+LINK_UP_TIMEOUT_S = 30.0
 
 
 class NetnsError(RuntimeError):
@@ -79,6 +83,20 @@ class Host:
             return int(stats["rx"]["bytes"]), int(stats["tx"]["bytes"])
         except (ValueError, LookupError, TypeError) as err:
             raise NetnsError(f"cannot read the counters of {self.device}: {err}") from None
+
+    def link_running(self) -> bool:
+        """Return whether this host's end of the link is operationally up (IFF_RUNNING).
+
+        Raises:
+            NetnsError: the link cannot be read.
+
+        """
+        out = _ip("-n", self.namespace, "-j", "link", "show", "dev", self.device)
+        try:
+            link = json.loads(out)[0]
+            return bool(link["operstate"] == "UP" and "LOWER_UP" in link["flags"])
+        except (ValueError, LookupError, TypeError) as err:
+            raise NetnsError(f"cannot read the state of {self.device}: {err}") from None
 
 
 def _ip(*args: str) -> str:
@@ -121,11 +139,36 @@ def two_hosts(tag: str | None = None) -> Iterator[tuple[Host, Host]]:
                 "dev", host.device)
             _ip("-n", host.namespace, "link", "set", host.device, "up")
             _ip("-n", host.namespace, "link", "set", "lo", "up")
+        _wait_running(hosts)
         yield first, second
     finally:
         for namespace in reversed(created):  # the veth ends go with their namespaces
             subprocess.run(["ip", "netns", "del", namespace], capture_output=True, check=False,
                            timeout=30)
+
+
+def _wait_running(hosts: Sequence[Host], timeout_s: float = LINK_UP_TIMEOUT_S) -> None:
+    """Return once every host's link end is operationally up.
+
+    The kernel marks a veth end running (operstate UP) a little after ``ip link set up``,
+    later on a loaded machine. A Fast DDS participant lists the running interfaces once, when
+    it is created: one created before that announces only 127.0.0.1, and the other host can
+    then match its endpoints (it sends to the peer's announced addresses) but never reach it.
+
+    Raises:
+        NetnsError: a link end is still not up after ``timeout_s`` seconds.
+
+    """
+    deadline = time.monotonic() + timeout_s
+    waiting = list(hosts)
+    while waiting:
+        waiting = [host for host in waiting if not host.link_running()]
+        if not waiting:
+            return
+        if time.monotonic() > deadline:
+            names = ", ".join(f"{h.device} in {h.namespace}" for h in waiting)
+            raise NetnsError(f"link not operationally up after {timeout_s:g} s: {names}")
+        time.sleep(0.02)
 
 
 def fastdds_profile(peers: Sequence[str], participant_id: int | None = None) -> str:
