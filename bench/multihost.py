@@ -171,7 +171,8 @@ def _wait_running(hosts: Sequence[Host], timeout_s: float = LINK_UP_TIMEOUT_S) -
         time.sleep(0.02)
 
 
-def fastdds_profile(peers: Sequence[str], participant_id: int | None = None) -> str:
+def fastdds_profile(peers: Sequence[str], participant_id: int | None = None,
+                    address: str | None = None) -> str:
     """Return a Fast DDS XML profile for a graph spread over the hosts ``peers`` (IPv4).
 
     The default participant profile: UDPv4 only (no shared memory, which would bypass the
@@ -179,6 +180,10 @@ def fastdds_profile(peers: Sequence[str], participant_id: int | None = None) -> 
     every host of the graph as an initial peer, so discovery needs no multicast.
     ``participant_id`` pins the participant index (and so its ports); ``None`` lets Fast DDS
     pick the lowest free one, and then one file serves every process of every host.
+    ``address`` (the process's own host, IPv4) is announced as its only unicast address for
+    discovery and data; ``None`` announces every interface that is up when the participant
+    is created (a participant created before its host's link is up then announces only
+    127.0.0.1, and the other host matches it but never reaches it).
 
     Raises:
         ValueError: ``participant_id`` is outside 0 .. MAX_PARTICIPANTS_PER_HOST - 1 (the
@@ -193,6 +198,13 @@ def fastdds_profile(peers: Sequence[str], participant_id: int | None = None) -> 
         for peer in peers)
     pinned = ("" if participant_id is None
               else f"\n      <participantID>{participant_id}</participantID>")
+    own = ("" if address is None
+           else f"<locator><udpv4><address>{escape(address)}</address></udpv4></locator>")
+    default_unicast = ("" if address is None else
+                       f"\n      <defaultUnicastLocatorList>{own}</defaultUnicastLocatorList>")
+    meta_unicast = ("" if address is None else
+                    f"\n        <metatrafficUnicastLocatorList>{own}"
+                    "</metatrafficUnicastLocatorList>")
     return f"""<?xml version="1.0" encoding="UTF-8" ?>
 <profiles xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles">
   <transport_descriptors>
@@ -209,8 +221,8 @@ def fastdds_profile(peers: Sequence[str], participant_id: int | None = None) -> 
       <userTransports>
         <transport_id>es_dm_udp</transport_id>
       </userTransports>
-      <useBuiltinTransports>false</useBuiltinTransports>
-      <builtin>
+      <useBuiltinTransports>false</useBuiltinTransports>{default_unicast}
+      <builtin>{meta_unicast}
         <initialPeersList>
 {locators}
         </initialPeersList>
@@ -221,10 +233,11 @@ def fastdds_profile(peers: Sequence[str], participant_id: int | None = None) -> 
 """
 
 
-def host_environment(directory: Path, participant_id: int,
+def host_environment(directory: Path, participant_id: int, address: str,
                      peers: Sequence[str] = LINK_ADDRESSES) -> dict[str, str]:
     """Write the profile of one process into ``directory``; return the variables it needs.
 
+    ``address`` is the IPv4 address of the process's host, the one it announces.
     Every process of the graph gets its own ``participant_id`` (unique over all hosts):
     with automatic indices, the first process of one namespace and the first of the other
     (both index 0, the same ports) found each other in only about two runs of three here,
@@ -236,7 +249,7 @@ def host_environment(directory: Path, participant_id: int,
     """
     directory.mkdir(parents=True, exist_ok=True)
     path = directory / f"fastdds_participant_{participant_id}.xml"
-    path.write_text(fastdds_profile(peers, participant_id), encoding="utf-8")
+    path.write_text(fastdds_profile(peers, participant_id, address), encoding="utf-8")
     return {"FASTRTPS_DEFAULT_PROFILES_FILE": str(path),
             "ROS_AUTOMATIC_DISCOVERY_RANGE": DISCOVERY_RANGE,
             "RMW_IMPLEMENTATION": "rmw_fastrtps_cpp"}
