@@ -89,8 +89,8 @@ def measure_across(kind: str, shape: tuple[int, int], rate_hz: float, seconds: f
         before = _link_total(host_b)
         run = _client_and_node(
             kind, shape, rate_hz, seconds, log_dir,
-            on_b=lambda argv: host_b.command(argv, host_environment(log_dir, 0)),
-            on_a=lambda argv: host_a.command(argv, host_environment(log_dir, 1)))
+            on_b=lambda argv: host_b.command(argv, host_environment(log_dir, 0, host_b.address)),
+            on_a=lambda argv: host_a.command(argv, host_environment(log_dir, 1, host_a.address)))
         return LinkRun(run, _link_total(host_b) - before)
 
 

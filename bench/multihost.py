@@ -17,6 +17,7 @@ from __future__ import annotations
 import json
 import os
 import subprocess
+import time
 from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -40,6 +41,9 @@ MAX_PARTICIPANTS_PER_HOST = 16
 #: UDP socket buffers [bytes]: a 64 x 64 grid is 32 KiB a message, so the kernel's default
 #: receive buffer (208 KiB) holds a burst of six; capped by net.core.rmem_max/wmem_max.
 SOCKET_BUFFER_BYTES = 4 * 1024 * 1024
+
+#: Longest wait for a link end to come operationally up after ``ip link set up`` [s].
+LINK_UP_TIMEOUT_S = 30.0
 
 
 class NetnsError(RuntimeError):
@@ -79,6 +83,20 @@ class Host:
             return int(stats["rx"]["bytes"]), int(stats["tx"]["bytes"])
         except (ValueError, LookupError, TypeError) as err:
             raise NetnsError(f"cannot read the counters of {self.device}: {err}") from None
+
+    def link_running(self) -> bool:
+        """Return whether this host's end of the link is operationally up (IFF_RUNNING).
+
+        Raises:
+            NetnsError: the link cannot be read.
+
+        """
+        out = _ip("-n", self.namespace, "-j", "link", "show", "dev", self.device)
+        try:
+            link = json.loads(out)[0]
+            return bool(link["operstate"] == "UP" and "LOWER_UP" in link["flags"])
+        except (ValueError, LookupError, TypeError) as err:
+            raise NetnsError(f"cannot read the state of {self.device}: {err}") from None
 
 
 def _ip(*args: str) -> str:
@@ -121,6 +139,7 @@ def two_hosts(tag: str | None = None) -> Iterator[tuple[Host, Host]]:
                 "dev", host.device)
             _ip("-n", host.namespace, "link", "set", host.device, "up")
             _ip("-n", host.namespace, "link", "set", "lo", "up")
+        _wait_running(hosts)
         yield first, second
     finally:
         for namespace in reversed(created):  # the veth ends go with their namespaces
@@ -128,7 +147,32 @@ def two_hosts(tag: str | None = None) -> Iterator[tuple[Host, Host]]:
                            timeout=30)
 
 
-def fastdds_profile(peers: Sequence[str], participant_id: int | None = None) -> str:
+def _wait_running(hosts: Sequence[Host], timeout_s: float = LINK_UP_TIMEOUT_S) -> None:
+    """Return once every host's link end is operationally up.
+
+    The kernel marks a veth end running (operstate UP) a little after ``ip link set up``,
+    later on a loaded machine. A Fast DDS participant lists the running interfaces once, when
+    it is created: one created before that announces only 127.0.0.1, and the other host can
+    then match its endpoints (it sends to the peer's announced addresses) but never reach it.
+
+    Raises:
+        NetnsError: a link end is still not up after ``timeout_s`` seconds.
+
+    """
+    deadline = time.monotonic() + timeout_s
+    waiting = list(hosts)
+    while waiting:
+        waiting = [host for host in waiting if not host.link_running()]
+        if not waiting:
+            return
+        if time.monotonic() > deadline:
+            names = ", ".join(f"{h.device} in {h.namespace}" for h in waiting)
+            raise NetnsError(f"link not operationally up after {timeout_s:g} s: {names}")
+        time.sleep(0.02)
+
+
+def fastdds_profile(peers: Sequence[str], participant_id: int | None = None,
+                    address: str | None = None) -> str:
     """Return a Fast DDS XML profile for a graph spread over the hosts ``peers`` (IPv4).
 
     The default participant profile: UDPv4 only (no shared memory, which would bypass the
@@ -136,6 +180,10 @@ def fastdds_profile(peers: Sequence[str], participant_id: int | None = None) -> 
     every host of the graph as an initial peer, so discovery needs no multicast.
     ``participant_id`` pins the participant index (and so its ports); ``None`` lets Fast DDS
     pick the lowest free one, and then one file serves every process of every host.
+    ``address`` (the process's own host, IPv4) is announced as its only unicast address for
+    discovery and data; ``None`` announces every interface that is up when the participant
+    is created (a participant created before its host's link is up then announces only
+    127.0.0.1, and the other host matches it but never reaches it).
 
     Raises:
         ValueError: ``participant_id`` is outside 0 .. MAX_PARTICIPANTS_PER_HOST - 1 (the
@@ -150,6 +198,13 @@ def fastdds_profile(peers: Sequence[str], participant_id: int | None = None) -> 
         for peer in peers)
     pinned = ("" if participant_id is None
               else f"\n      <participantID>{participant_id}</participantID>")
+    own = ("" if address is None
+           else f"<locator><udpv4><address>{escape(address)}</address></udpv4></locator>")
+    default_unicast = ("" if address is None else
+                       f"\n      <defaultUnicastLocatorList>{own}</defaultUnicastLocatorList>")
+    meta_unicast = ("" if address is None else
+                    f"\n        <metatrafficUnicastLocatorList>{own}"
+                    "</metatrafficUnicastLocatorList>")
     return f"""<?xml version="1.0" encoding="UTF-8" ?>
 <profiles xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles">
   <transport_descriptors>
@@ -166,8 +221,8 @@ def fastdds_profile(peers: Sequence[str], participant_id: int | None = None) -> 
       <userTransports>
         <transport_id>es_dm_udp</transport_id>
       </userTransports>
-      <useBuiltinTransports>false</useBuiltinTransports>
-      <builtin>
+      <useBuiltinTransports>false</useBuiltinTransports>{default_unicast}
+      <builtin>{meta_unicast}
         <initialPeersList>
 {locators}
         </initialPeersList>
@@ -178,10 +233,11 @@ def fastdds_profile(peers: Sequence[str], participant_id: int | None = None) -> 
 """
 
 
-def host_environment(directory: Path, participant_id: int,
+def host_environment(directory: Path, participant_id: int, address: str,
                      peers: Sequence[str] = LINK_ADDRESSES) -> dict[str, str]:
     """Write the profile of one process into ``directory``; return the variables it needs.
 
+    ``address`` is the IPv4 address of the process's host, the one it announces.
     Every process of the graph gets its own ``participant_id`` (unique over all hosts):
     with automatic indices, the first process of one namespace and the first of the other
     (both index 0, the same ports) found each other in only about two runs of three here,
@@ -193,7 +249,7 @@ def host_environment(directory: Path, participant_id: int,
     """
     directory.mkdir(parents=True, exist_ok=True)
     path = directory / f"fastdds_participant_{participant_id}.xml"
-    path.write_text(fastdds_profile(peers, participant_id), encoding="utf-8")
+    path.write_text(fastdds_profile(peers, participant_id, address), encoding="utf-8")
     return {"FASTRTPS_DEFAULT_PROFILES_FILE": str(path),
             "ROS_AUTOMATIC_DISCOVERY_RANGE": DISCOVERY_RANGE,
             "RMW_IMPLEMENTATION": "rmw_fastrtps_cpp"}

@@ -48,9 +48,9 @@ def test_plant_on_one_host_controllers_on_the_other(tmp_path: Path) -> None:
     with two_hosts() as (plant_host, control_host):
         supervisor = Supervisor(logs)
         for index, spec in enumerate(before):  # recorder, thermal, feedforward
-            env = host_environment(tmp_path, index)
+            env = host_environment(tmp_path, index, control_host.address)
             supervisor.start(replace(spec, command=control_host.command(spec.command, env)))
-        env = host_environment(tmp_path, len(before))
+        env = host_environment(tmp_path, len(before), plant_host.address)
         supervisor.start(replace(plant, command=plant_host.command(plant.command, env)))
         outcome = supervisor.run(wall_timeout=240.0)
         received, sent = control_host.link_bytes()
@@ -93,5 +93,12 @@ def test_profile_lists_every_host_and_pins_the_participant() -> None:
     assert xml.count("<locator>") == 2
     assert "<participantID>3</participantID>" in xml
     assert "<useBuiltinTransports>false</useBuiltinTransports>" in xml
+    assert "UnicastLocatorList" not in xml  # no own address: every interface up is announced
+    own = fastdds_profile(["10.0.0.1", "10.0.0.2"], participant_id=3, address="10.0.0.2")
+    # discovery and data both announce the host's own link address, nothing else
+    for kind in ("metatrafficUnicastLocatorList", "defaultUnicastLocatorList"):
+        listed = re.search(f"<{kind}>(.*?)</{kind}>", own, re.S)
+        assert listed is not None, kind
+        assert re.findall(r"<address>(.*?)</address>", listed.group(1)) == ["10.0.0.2"]
     with pytest.raises(ValueError, match="participant_id"):
         fastdds_profile(["10.0.0.1"], participant_id=99)
