@@ -128,15 +128,7 @@ def closed_loop(scenario: Scenario, params: Path) -> float:
         return core.command(observation.setpoint, observation.time).voltage
 
     result = simulate(plant, controller=controller)
-    steps = result.time.size
-    flat = scenario.rows * scenario.cols
-    aligned = AlignedRun(
-        times=result.time + plant.dt,
-        setpoint=result.setpoint.reshape(steps, flat),
-        output=result.displacement.reshape(steps, flat),
-        temperature=result.actuator_temperature.reshape(steps, flat),
-        grid_shape=scenario.shape,
-    )
+    aligned = AlignedRun.of_simulation(result, plant.dt)
     period = 1.0 / scenario.setpoint.sine_frequency
     return run_metrics(aligned, period, skip_s=period)[0].rms_error_m
 

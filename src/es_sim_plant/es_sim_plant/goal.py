@@ -58,15 +58,7 @@ def offline_metrics(
         return core.command(observation.setpoint, observation.time).voltage
 
     result = simulate(plant, controller=controller)
-    steps = result.time.size
-    flat = scenario.rows * scenario.cols
-    run = AlignedRun(
-        times=result.time + plant.dt,
-        setpoint=result.setpoint.reshape(steps, flat),
-        output=result.displacement.reshape(steps, flat),
-        temperature=result.actuator_temperature.reshape(steps, flat),
-        grid_shape=scenario.shape,
-    )
+    run = AlignedRun.of_simulation(result, plant.dt)
     return run_metrics(run, period_s, skip_s=period_s)[0]
 
 

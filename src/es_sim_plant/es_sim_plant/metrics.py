@@ -16,10 +16,13 @@ period from it. Per actuator; the run's figure is the largest over actuators.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
+
+if TYPE_CHECKING:
+    from es_sim_plant.plant import SimulationResult
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -52,6 +55,24 @@ class AlignedRun:
     def error(self) -> FloatArray:
         """Tracking error output - set point, m, shape (N, A)."""
         return self.output - self.setpoint
+
+    @classmethod
+    def of_simulation(cls, result: SimulationResult, dt: float) -> AlignedRun:
+        """Return an offline simulation's run, each step's output at the step's end.
+
+        Args:
+            result: what :func:`es_sim_plant.plant.simulate` returned (grids (K, R, C)).
+            dt: the control step, s (the displacement of step k is read at t_k + dt).
+
+        """
+        steps, rows, cols = result.setpoint.shape
+        return cls(
+            times=result.time + dt,
+            setpoint=result.setpoint.reshape(steps, rows * cols),
+            output=result.displacement.reshape(steps, rows * cols),
+            temperature=result.actuator_temperature.reshape(steps, rows * cols),
+            grid_shape=(rows, cols),
+        )
 
 
 @dataclass(frozen=True)

@@ -194,15 +194,7 @@ def run_case(sc: Scenario, case: str, fit: ResonanceFit | None = None) -> CaseRe
     error = np.asarray(estimates) - np.asarray(truth)
     scored = error[int(SKIP_FRACTION * len(error)) :]
     rms_map = np.sqrt(np.mean(scored**2, axis=0))
-    steps = result.time.size
-    flat = sc.rows * sc.cols
-    run = AlignedRun(
-        times=result.time + plant.dt,
-        setpoint=result.setpoint.reshape(steps, flat),
-        output=result.displacement.reshape(steps, flat),
-        temperature=result.actuator_temperature.reshape(steps, flat),
-        grid_shape=sc.shape,
-    )
+    run = AlignedRun.of_simulation(result, plant.dt)
     metrics = run_metrics(run, PERIOD_S, skip_s=PERIOD_S)[0]
     return CaseResult(
         name=case,
