@@ -38,8 +38,11 @@ class SampleSync:
     - command: the sweep ran under the newest command *published* before it (publication
       stamps of one host's clock, ``source_ns``), which is known for sure once a command
       published after the sweep has been handled (messages of one topic come in order);
-      until then the sweep waits, and one waiting longer than :data:`LATE_PERIODS` periods
-      (commands stopped) is fused with the newest command handled.
+      until then the sweep waits. Only when no command at all has been handled for
+      :data:`LATE_PERIODS` periods (commands stopped) is a sweep waiting that long fused with
+      the newest command handled; while commands keep coming (a backlog of them draining,
+      possibly far behind on a loaded machine) it waits for its own, since fusing it with an
+      older command errs by the voltage term.
 
     A sweep fused after its sample's estimate went out corrects the following estimates
     (its correction is computed against its own sample's model estimate). Fusing a sweep
@@ -56,6 +59,7 @@ class SampleSync:
         self.fusion = fusion
         self.window = LATE_PERIODS * sample_period
         self._commands: deque[tuple[int, FloatArray]] = deque(maxlen=COMMAND_HISTORY)
+        self._last_command: float | None = None  # arrival of the newest command [s]
         self._pending: tuple[int, float, FloatArray] | None = None  # source, arrival, sweep
         self._unpaired: tuple[float, float, FloatArray] | None = None  # stamp, arrival, model
         # sweeps with their sample, waiting for their command: (source, arrival, sweep,
@@ -68,8 +72,13 @@ class SampleSync:
         #: Sweeps fused with their own estimate, after it, and with a guessed command.
         self.paired = {"in_order": 0, "late": 0, "without_command": 0}
 
-    def on_command(self, source_ns: int, voltage: FloatArray) -> None:
+    def on_command(
+        self, source_ns: int, voltage: FloatArray, arrival: float | None = None
+    ) -> None:
         """Take a command (R, C) or (N,) [V] published at ``source_ns`` [ns, host clock].
+
+        ``arrival`` is the time it is handled [s] (the clock of the other ``arrival`` values);
+        None: not known (commands then never count as still coming).
 
         Raises:
             ValueError: wrong size or a non-finite value (the command is ignored).
@@ -77,6 +86,7 @@ class SampleSync:
         """
         self.fusion.set_command(voltage)
         self._commands.append((source_ns, self.fusion.voltage))
+        self._last_command = arrival
         self._flush(None)
 
     def on_resonance(self, arrival: float, source_ns: int, frequency: FloatArray) -> None:
@@ -139,7 +149,11 @@ class SampleSync:
         while self._waiting:
             source_ns, arrival, sweep, stamp, model = self._waiting[0]
             volts = self._command_at(source_ns)
-            overdue = now is not None and now - arrival > self.window
+            overdue = (
+                now is not None
+                and now - arrival > self.window
+                and (self._last_command is None or now - self._last_command > self.window)
+            )
             if volts is None and not overdue:
                 return
             self._waiting.popleft()
