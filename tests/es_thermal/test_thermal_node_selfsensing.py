@@ -106,8 +106,8 @@ def test_node_fuses_resonance_and_drops_an_implausible_channel(tmp_path: Path) -
         values = {kv.key: kv.value for kv in status.values}
         assert level_of(status) == Level.WARN
         assert values["resonance_first_implausible"] == "11"
-        # every sweep but the newest fused (with a command found by publication stamps, or,
-        # on a slow machine, the newest command once a sweep waited 1.5 periods)
+        # every sweep but the newest fused, with the command found by publication stamps (the
+        # newest command only for a sweep that waited 1.5 periods after commands stopped)
         fused = ("sweeps_in_order", "sweeps_late", "sweeps_without_command")
         assert sum(int(values[k]) for k in fused) >= 38, values
         assert proc.process.poll() is None

@@ -22,6 +22,9 @@ FloatArray = npt.NDArray[np.float64]
 LATE_PERIODS: Final = 1.5
 #: Commands kept to find the one a sweep ran under (several sample periods' worth).
 COMMAND_HISTORY: Final = 256
+#: Sweeps kept waiting for their command at most; beyond, the oldest is dropped (counted):
+#: its command never comes (e.g. the command publisher's clock lags the plant's).
+MAX_WAITING: Final = 64
 
 
 class SampleSync:
@@ -69,8 +72,9 @@ class SampleSync:
         self.last_sweep: float | None = None
         #: The verdict on the newest sweep fused (None before the first).
         self.health: ChannelHealth | None = None
-        #: Sweeps fused with their own estimate, after it, and with a guessed command.
-        self.paired = {"in_order": 0, "late": 0, "without_command": 0}
+        #: Sweeps fused with their own estimate, after it, with a guessed command, and
+        #: dropped unfused (their command never came, :data:`MAX_WAITING`).
+        self.paired = {"in_order": 0, "late": 0, "without_command": 0, "dropped": 0}
 
     def on_command(
         self, source_ns: int, voltage: FloatArray, arrival: float | None = None
@@ -146,6 +150,9 @@ class SampleSync:
         ``now`` is the arrival time of the message being handled (None: a command);
         ``current`` the stamp of the sample whose estimate is about to go out.
         """
+        while len(self._waiting) > MAX_WAITING:
+            self._waiting.popleft()
+            self.paired["dropped"] += 1
         while self._waiting:
             source_ns, arrival, sweep, stamp, model = self._waiting[0]
             volts = self._command_at(source_ns)
