@@ -16,7 +16,7 @@ from es_thermal.selfsensing import (
     ResonanceCalibration,
     SelfSensingFusion,
 )
-from es_thermal.sweep_sync import SampleSync
+from es_thermal.sweep_sync import MAX_WAITING, SampleSync
 
 ROWS, COLS = 8, 8
 N = ROWS * COLS
@@ -208,7 +208,7 @@ def test_a_sweep_is_fused_with_its_own_sample_and_command_in_any_order() -> None
     sync.on_resonance(0.0, 20, sweep)
     sync.on_command(30, v2)
     assert sync.on_estimate(0.0, 0.0, model)[0] == pytest.approx(43.0, abs=1e-3)
-    assert sync.paired == {"in_order": 1, "late": 0, "without_command": 0}
+    assert sync.paired == {"in_order": 1, "late": 0, "without_command": 0, "dropped": 0}
     # readings first, then the sweep, then the command it ran under arrives late (a backlog)
     # and the next one: fused against its own sample's model estimate and v1
     late = SampleSync(SelfSensingFusion(calibration(), FusionConfig()), sample_period=0.1)
@@ -216,7 +216,7 @@ def test_a_sweep_is_fused_with_its_own_sample_and_command_in_any_order() -> None
     late.on_resonance(0.01, 20, sweep)
     late.on_command(10, v1)
     late.on_command(30, v2)
-    assert late.paired == {"in_order": 0, "late": 1, "without_command": 0}
+    assert late.paired == {"in_order": 0, "late": 1, "without_command": 0, "dropped": 0}
     assert late.on_estimate(0.1, 0.1, model + 0.5)[0] == pytest.approx(43.5, abs=1e-3)
     assert late.health is not None and late.health.accepted[0]
     # no command after the sweep for longer than the window: fused with the newest one
@@ -227,3 +227,44 @@ def test_a_sweep_is_fused_with_its_own_sample_and_command_in_any_order() -> None
     quiet.on_estimate(0.2, 0.2, model)
     assert quiet.paired["without_command"] == 1
     assert quiet.fusion.correction[0] == pytest.approx(1.0, abs=1e-3)
+
+
+def test_a_sweep_waits_for_its_command_behind_a_backlog_of_older_ones() -> None:
+    """Commands still coming but far behind (a deep queue draining): never guess a command."""
+    truth = np.full(N, 42.0)
+    truth[0] = 43.0  # the model misses actuator 0 by 1 degC
+    model = np.full(N, 42.0)
+    v_old, v1, v2 = np.zeros(N), np.full(N, 150.0), np.full(N, 160.0)
+    sweep = law(truth, v1)  # swept under v1 (published at 50 ns), published at 60 ns
+    sync = SampleSync(SelfSensingFusion(calibration(), FusionConfig()), sample_period=0.1)
+    sync.on_command(1, v_old, 0.0)
+    sync.on_resonance(0.0, 60, sweep)
+    sync.on_estimate(0.0, 0.0, model)
+    # three sample periods on, the commands handled are still older than the sweep
+    for k in range(1, 4):
+        sync.on_command(1 + k, v_old, 0.1 * k - 0.01)
+        assert sync.on_estimate(0.1 * k, 0.1 * k, model)[0] == 42.0
+    assert sync.paired == {"in_order": 0, "late": 0, "without_command": 0, "dropped": 0}
+    sync.on_command(50, v1, 0.35)
+    sync.on_command(70, v2, 0.36)
+    assert sync.paired == {"in_order": 0, "late": 1, "without_command": 0, "dropped": 0}
+    assert sync.on_estimate(0.4, 0.4, model)[0] == pytest.approx(43.0, abs=1e-3)
+    # the commands stop: a sweep overdue is then fused with the newest command after all
+    sync.on_resonance(0.5, 80, law(truth, v2))
+    sync.on_estimate(0.5, 0.5, model)
+    sync.on_estimate(0.7, 0.7, model)
+    assert sync.paired["without_command"] == 1
+    assert sync.fusion.correction[0] == pytest.approx(1.0, abs=1e-3)
+
+
+def test_sweeps_whose_command_never_comes_are_dropped_and_counted() -> None:
+    """A command source whose stamps stay behind the sweeps' must not pile sweeps up."""
+    sync = SampleSync(SelfSensingFusion(calibration(), FusionConfig()), sample_period=0.1)
+    model = np.full(N, 42.0)
+    sweep = law(model, np.zeros(N))
+    for k in range(MAX_WAITING + 10):
+        sync.on_command(k, np.zeros(N), 0.1 * k)  # always published before the sweeps
+        sync.on_resonance(0.1 * k, 10_000 + k, sweep)
+        sync.on_estimate(0.1 * k, 0.1 * k, model)
+    assert sync.paired["dropped"] == 10
+    assert sync.paired["late"] + sync.paired["in_order"] + sync.paired["without_command"] == 0

@@ -22,6 +22,9 @@ FloatArray = npt.NDArray[np.float64]
 LATE_PERIODS: Final = 1.5
 #: Commands kept to find the one a sweep ran under (several sample periods' worth).
 COMMAND_HISTORY: Final = 256
+#: Sweeps kept waiting for their command at most; beyond, the oldest is dropped (counted):
+#: its command never comes (e.g. the command publisher's clock lags the plant's).
+MAX_WAITING: Final = 64
 
 
 class SampleSync:
@@ -38,8 +41,11 @@ class SampleSync:
     - command: the sweep ran under the newest command *published* before it (publication
       stamps of one host's clock, ``source_ns``), which is known for sure once a command
       published after the sweep has been handled (messages of one topic come in order);
-      until then the sweep waits, and one waiting longer than :data:`LATE_PERIODS` periods
-      (commands stopped) is fused with the newest command handled.
+      until then the sweep waits. Only when no command at all has been handled for
+      :data:`LATE_PERIODS` periods (commands stopped) is a sweep waiting that long fused with
+      the newest command handled; while commands keep coming (a backlog of them draining,
+      possibly far behind on a loaded machine) it waits for its own, since fusing it with an
+      older command errs by the voltage term.
 
     A sweep fused after its sample's estimate went out corrects the following estimates
     (its correction is computed against its own sample's model estimate). Fusing a sweep
@@ -56,6 +62,7 @@ class SampleSync:
         self.fusion = fusion
         self.window = LATE_PERIODS * sample_period
         self._commands: deque[tuple[int, FloatArray]] = deque(maxlen=COMMAND_HISTORY)
+        self._last_command: float | None = None  # arrival of the newest command [s]
         self._pending: tuple[int, float, FloatArray] | None = None  # source, arrival, sweep
         self._unpaired: tuple[float, float, FloatArray] | None = None  # stamp, arrival, model
         # sweeps with their sample, waiting for their command: (source, arrival, sweep,
@@ -65,11 +72,17 @@ class SampleSync:
         self.last_sweep: float | None = None
         #: The verdict on the newest sweep fused (None before the first).
         self.health: ChannelHealth | None = None
-        #: Sweeps fused with their own estimate, after it, and with a guessed command.
-        self.paired = {"in_order": 0, "late": 0, "without_command": 0}
+        #: Sweeps fused with their own estimate, after it, with a guessed command, and
+        #: dropped unfused (their command never came, :data:`MAX_WAITING`).
+        self.paired = {"in_order": 0, "late": 0, "without_command": 0, "dropped": 0}
 
-    def on_command(self, source_ns: int, voltage: FloatArray) -> None:
+    def on_command(
+        self, source_ns: int, voltage: FloatArray, arrival: float | None = None
+    ) -> None:
         """Take a command (R, C) or (N,) [V] published at ``source_ns`` [ns, host clock].
+
+        ``arrival`` is the time it is handled [s] (the clock of the other ``arrival`` values);
+        None: not known (commands then never count as still coming).
 
         Raises:
             ValueError: wrong size or a non-finite value (the command is ignored).
@@ -77,6 +90,7 @@ class SampleSync:
         """
         self.fusion.set_command(voltage)
         self._commands.append((source_ns, self.fusion.voltage))
+        self._last_command = arrival
         self._flush(None)
 
     def on_resonance(self, arrival: float, source_ns: int, frequency: FloatArray) -> None:
@@ -136,10 +150,17 @@ class SampleSync:
         ``now`` is the arrival time of the message being handled (None: a command);
         ``current`` the stamp of the sample whose estimate is about to go out.
         """
+        while len(self._waiting) > MAX_WAITING:
+            self._waiting.popleft()
+            self.paired["dropped"] += 1
         while self._waiting:
             source_ns, arrival, sweep, stamp, model = self._waiting[0]
             volts = self._command_at(source_ns)
-            overdue = now is not None and now - arrival > self.window
+            overdue = (
+                now is not None
+                and now - arrival > self.window
+                and (self._last_command is None or now - self._last_command > self.window)
+            )
             if volts is None and not overdue:
                 return
             self._waiting.popleft()

@@ -428,7 +428,7 @@ class ThermalNode(Node):
         assert self._sync is not None
         try:
             grid = msg_to_grid(msg, self.core.shape)
-            self._sync.on_command(int(info["source_timestamp"]), grid)
+            self._sync.on_command(int(info["source_timestamp"]), grid, self._now())
         except (LayoutError, ValueError) as err:
             self._reject("command", str(err))
         except Exception as err:  # the node must outlive any failure of the core
