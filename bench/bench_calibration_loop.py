@@ -41,18 +41,18 @@ from typing import Any
 import numpy as np
 import yaml
 
-from es_feedforward.calibrate import run as calibrate_run
-from es_feedforward.calibration.model import CANDIDATES
-from es_feedforward.feedforward import Feedforward, Mode
-from es_feedforward.param_file import read_params_file
-from es_msgs_py.bag import write_array_bag
-from es_sim_plant.demo import (
+from es_bringup.demo import (
     DEFAULT_CONTROL_RATE,
     LOOP_SCENARIO,
     characterisation_scenario,
     scenario_with_effects,
 )
-from es_sim_plant.metrics import AlignedRun, run_metrics
+from es_bringup.metrics import AlignedRun, run_metrics
+from es_feedforward.calibrate import run as calibrate_run
+from es_feedforward.calibration.model import CANDIDATES
+from es_feedforward.feedforward import Feedforward, Mode
+from es_feedforward.param_file import read_params_file
+from es_msgs_py.bag import write_array_bag
 from es_sim_plant.plant import Observation, Plant, simulate
 from es_sim_plant.scenario import Scenario, load_scenario, resolve_scenario
 

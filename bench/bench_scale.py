@@ -238,7 +238,7 @@ def lockstep_run(rows: int, cols: int, duration: float,
 
     from run import Process, _plant_speedup, _run_until_exit, processes, wait_for_controllers
 
-    from es_sim_plant.bringup import GraphConfig, node_specs
+    from es_bringup.bringup import GraphConfig, node_specs
 
     config = GraphConfig(scenario="dm_exposure",
                          plant={"rows": rows, "cols": cols, "duration": duration})

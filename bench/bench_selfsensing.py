@@ -4,7 +4,7 @@ Usage (from the repository root, after ./scripts/bootstrap)::
 
     .venv/bin/python bench/bench_selfsensing.py [--pitch 6] [--duration S]
 
-Offline, pure cores (no DDS), :mod:`es_sim_plant.selfsensing_study`: the resonance laws are
+Offline, pure cores (no DDS), :mod:`es_bringup.selfsensing_study`: the resonance laws are
 calibrated from the ``characterisation`` test-stand scenario run offline with the sweeps on;
 then ``dm_exposure`` (12 x 12, dipole exposure: a non-uniform heat load) runs in closed loop
 with (a) 4 NTCs (one per 6 x 6 block) and the thermal model, (b) the same plus
@@ -18,7 +18,7 @@ import argparse
 import json
 import time
 
-from es_sim_plant.selfsensing_study import CASES, characterise, study
+from es_bringup.selfsensing_study import CASES, characterise, study
 
 #: Issue-20 goals for case (b): RMS, worst actuator [degC], improvement over (a), variation
 #: ratio to (c).

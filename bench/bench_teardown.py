@@ -67,9 +67,9 @@ def _command(kind: str, bag: Path, log_dir: Path) -> tuple[list[str], dict[str, 
             raise FileNotFoundError("no ros2 (run scripts/ros2cli-env or set ES_DM_ROS2)")
         env["AMENT_PREFIX_PATH"] = str(ros2.parent.parent)
         env["PATH"] = f"{ros2.parent}{os.pathsep}{env['PATH']}"
-        return [str(ros2), "launch", "es_sim_plant", "closed_loop.launch.py",
+        return [str(ros2), "launch", "es_bringup", "closed_loop.launch.py",
                 "scenario:=dm_exposure", "duration:=3600", f"bag:={bag}"], env  # fmt: skip
-    bringup = Path(sys.prefix) / "lib" / "es_sim_plant" / "bringup"
+    bringup = Path(sys.prefix) / "lib" / "es_bringup" / "bringup"
     return [str(bringup), "--scenario", "dm_exposure", "--duration", "3600", "--bag", str(bag),
             "--log-dir", str(log_dir)], env  # fmt: skip
 

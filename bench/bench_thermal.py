@@ -202,11 +202,11 @@ def node_cost(rows: int, cols: int, *, updates: int = 200) -> dict[str, float]:
 
     The configuration is the thermal node's for the lockstep benchmark: its parameter
     defaults (one sensor per actuator) with the ``dm_exposure`` scenario's values for an
-    R x C grid (es_sim_plant.bringup.scenario_parameters), through the node's own mapping
+    R x C grid (es_bringup.bringup.scenario_parameters), through the node's own mapping
     (``config_from_parameters``). An update is a heat load plus a message of readings, as
     the node hands them over; median, min and max over ``updates``.
     """
-    from es_sim_plant.bringup import scenario_parameters
+    from es_bringup.bringup import scenario_parameters
     from es_thermal.thermal_node import SPECS, config_from_parameters
 
     values: dict[str, object] = {spec.name: spec.default for spec in SPECS}

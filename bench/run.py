@@ -243,7 +243,7 @@ def processes(*started: Process) -> Iterator[tuple[Process, ...]]:
 
 def launcher(package: str, name: str) -> str:
     """Return the installed ``lib/<package>/<name>`` launcher (what ``ros2 run`` starts)."""
-    from es_sim_plant.bringup import executable
+    from es_bringup.bringup import executable
 
     return str(executable(package, name))
 
@@ -384,7 +384,7 @@ def section_selfsensing(results: Results) -> None:
     """Issue 20: temperature error and variation with 4 NTCs, + self-sensing, NTC each."""
     from bench_selfsensing import goal_checks, selfsensing_figures
 
-    from es_sim_plant.selfsensing_study import CASES
+    from es_bringup.selfsensing_study import CASES
 
     figures = selfsensing_figures()  # seeded: every repeat gives the same figures
     for case in CASES:
@@ -786,9 +786,9 @@ def _load_run(loaded: bool, settings: Settings, log_dir: Path, paced_s: float) -
     """Feedforward at LOAD_SHAPE with a recorder on set points and commands, hogs or not."""
     from load import hogs
 
+    from es_bringup.invariants import published_counts_from_log, recorder_counts_from_log
     from es_msgs_py.bag import read_bag
     from es_msgs_py.topics import COMMAND, SETPOINT
-    from es_sim_plant.invariants import published_counts_from_log, recorder_counts_from_log
 
     rows, cols = LOAD_SHAPE
     label = "loaded" if loaded else "idle"
@@ -937,7 +937,7 @@ def _run_until_exit(primary: Process, watched: Sequence[Process], timeout: float
 
 def section_lockstep(settings: Settings, results: Results, log_dir: Path) -> None:
     """Plant, thermal and feedforward processes in lockstep: sim/wall factor, peak memory."""
-    from es_sim_plant.bringup import GraphConfig, node_specs
+    from es_bringup.bringup import GraphConfig, node_specs
 
     for rows, cols in LOCKSTEP_SHAPES:
         n = rows * cols
@@ -982,7 +982,7 @@ def section_lockstep(settings: Settings, results: Results, log_dir: Path) -> Non
 
 def _profile_lockstep(settings: Settings, results: Results, log_dir: Path) -> None:
     """One 12 x 12 lockstep run with the plant and the feedforward node under cProfile."""
-    from es_sim_plant.bringup import GraphConfig, node_specs
+    from es_bringup.bringup import GraphConfig, node_specs
 
     config = GraphConfig(scenario="dm_exposure",
                          plant={"rows": 12, "cols": 12, "duration": settings.lockstep_duration})
@@ -1008,7 +1008,7 @@ def _profile_lockstep(settings: Settings, results: Results, log_dir: Path) -> No
 
 def section_recorder(results: Results, log_dir: Path) -> None:
     """Peak memory of the recorder while it records a 32 x 32 lockstep run (all /dm topics)."""
-    from es_sim_plant.bringup import GraphConfig, node_specs
+    from es_bringup.bringup import GraphConfig, node_specs
 
     with tempfile.TemporaryDirectory(prefix="bench_record_") as tmp:
         config = GraphConfig(scenario="dm_exposure", bag=Path(tmp) / "bag",

@@ -94,7 +94,7 @@ def run_bringup(
     The graph runs below its own namespace (``soak<pid>``): whatever else shares the ROS
     domain (another test's plant, say) cannot publish into it.
     """
-    from es_sim_plant.bringup import Bringup, GraphConfig
+    from es_bringup.bringup import Bringup, GraphConfig
 
     config = GraphConfig(
         scenario=SCENARIO,
@@ -143,14 +143,14 @@ def check_counts(
     topic at a time is read from the bag (a long run's bag does not fit comfortably in
     memory at once).
     """
-    from es_msgs_py import topics
-    from es_msgs_py.bag import BagError, read_bag
-    from es_sim_plant.analysis import node_logs
-    from es_sim_plant.invariants import (
+    from es_bringup.analysis import node_logs
+    from es_bringup.invariants import (
         contract_name,
         published_counts_from_log,
         recorder_counts_from_log,
     )
+    from es_msgs_py import topics
+    from es_msgs_py.bag import BagError, read_bag
 
     logs = node_logs(log_dir)
     names = tuple(topics.TOPIC_TYPES)

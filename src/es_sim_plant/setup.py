@@ -6,8 +6,6 @@ PACKAGE = "es_sim_plant"
 # executable name (under lib/es_sim_plant/, for `ros2 run`) -> module with main()
 EXECUTABLES = {
     "plant_node": "es_sim_plant.plant_node",
-    "bringup": "es_sim_plant.bringup",
-    "demo": "es_sim_plant.demo",
 }
 
 setup(
@@ -29,7 +27,7 @@ setup(
     zip_safe=False,
     maintainer="es_dm developers",
     maintainer_email="es-dm@example.com",
-    description="Deformable-mirror plant simulator: UV heating, thermal network, actuator grid, sensors, sim time; scenarios and bring-up.",
+    description="Deformable-mirror plant simulator: UV heating, thermal network, actuator grid, sensors, sim time; scenarios and the plant node.",
     license="Apache-2.0",
     entry_points={
         "console_scripts": [

@@ -20,8 +20,8 @@ import pytest
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
+from es_bringup.invariants import contract_name
 from es_msgs_py import topics
-from es_sim_plant.invariants import contract_name
 
 from .conftest import README, Ros2, readme_commands
 

@@ -119,7 +119,7 @@ def test_a_hanging_teardown_ends_the_process_with_exit_1_and_its_stack() -> None
     [
         ("es_sim_plant", "plant_node"), ("es_thermal", "thermal_node"),
         ("es_feedforward", "feedforward_node"), ("es_msgs_py", "record"),
-        ("es_feedforward", "calibrate"), ("es_sim_plant", "bringup"), ("es_sim_plant", "demo"),
+        ("es_feedforward", "calibrate"), ("es_bringup", "bringup"), ("es_bringup", "demo"),
     ],
 )  # fmt: skip
 def test_every_executable_answers_help_without_starting_a_node(package: str, name: str) -> None:

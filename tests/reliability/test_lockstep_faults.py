@@ -20,10 +20,10 @@ import pytest
 from rclpy.parameter import Parameter
 from support.ros import READY_TIMEOUT
 
+from es_bringup.bringup import GraphConfig, node_specs
 from es_msgs_py import topics
 from es_msgs_py.arrays import grid_to_msg
 from es_msgs_py.bag import read_bag
-from es_sim_plant.bringup import GraphConfig, node_specs
 
 from .graph import PLANT_OUTPUTS, Proc, Watcher
 

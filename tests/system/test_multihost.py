@@ -17,10 +17,10 @@ from pathlib import Path
 
 import pytest
 
+from es_bringup.bringup import GraphConfig, node_specs
+from es_bringup.supervisor import Supervisor
 from es_msgs_py import topics
 from es_msgs_py.bag import read_bag
-from es_sim_plant.bringup import GraphConfig, node_specs
-from es_sim_plant.supervisor import Supervisor
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
 

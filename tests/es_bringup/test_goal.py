@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from es_sim_plant.goal import estimate_error, settle_time, settled_metrics, step_times
-from es_sim_plant.metrics import AlignedRun, run_metrics
+from es_bringup.goal import estimate_error, settle_time, settled_metrics, step_times
+from es_bringup.metrics import AlignedRun, run_metrics
 from es_sim_plant.scenario import load_scenario
 
 

@@ -6,9 +6,9 @@ from pathlib import Path
 
 import numpy as np
 
+from es_bringup.demo import _hardware_signature, characterisation_scenario, daq_clock_copy
 from es_msgs_py.bag import read_bag, write_array_bag
 from es_msgs_py.topics import COMMAND, DISPLACEMENT, HEAT_LOAD, TEMPERATURE_RAW
-from es_sim_plant.demo import _hardware_signature, characterisation_scenario, daq_clock_copy
 from es_sim_plant.scenario import load_scenario, resolve_scenario
 
 
@@ -64,7 +64,7 @@ def test_thesis_scenarios_run_the_default_simulator() -> None:
 
 
 def test_thermal_node_undoes_the_known_sensor_lag_once() -> None:
-    from es_sim_plant.bringup import scenario_parameters
+    from es_bringup.bringup import scenario_parameters
 
     thermal, feedforward = scenario_parameters("thesis_ac", {})
     assert thermal["sensor_lag_tau"] == load_scenario("thesis_ac", 1.0).effects.sensor_lag.tau_s
@@ -99,7 +99,7 @@ def test_sample_clock_copy_restamps_by_index(tmp_path: Path) -> None:
 def test_parameters_file_follows_the_graph_into_its_namespace(tmp_path: Path) -> None:
     import yaml
 
-    from es_sim_plant.bringup import GraphConfig, namespaced_params_file
+    from es_bringup.bringup import GraphConfig, namespaced_params_file
 
     source = tmp_path / "params.yaml"
     source.write_text(yaml.safe_dump({"feedforward": {"ros__parameters": {"rows": 2}}}))

@@ -27,8 +27,8 @@ matplotlib.use("Agg")  # files only; never a window
 import matplotlib.pyplot as plt
 import numpy as np
 
-from es_sim_plant.invariants import InvariantReport
-from es_sim_plant.metrics import AlignedRun, PeriodSlots, RunMetrics, reduction
+from es_bringup.invariants import InvariantReport
+from es_bringup.metrics import AlignedRun, PeriodSlots, RunMetrics, reduction
 
 BASELINE_MODE = "uncompensated"
 NM = 1e9

@@ -3,8 +3,8 @@
 Pure (no rclpy, no launch): from a scenario and options, :func:`build_graph` returns every
 node to start (package, executable, name, parameters, parameter files, program arguments)
 with everything derived from the scenario: the grid, the thermal node's sensors, noise, lag
-and network, the time scale. ``ros2 run es_sim_plant bringup`` turns the nodes into
-supervised processes, ``ros2 launch es_sim_plant closed_loop.launch.py`` into launch_ros
+and network, the time scale. ``ros2 run es_bringup bringup`` turns the nodes into
+supervised processes, ``ros2 launch es_bringup closed_loop.launch.py`` into launch_ros
 ``Node`` actions; both start the same graph.
 
 The plant starts its scenario only when the recorder, thermal and feedforward nodes report

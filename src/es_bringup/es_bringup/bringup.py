@@ -1,7 +1,7 @@
-r"""``ros2 run es_sim_plant bringup``: run the closed-loop node graph as separate processes.
+r"""``ros2 run es_bringup bringup``: run the closed-loop node graph as separate processes.
 
 Our own small replacement for ``ros2 launch`` (``launch/closed_loop.launch.py`` starts the
-same graph: both take it from :func:`es_sim_plant.graph.build_graph`). It starts, from their
+same graph: both take it from :func:`es_bringup.graph.build_graph`). It starts, from their
 installed ``lib/<pkg>/<exe>`` launchers:
 
 the recorder (``es_msgs_py record``) on every /dm topic and /diagnostics if a bag is asked for,
@@ -11,7 +11,7 @@ a matched subscription from its peers and the recorder (``start_subscribers``) a
 recorder, thermal and feedforward nodes report on /diagnostics that they are ready
 (``wait_ready``): no fixed settle time.
 
-It supervises them (:mod:`es_sim_plant.supervisor`): output goes to ``<log_dir>/<name>.log``
+It supervises them (:mod:`es_bringup.supervisor`): output goes to ``<log_dir>/<name>.log``
 (and to the terminal with a ``[name]`` prefix unless ``--quiet``), a node that dies stops the
 rest with a non-zero exit and a clear message, and when the plant finishes its scenario the
 others are stopped (SIGINT, then SIGTERM, then SIGKILL, by PID), the recorder last, so that
@@ -20,7 +20,7 @@ the environment.
 
 Example::
 
-    ros2 run es_sim_plant bringup --scenario thesis_ac --mode inverse_hyperbolic \
+    ros2 run es_bringup bringup --scenario thesis_ac --mode inverse_hyperbolic \
         --feedforward-params calibrated.yaml --bag out/thesis_ac
 """
 
@@ -37,8 +37,7 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import NoReturn
 
-from es_msgs_py import topics
-from es_sim_plant.graph import (
+from es_bringup.graph import (
     FEEDFORWARD,
     PLANT,
     RECORDED_TOPICS,
@@ -55,7 +54,8 @@ from es_sim_plant.graph import (
     scoped,
     topic_remaps,
 )
-from es_sim_plant.supervisor import Outcome, ProcessSpec, StopTimeouts, Supervisor
+from es_bringup.supervisor import Outcome, ProcessSpec, StopTimeouts, Supervisor
+from es_msgs_py import topics
 
 __all__ = [
     "Bringup",
@@ -134,7 +134,7 @@ def ros_arguments(
 def node_specs(config: GraphConfig) -> tuple[list[ProcessSpec], ProcessSpec]:
     """Return the processes started before the plant (recorder first) and the plant.
 
-    The nodes are :func:`es_sim_plant.graph.build_graph`'s, as ``ros2 launch`` starts them.
+    The nodes are :func:`es_bringup.graph.build_graph`'s, as ``ros2 launch`` starts them.
 
     Raises:
         GraphError: the graph cannot be built (scenario, parameters file).
@@ -246,7 +246,7 @@ def stand_published_counts(plant_log: Iterable[str]) -> dict[str, int]:
     Only those: the recorder reports no count for a topic it does not record (a test stand
     publishes no set points, and it has no thermal node), so waiting for one never ends.
     """
-    from es_sim_plant.invariants import published_counts_from_log
+    from es_bringup.invariants import published_counts_from_log
 
     counts = published_counts_from_log(plant_log, topics.TOPIC_TYPES)
     recorded = set(topics.DM_TOPICS) & set(TEST_STAND_TOPICS)

@@ -1,4 +1,4 @@
-"""es_sim_plant.graph: one description of the graph for bringup and ros2 launch."""
+"""es_bringup.graph: one description of the graph for bringup and ros2 launch."""
 
 from __future__ import annotations
 
@@ -10,11 +10,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from es_feedforward.feedforward import FeedforwardConfig
-from es_feedforward.param_file import write_params_file
-from es_msgs_py import topics
-from es_sim_plant.bringup import node_specs
-from es_sim_plant.graph import (
+from es_bringup.bringup import node_specs
+from es_bringup.graph import (
     FEEDFORWARD,
     PLANT,
     RECORDER,
@@ -24,9 +21,12 @@ from es_sim_plant.graph import (
     build_graph,
     topic_remaps,
 )
+from es_feedforward.feedforward import FeedforwardConfig
+from es_feedforward.param_file import write_params_file
+from es_msgs_py import topics
 from es_sim_plant.scenario import load_scenario
 
-LAUNCH_FILE = Path(__file__).parents[2] / "src/es_sim_plant/launch/closed_loop.launch.py"
+LAUNCH_FILE = Path(__file__).parents[2] / "src/es_bringup/launch/closed_loop.launch.py"
 
 
 def by_name(config: GraphConfig) -> dict[str, dict[str, object]]:
@@ -141,7 +141,7 @@ def test_the_launch_file_describes_every_argument_and_builds_the_graph() -> None
 def test_bringup_refuses_a_mismatched_parameters_file_in_one_line(tmp_path: Path) -> None:
     path = tmp_path / "ff.yaml"
     write_params_file(path, FeedforwardConfig(shape=(2, 2)))
-    launcher = Path(sys.prefix) / "lib" / "es_sim_plant" / "bringup"
+    launcher = Path(sys.prefix) / "lib" / "es_bringup" / "bringup"
     result = subprocess.run(
         [str(launcher), "--scenario", "thesis_ac", "--feedforward-params", str(path),
          "--log-dir", str(tmp_path / "logs")],

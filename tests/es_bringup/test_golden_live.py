@@ -1,6 +1,6 @@
 """Live regression tier: run the node graph over DDS again and compare with the golden bags.
 
-Each golden case (es_sim_plant.golden) runs through the bring-up as the golden bag was made
+Each golden case (es_bringup.golden) runs through the bring-up as the golden bag was made
 (plant, thermal and feedforward nodes in lockstep and the recorder), here with the graph
 below a namespace as the demo runs it. The new bag must match the golden one:
 
@@ -24,10 +24,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from es_bringup.analysis import check_run, node_logs
+from es_bringup.golden import CASES, GoldenCase, record
 from es_msgs_py import topics
 from es_msgs_py.bag import read_bag
-from es_sim_plant.analysis import check_run, node_logs
-from es_sim_plant.golden import CASES, GoldenCase, record
 
 GOLDEN = Path(__file__).resolve().parents[1] / "golden"
 RTOL = 1e-9

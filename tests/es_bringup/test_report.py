@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from es_sim_plant.invariants import InvariantReport
-from es_sim_plant.metrics import align_run, run_metrics
-from es_sim_plant.report import ReportInputs, RunResult, write_report
+from es_bringup.invariants import InvariantReport
+from es_bringup.metrics import align_run, run_metrics
+from es_bringup.report import ReportInputs, RunResult, write_report
 
 RATE = 50.0
 

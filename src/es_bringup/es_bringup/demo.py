@@ -1,7 +1,7 @@
-"""``scripts/demo`` / ``ros2 run es_sim_plant demo``: the main job, end to end over ROS 2.
+"""``scripts/demo`` / ``ros2 run es_bringup demo``: the main job, end to end over ROS 2.
 
 The product's story, in order, every step a separate process graph run by the bring-up
-(:mod:`es_sim_plant.bringup`) and recorded into a bag:
+(:mod:`es_bringup.bringup`) and recorded into a bag:
 
 1. characterisation: the simulator as a test stand (no feedforward; a signal-generator
    voltage program, a slow temperature ramp, interferometer noise), recorded like measured
@@ -13,7 +13,7 @@ The product's story, in order, every step a separate process graph run by the br
 4. one calibration loop end to end: a test-stand bag with an effect the model lacks, the
    effect found, the error before and after, and the closed-loop tracking with the
    parameters before and after the effect was added; then self-sensing
-   (:mod:`es_sim_plant.selfsensing_demo`): a test stand with the resonance sweeps,
+   (:mod:`es_bringup.selfsensing_demo`): a test stand with the resonance sweeps,
    ``calibrate_resonance``, and ``dm_exposure`` with 4 NTCs, 4 NTCs + self-sensing and an
    NTC per actuator;
 5. the report (Markdown + PNG + summary.json) in the output folder named at the end.
@@ -42,12 +42,12 @@ from typing import Any, NoReturn
 import numpy as np
 import yaml
 
+from es_bringup import selfsensing_demo
+from es_bringup.analysis import RunAnalysis, analyse_run
+from es_bringup.bringup import Bringup, GraphConfig, ParamValue, executable
+from es_bringup.report import ReportInputs, RunResult, write_report
 from es_msgs_py.topics import RESONANCE, process_domain_id
-from es_sim_plant import selfsensing_demo
-from es_sim_plant.analysis import RunAnalysis, analyse_run
-from es_sim_plant.bringup import Bringup, GraphConfig, ParamValue, executable
 from es_sim_plant.plant import sensor_every
-from es_sim_plant.report import ReportInputs, RunResult, write_report
 from es_sim_plant.scenario import Scenario, load_scenario, resolve_scenario
 
 #: Closed-loop scenarios of the main job.
@@ -556,14 +556,14 @@ class Demo:
         """Return the goal check against the thesis and where the remaining variation comes from."""
         from dataclasses import replace as with_changes
 
-        from es_feedforward.feedforward import Mode
-        from es_feedforward.param_file import read_params_file
-        from es_sim_plant.goal import (
+        from es_bringup.goal import (
             estimate_error,
             offline_metrics,
             settle_time,
             settled_metrics,
         )
+        from es_feedforward.feedforward import Mode
+        from es_feedforward.param_file import read_params_file
 
         grouped: dict[str, dict[str, RunResult]] = {}
         for r in results:

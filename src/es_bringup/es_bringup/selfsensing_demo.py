@@ -1,6 +1,6 @@
 """The main job's self-sensing section: files, calibration, scoring and text (no rclpy).
 
-The demo (:mod:`es_sim_plant.demo`) runs, over ROS 2 through the bring-up:
+The demo (:mod:`es_bringup.demo`) runs, over ROS 2 through the bring-up:
 
 1. a test stand of the ``dm_exposure`` mirror with the resonance sweeps on
    (:func:`stand_scenario`), recording /dm/resonance besides the usual topics;
@@ -32,11 +32,11 @@ import numpy as np
 import numpy.typing as npt
 import yaml
 
+from es_bringup.bringup import ParamValue, executable
+from es_bringup.selfsensing_study import CASE_TITLES, CASES, SKIP_FRACTION
 from es_msgs_py.bag import read_bag, write_array_bag
-from es_sim_plant.bringup import ParamValue, executable
 from es_sim_plant.plant import Plant, sensor_every, simulate
 from es_sim_plant.scenario import load_scenario
-from es_sim_plant.selfsensing_study import CASE_TITLES, CASES, SKIP_FRACTION
 from es_thermal.interpolation import block_centre_positions
 
 FloatArray = npt.NDArray[np.float64]

@@ -1,9 +1,9 @@
-"""Closed-loop graph for ``ros2 launch``: the same graph as ``ros2 run es_sim_plant bringup``.
+"""Closed-loop graph for ``ros2 launch``: the same graph as ``ros2 run es_bringup bringup``.
 
-    ros2 launch es_sim_plant closed_loop.launch.py scenario:=thesis_ac \
+    ros2 launch es_bringup closed_loop.launch.py scenario:=thesis_ac \
         mode:=inverse_hyperbolic feedforward_params:=/path/calibrated.yaml bag:=/tmp/run1
 
-Both take their nodes from :func:`es_sim_plant.graph.build_graph`: the recorder (every /dm
+Both take their nodes from :func:`es_bringup.graph.build_graph`: the recorder (every /dm
 topic and /diagnostics, sim time) when ``bag`` is given, the thermal node and the
 feedforward node with the grid, sensors, time scale and sensor lag of the scenario, and the
 plant (lockstep, exits when its scenario ends), whose first step waits until the thermal and
@@ -25,7 +25,7 @@ from launch.actions import DeclareLaunchArgument, OpaqueFunction, RegisterEventH
 from launch.event_handlers import OnProcessExit
 from launch_ros.actions import Node
 
-from es_sim_plant.graph import GraphConfig, build_graph, topic_remaps
+from es_bringup.graph import GraphConfig, build_graph, topic_remaps
 
 #: Every argument: name, default, description.
 ARGUMENTS: list[tuple[str, str, str]] = [

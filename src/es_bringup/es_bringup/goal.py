@@ -23,8 +23,8 @@ from itertools import pairwise
 
 import numpy as np
 
+from es_bringup.metrics import AlignedRun, RunMetrics, run_metrics, whole_periods
 from es_feedforward.feedforward import Feedforward, FeedforwardConfig
-from es_sim_plant.metrics import AlignedRun, RunMetrics, run_metrics, whole_periods
 from es_sim_plant.plant import Observation, Plant, simulate
 from es_sim_plant.scenario import Scenario
 
@@ -88,7 +88,7 @@ def settled_metrics(
 ) -> RunMetrics | None:
     """Return the run's figures over the periods clear of every base step's transient.
 
-    Whole periods (:func:`es_sim_plant.metrics.whole_periods`, as the variation counts
+    Whole periods (:func:`es_bringup.metrics.whole_periods`, as the variation counts
     them, from ``skip_s``) that overlap [t_step, t_step + :func:`settle_time`) are left out;
     ``None`` when the scenario has no step (nothing to leave out) or nothing is left.
     """

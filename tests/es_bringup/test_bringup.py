@@ -9,9 +9,9 @@ from pathlib import Path
 
 import pytest
 
-from es_sim_plant.bringup import stand_published_counts
+from es_bringup.bringup import stand_published_counts
 
-LAUNCHER = Path(sys.prefix) / "lib" / "es_sim_plant" / "bringup"
+LAUNCHER = Path(sys.prefix) / "lib" / "es_bringup" / "bringup"
 
 
 def run(*args: str, timeout: float = 90.0) -> subprocess.CompletedProcess[str]:

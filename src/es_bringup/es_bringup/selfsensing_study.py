@@ -14,7 +14,7 @@ thermal estimator core and feedforward core in closed loop, no DDS):
 Each case reports the per-actuator RMS temperature error map (the first
 :data:`SKIP_FRACTION` of the run, the start-up, is not scored), its RMS over the grid, the
 worst actuator's RMS, the largest single error, and the feedforward's temperature-induced
-variation (:func:`es_sim_plant.metrics.run_metrics`). The feedforward uses the simulator's
+variation (:func:`es_bringup.metrics.run_metrics`). The feedforward uses the simulator's
 true actuator laws, so that the variation shows only what the temperature estimate adds.
 """
 
@@ -26,8 +26,8 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
+from es_bringup.metrics import AlignedRun, run_metrics
 from es_feedforward.feedforward import Feedforward, FeedforwardConfig
-from es_sim_plant.metrics import AlignedRun, run_metrics
 from es_sim_plant.plant import Observation, Plant, simulate
 from es_sim_plant.resonance import ResonanceConfig
 from es_sim_plant.scenario import Scenario, load_scenario

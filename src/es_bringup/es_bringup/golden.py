@@ -5,7 +5,7 @@ recorded by the recorder exactly as the bring-up runs them. The tests (tests/sys
 each bag's inputs through every node's core and rerun the graph live, comparing against
 the bag. Regenerate only on purpose, after a change of behaviour that is meant::
 
-    scripts/regen-golden            # = python -m es_sim_plant.golden --out tests/golden
+    scripts/regen-golden            # = python -m es_bringup.golden --out tests/golden
 
 It refuses to overwrite unless ``--force`` is given, and prints the size of every bag.
 """
@@ -20,9 +20,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import NoReturn
 
-from es_sim_plant.bringup import GraphConfig, ParamValue, run_graph
+from es_bringup.bringup import GraphConfig, ParamValue, run_graph
+from es_bringup.supervisor import Outcome
 from es_sim_plant.scenario import Scenario, load_scenario
-from es_sim_plant.supervisor import Outcome
 
 
 @dataclass(frozen=True)

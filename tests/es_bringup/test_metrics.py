@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from es_sim_plant.metrics import align_run, period_slots, reduction, run_metrics, setpoint_period
+from es_bringup.metrics import align_run, period_slots, reduction, run_metrics, setpoint_period
 
 RATE = 100.0  # steps per second
 PERIOD = 1.0

@@ -7,7 +7,7 @@ import threading
 import time
 from pathlib import Path
 
-from es_sim_plant.supervisor import EXIT_INTERRUPTED, ProcessSpec, StopTimeouts, Supervisor
+from es_bringup.supervisor import EXIT_INTERRUPTED, ProcessSpec, StopTimeouts, Supervisor
 
 # A stand-in node: prints, then waits; on SIGINT appends "<name> stopped" to a journal file
 # (a "slow" one first notes "<name> interrupted" and takes 0.3 s to stop). Once its signal

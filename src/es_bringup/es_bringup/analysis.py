@@ -13,9 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from es_msgs_py import topics
-from es_msgs_py.bag import TopicSeries, read_bag
-from es_sim_plant.invariants import (
+from es_bringup.invariants import (
     InvariantReport,
     check_commands,
     check_counts,
@@ -23,7 +21,7 @@ from es_sim_plant.invariants import (
     published_counts_from_log,
     recorder_counts_from_log,
 )
-from es_sim_plant.metrics import (
+from es_bringup.metrics import (
     AlignedRun,
     PeriodSlots,
     RunMetrics,
@@ -31,6 +29,8 @@ from es_sim_plant.metrics import (
     run_metrics,
     setpoint_period,
 )
+from es_msgs_py import topics
+from es_msgs_py.bag import TopicSeries, read_bag
 from es_sim_plant.plant import sensor_every
 
 #: Block length used instead of a period when the set point has no AC component, s.

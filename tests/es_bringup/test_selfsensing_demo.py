@@ -7,16 +7,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from es_msgs_py.bag import read_bag, write_array_bag
-from es_sim_plant.scenario import load_scenario, resolve_scenario
-from es_sim_plant.selfsensing_demo import (
+from es_bringup.selfsensing_demo import (
     case_figures,
     case_scenarios,
     sample_clock_copy,
     section_markdown,
     stand_scenario,
 )
-from es_sim_plant.selfsensing_study import CASES
+from es_bringup.selfsensing_study import CASES
+from es_msgs_py.bag import read_bag, write_array_bag
+from es_sim_plant.scenario import load_scenario, resolve_scenario
 
 
 def test_case_scenarios_share_the_mirror_and_differ_in_sensors(tmp_path: Path) -> None:

@@ -33,13 +33,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from es_bringup.bringup import scenario_parameters
+from es_bringup.golden import CASES, GoldenCase
 from es_feedforward.feedforward import Feedforward
 from es_feedforward.node_params import parameter_specs
 from es_feedforward.param_file import config_from_parameters as feedforward_config
 from es_msgs_py import topics
 from es_msgs_py.bag import TopicSeries, read_bag
-from es_sim_plant.bringup import scenario_parameters
-from es_sim_plant.golden import CASES, GoldenCase
 from es_sim_plant.plant import Plant, simulate
 from es_sim_plant.scenario import Scenario
 from es_thermal.estimator import TemperatureEstimator

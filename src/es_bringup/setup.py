@@ -1,0 +1,39 @@
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE = "es_bringup"
+# executable name (under lib/es_bringup/, for `ros2 run`) -> module with main()
+EXECUTABLES = {
+    "bringup": "es_bringup.bringup",
+    "demo": "es_bringup.demo",
+}
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    packages=find_packages(exclude=["test"]),
+    package_data={PACKAGE: ["py.typed"]},
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
+        (f"share/{PACKAGE}", ["package.xml"]),
+        (f"lib/{PACKAGE}", [f"scripts/{exe}" for exe in EXECUTABLES]),
+        *[
+            (f"share/{PACKAGE}/{d}", glob(f"{d}/*"))
+            for d in ("launch", "scenarios", "config")
+            if glob(f"{d}/*")
+        ],
+    ],
+    install_requires=["setuptools"],
+    zip_safe=False,
+    maintainer="es_dm developers",
+    maintainer_email="es-dm@example.com",
+    description="Bring-up of the es_dm closed loop (launch file, supervisor, graph) and its evaluation: the demo, golden runs, metrics and report.",
+    license="Apache-2.0",
+    entry_points={
+        "console_scripts": [
+            f"{PACKAGE}-{exe.replace('_', '-')} = {module}:main"
+            for exe, module in EXECUTABLES.items()
+        ],
+    },
+)
