@@ -5,7 +5,7 @@ For every effect the feedforward compensates (the calibration's candidates,
 calibration loop (the demo's step 4) runs on the plant core, offline:
 
 1. characterise: the demo's test stand for the hardware of ``LOOP_SCENARIO``
-   (``demo.characterisation_scenario``) with only this effect on, on a ``GRID`` grid (so that
+   (``characterisation_scenario``) with only this effect on, on a ``GRID`` grid (so that
    coupling has neighbours), simulated without ROS and written as a measured-data bag
    (command k at t_k, the displacement it produces at t_k+1, the raw sensor temperatures);
 2. calibrate: ``es_feedforward calibrate`` on that bag (in this process), told nothing;
@@ -41,12 +41,12 @@ from typing import Any
 import numpy as np
 import yaml
 
-from es_bringup.demo import (
-    DEFAULT_CONTROL_RATE,
+from es_bringup.demo_calibration import (
     LOOP_SCENARIO,
     characterisation_scenario,
     scenario_with_effects,
 )
+from es_bringup.demo_options import DEFAULT_CONTROL_RATE
 from es_bringup.metrics import AlignedRun, run_metrics
 from es_feedforward.calibrate import run as calibrate_run
 from es_feedforward.calibration.model import CANDIDATES

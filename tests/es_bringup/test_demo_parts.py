@@ -6,7 +6,11 @@ from pathlib import Path
 
 import numpy as np
 
-from es_bringup.demo import _hardware_signature, characterisation_scenario, daq_clock_copy
+from es_bringup.demo_calibration import (
+    characterisation_scenario,
+    daq_clock_copy,
+    hardware_signature,
+)
 from es_msgs_py.bag import read_bag, write_array_bag
 from es_msgs_py.topics import COMMAND, DISPLACEMENT, HEAT_LOAD, TEMPERATURE_RAW
 from es_sim_plant.scenario import load_scenario, resolve_scenario
@@ -36,19 +40,19 @@ def _thesis_ac_copy(tmp_path: Path, name: str, **changes: object) -> str:
 
 
 def test_seed_tells_hardware_apart_only_with_spread(tmp_path: Path) -> None:
-    ac = _hardware_signature(characterisation_scenario("thesis_ac", tmp_path))
-    dc_ac = _hardware_signature(characterisation_scenario("thesis_dc_ac", tmp_path))
-    mirror = _hardware_signature(characterisation_scenario("dm_exposure", tmp_path))
+    ac = hardware_signature(characterisation_scenario("thesis_ac", tmp_path))
+    dc_ac = hardware_signature(characterisation_scenario("thesis_dc_ac", tmp_path))
+    mirror = hardware_signature(characterisation_scenario("dm_exposure", tmp_path))
     assert ac == dc_ac  # the thesis's one sample: same seed, spread, sensor and lag
     assert mirror != ac
     other_sample = _thesis_ac_copy(tmp_path, "other_sample", seed=12)
-    assert _hardware_signature(characterisation_scenario(other_sample, tmp_path)) != ac
+    assert hardware_signature(characterisation_scenario(other_sample, tmp_path)) != ac
     no_spread: dict[str, dict[str, float]] = {"spread": {}}
     ideal_11 = _thesis_ac_copy(tmp_path, "ideal_11", actuators=no_spread)
     ideal_12 = _thesis_ac_copy(tmp_path, "ideal_12", actuators=no_spread, seed=12)
-    assert _hardware_signature(
+    assert hardware_signature(
         characterisation_scenario(ideal_11, tmp_path)
-    ) == _hardware_signature(characterisation_scenario(ideal_12, tmp_path))  # seeds draw noise
+    ) == hardware_signature(characterisation_scenario(ideal_12, tmp_path))  # seeds draw noise
 
 
 def test_thesis_scenarios_run_the_default_simulator() -> None:
