@@ -2,7 +2,7 @@
 
 Two network namespaces joined by a veth pair stand for two machines (multihost.py); Fast DDS
 finds the peers from an initial-peers profile, over UDP only. The benchmark client (the
-run.py DdsClient) runs on host A and streams paced set points; the feedforward node (or the
+dds_client DdsClient) runs on host A and streams paced set points; the feedforward node (or the
 plain relay, the floor) runs on host B with the same parameters as in the feedforward
 section; every command comes back across the link. Reported: rate of commands received,
 p99 set-point-to-command, loss, and the bytes the link carried.
@@ -38,7 +38,7 @@ from bench_scale import (  # noqa: E402
 from multihost import Host, host_environment, two_hosts  # noqa: E402
 
 if TYPE_CHECKING:
-    from run import Results, Settings
+    from benchlib import Results, Settings
 
 #: The issue's case: 64 x 64 at 1 kHz across the link.
 MULTIHOST_SHAPE = (64, 64)
@@ -109,7 +109,7 @@ def measure_local(kind: str, shape: tuple[int, int], rate_hz: float, seconds: fl
 def _client_and_node(kind: str, shape: tuple[int, int], rate_hz: float, seconds: float,
                      log_dir: Path, *, on_b: Callable[[list[str]], list[str]],
                      on_a: Callable[[list[str]], list[str]]) -> PacedRun:
-    from run import Process, processes
+    from benchlib import Process, processes
 
     rows, cols = shape
     node = Process(f"multihost_{kind}_{rows}x{cols}", on_b(node_command(kind, shape)), log_dir)
@@ -137,7 +137,7 @@ def section_multihost(settings: Settings, results: Results, log_dir: Path) -> No
         multihost.NetnsError: the namespaces cannot be made (not root).
 
     """
-    from run import Record
+    from benchlib import Record
 
     rows, cols = MULTIHOST_SHAPE
     n = rows * cols

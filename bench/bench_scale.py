@@ -1,10 +1,10 @@
 """The feedforward node at the largest grids in service: paced set points, p99, loss.
 
 Issue 18's cases: 66 x 66 (4356, PALM-3000's grid) at 2 kHz, and 128 x 128 (16384) at 1 kHz.
-The client (run.py's DdsClient, one rclpy node in this process) streams set points at the
+The client (dds_client.DdsClient, one rclpy node in this process) streams set points at the
 rate for a few seconds; the feedforward node and the floor, a plain relay of the same
 message size on the same executor (the EventsExecutor the node uses), take turns, one
-process start each per repeat. Unlike run.py's paced run, a lost command is counted, not
+process start each per repeat. Unlike sections/feedforward.py's, a lost command is counted, not
 an error: the loss is one of the figures.
 
     .venv/bin/python bench/bench_scale.py [--seconds 3] [--repeats 1]
@@ -26,7 +26,8 @@ BENCH_DIR = Path(__file__).resolve().parent
 sys.path.insert(0, str(BENCH_DIR))
 
 if TYPE_CHECKING:
-    from run import DdsClient, Results, Settings
+    from benchlib import Results, Settings
+    from dds_client import DdsClient
 
 #: (rows, cols, set-point rate [Hz], p99 target [ms], p99 target as a multiple of the relay's
 #: p99, or None): the issue's figures.
@@ -98,7 +99,7 @@ def start_client(shape: tuple[int, int], timeout: float, hold_check: bool) -> Dd
         RuntimeError: the peer never showed up, or (``hold_check``) it answered 0 V only.
 
     """
-    from run import DdsClient
+    from dds_client import DdsClient
 
     from es_msgs_py.arrays import msg_to_grid
 
@@ -119,7 +120,7 @@ def start_client(shape: tuple[int, int], timeout: float, hold_check: bool) -> Dd
 
 def node_command(kind: str, shape: tuple[int, int]) -> list[str]:
     """Return the argv of ``feedforward`` (its defaults) or ``relay_events``."""
-    from run import launcher
+    from benchlib import launcher
 
     if kind == "relay_events":
         return [sys.executable, str(BENCH_DIR / "relay.py"), "--ros-args", "-r",
@@ -157,7 +158,7 @@ def measure(kind: str, shape: tuple[int, int], rate_hz: float, seconds: float,
         ``None`` for the relay, whose plain publisher is not counted.
 
     """
-    from run import Process, processes
+    from benchlib import Process, processes
 
     rows, cols = shape
     node = Process(f"scale_{kind}_{rows}x{cols}", node_command(kind, shape), log_dir)
@@ -175,7 +176,7 @@ def measure(kind: str, shape: tuple[int, int], rate_hz: float, seconds: float,
 
 def section_scale(settings: Settings, results: Results, log_dir: Path) -> None:
     """Paced p99, rate and loss at 66 x 66 / 2 kHz and 128 x 128 / 1 kHz, beside the relay."""
-    from run import Record
+    from benchlib import Record
 
     seconds = settings.dds_rate_seconds
     for rows, cols, rate, target_ms, target_ratio in SCALE_CASES:
@@ -236,7 +237,7 @@ def lockstep_run(rows: int, cols: int, duration: float,
     """
     import re
 
-    from run import Process, _plant_speedup, _run_until_exit, processes, wait_for_controllers
+    from benchlib import Process, plant_speedup, processes, run_until_exit, wait_for_controllers
 
     from es_bringup.bringup import GraphConfig, node_specs
 
@@ -249,16 +250,16 @@ def lockstep_run(rows: int, cols: int, duration: float,
         ready_s = wait_for_controllers(started, CONTROLLERS_TIMEOUT_S)
         plant = Process(f"{plant_spec.name}_{tag}", plant_spec.command, log_dir)
         with processes(plant):
-            _run_until_exit(plant, [plant], 120.0 + 30.0 * duration)
+            run_until_exit(plant, [plant], 120.0 + 30.0 * duration)
     output = plant.output()
-    speedup, _ = _plant_speedup(output)
+    speedup, _ = plant_speedup(output)
     cpu = re.search(r"plant CPU ([\d.]+) ms/step", output)
     return speedup, float(cpu.group(1)) if cpu else float("nan"), ready_s
 
 
 def section_lockstep_scale(settings: Settings, results: Results, log_dir: Path) -> None:
     """Lockstep closed loop at 32 x 32 and 64 x 64: x real time beside the issue's floors."""
-    from run import Record
+    from benchlib import Record
 
     for rows, cols, floor in LOCKSTEP_CASES:
         runs = [lockstep_run(rows, cols, settings.lockstep_duration, log_dir)
@@ -302,7 +303,7 @@ def _cores() -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the scale section alone and print its records and notes."""
-    from run import Results, Settings
+    from benchlib import Results, Settings
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=3.0)

@@ -1,0 +1,1 @@
+"""Benchmark sections: one module each with ``run(context: benchlib.Context)``."""

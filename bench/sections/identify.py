@@ -1,0 +1,36 @@
+"""Section ``identify``: the identification sweep of identify.py on standgen bags."""
+
+from __future__ import annotations
+
+import datetime as dt
+import os
+import time
+
+from benchlib import Context, Record
+
+
+def run(context: Context) -> None:
+    """Run the identification sweep (identify.py): right effect sets, clean FP rate, RMS."""
+    import identify
+
+    quick, results, out = context.quick, context.results, context.out / "identify"
+    jobs = min(2, os.cpu_count() or 1)
+    start = time.monotonic()
+    outcomes = identify.run_sweep(identify.build_cases(quick=quick), jobs=jobs,
+                                  keep=out / "cases")
+    wall = time.monotonic() - start
+    summary = identify.write_results(out, outcomes, {
+        "date": dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC"),
+        "command": f"bench/run.py --only identify{' --quick' if quick else ''}",
+        "quick": quick, "jobs": jobs, "seed": 0, "cores": os.cpu_count(), "wall_s": wall})
+    n = summary["cases"]
+    for name, key in (("identify_single_right", "single_right"),
+                      ("identify_pair_right", "pair_right"),
+                      ("identify_clean_false_positive", "clean_false_positive_rate"),
+                      ("identify_right_within_1p2_noise", "right_within_1p2_true_noise")):
+        if summary[key] is not None:
+            results.records.append(Record.of(name, n, [summary[key]], "fraction"))
+    results.records.append(Record.of("identify_wall_time", n, [wall], "s"))
+    results.notes.append(f"identify_*: {n} standgen cases ({'quick' if quick else 'full'}), "
+                         f"{jobs} jobs; goals: {'; '.join(identify.goal_lines(summary))}; "
+                         f"tables in {out / 'identify.md'}.")

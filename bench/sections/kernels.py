@@ -1,0 +1,30 @@
+"""Section ``kernels``: each feedforward mode's cost per set point (bench_kernels.py)."""
+
+from __future__ import annotations
+
+import numpy as np
+from benchlib import Context, Record
+
+
+def run(context: Context) -> None:
+    """Each mode's per-set-point cost and the laws+inverse kernel, against one np.sqrt."""
+    from bench_kernels import bench_kernels
+
+    settings, results = context.settings, context.results
+    runs = [bench_kernels(settings.kernel_sizes, repeats=1) for _ in range(settings.repeats)]
+    keys = [(row.kernel, row.size) for row in runs[0]]
+    for index, (kernel, size) in enumerate(keys):
+        rows = [run[index] for run in runs]
+        name = "kernel_" + kernel.replace("laws+", "laws_")
+        ratio = float(np.median([row.ratio_to_sqrt for row in rows]))
+        results.records.append(Record.of(name, size, [r.seconds_per_call for r in rows], "s",
+                                          ratio))
+    for size in settings.kernel_sizes:
+        floor = [row.sqrt_seconds_per_call for run in runs for row in run if row.size == size]
+        results.references.append(Record.of("floor_np_sqrt", size, floor, "s"))
+    results.notes.append(
+        "kernel_<mode>: Feedforward.command of that mode with the temperature laws already "
+        "evaluated (the cost per set point); kernel_laws_inverse_hyperbolic: laws and "
+        "hyperbolic inverse together; kernel_update_temperature: laws at a new temperature. "
+        "ratio = time / one np.sqrt over the same N, measured alternately in the same run."
+    )

@@ -1,0 +1,30 @@
+"""Section ``teardown``: Ctrl-C stops under ros2 launch and the bring-up (bench_teardown.py)."""
+
+from __future__ import annotations
+
+from benchlib import Context, Record
+
+
+def run(context: Context) -> None:
+    """Ctrl-C stops under ros2 launch and the bring-up (bench_teardown.py): crashes, times."""
+    from bench_teardown import ros2_executable, teardown_stops
+
+    settings, results = context.settings, context.results
+    stops = 5 if settings.repeats == 1 else 50
+    kinds = ["launch", "bringup"] if ros2_executable() else ["bringup"]
+    if "launch" not in kinds:
+        results.failures.append("teardown: no ros2 for the launch stops (scripts/ros2cli-env)")
+    for kind in kinds:
+        outcome = teardown_stops(kind, stops)
+        results.records.append(
+            Record.of(f"teardown_crashes_{kind}", outcome.stops, [outcome.crashes], "crashes"))
+        if outcome.stop_seconds:
+            results.records.append(Record.of(f"teardown_stop_time_{kind}", outcome.stops,
+                                             outcome.stop_seconds, "s"))
+        results.notes += [f"teardown {kind} {note}" for note in outcome.crash_notes]
+    results.notes.append(
+        f"teardown: {stops} Ctrl-C stops (SIGINT to the ros2 launch / bringup PID) of a "
+        "dm_exposure 12 x 12 lockstep graph with recorder, each 0.2-2 s after the feedforward "
+        "was ready; a crash = a node died or printed a native stack, an unclean exit, a stop "
+        "over 90 s or an unclosed bag; stop time = SIGINT to exit (median, min-max)."
+    )
