@@ -1,41 +1,46 @@
-"""Compensation of the effects beyond the basic model (pure numpy/scipy, no rclpy).
+"""The feedforward's compensation parameters (pure numpy/scipy, no rclpy).
 
-One definition per effect, shared with the simulator and the calibration tool
-(``docs/architecture.md``, "Effects beyond the basic model"). The feedforward applies them
-around the model inverse:
+Every effect of :mod:`es_physics.effects` states its ``compensation.*`` parameters and
+builds its compensation stage from them (:meth:`es_physics.effects.Effect.compensator`,
+docs/architecture.md "Effects beyond the basic model"); the feedforward chains the stages
+in model order. Built in: the temperature lead (``sensor_lag``), the set point predicted
+over the delay, thermal expansion subtracted, the drift divided out, the coupling solved,
+and the drive's inverses (frequency dispersion, then the Prandtl-Ishlinskii hysteresis),
+self-heating moving the temperature the law is evaluated at.
 
-1. temperature lead (``sensor_lag``): T_used = T + tau dT/dt, derivative low-pass filtered;
-2. delay: set point predicted ``delay_s`` ahead from the slope of the last two set points;
-3. thermal expansion: alpha (T_used - T_ref) subtracted from the set point;
-4. drift: set point divided by 1 - a (1 - exp(-(t / tau)^nu)) (z is proportional to M);
-5. coupling: (I + c lap) z_free = z_ref solved with a sparse LU factorised once per grid;
-6. frequency dispersion: exact inverse of the first-order relaxation
-   V_law = V_pi - r D (V_pi - s) at the end of the command interval (per-actuator states);
-7. hysteresis: exact inverse of the Prandtl-Ishlinskii operator
-   V_pi = (1 - sum a_i) V + sum a_i play_(r_i)(V), per-actuator play states.
-
-Self-heating moves the temperature the law is evaluated at: T_used + dT, dT the excess the
-drive sent causes (:class:`es_physics.effects.self_heating.HeatingEstimate`, in feedforward).
+This module holds :class:`CompensationParams`, the typed set of those parameters (with
+the values of effects added from other packages in :attr:`CompensationParams.extra`), their
+ranges and descriptions, and re-exports the built-in compensation classes.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass, fields
+from types import MappingProxyType
 from typing import Final
 
-import numpy as np
-from scipy.sparse import csc_matrix, diags, identity
-from scipy.sparse.linalg import splu
-
 from es_physics.effects import registry
-from es_physics.effects.frequency_dispersion import (
-    relaxation_advance,
-    relaxation_decay,
-    relaxation_inverse,
-)
-from es_physics.effects.hysteresis import pi_inverse
-from es_physics.params import FloatArray
+from es_physics.effects.coupling import CouplingInverse, laplacian
+from es_physics.effects.delay import DelayPredictor
+from es_physics.effects.drift import compensated_drift
+from es_physics.effects.frequency_dispersion import RelaxationInverse
+from es_physics.effects.hysteresis import HysteresisInverse, compensated_operators
+from es_physics.effects.sensor_lag import TemperatureLead
+
+__all__ = [
+    "DESCRIPTIONS",
+    "PREFIX",
+    "RANGES",
+    "CompensationParams",
+    "CouplingInverse",
+    "DelayPredictor",
+    "HysteresisInverse",
+    "RelaxationInverse",
+    "TemperatureLead",
+    "drift_factor",
+    "laplacian",
+]
 
 #: Name prefix of the compensation parameters (ROS parameters and parameter files).
 PREFIX: Final = "compensation."
@@ -72,6 +77,10 @@ class CompensationParams:
         self_heating_tau_s: time constant of the excess temperature [s].
         self_heating_mean_window_s: running-mean window of the drive [s].
 
+    The compensation parameters of effects from other packages have no field: they are read
+    as attributes too (their declared default unless :meth:`with_extra` gave them), and
+    :meth:`values` and :meth:`replaced` include them (``dataclasses.replace`` does not).
+
     """
 
     temperature_lead_s: float = 0.0
@@ -95,6 +104,76 @@ class CompensationParams:
     self_heating_gain: float = 0.0
     self_heating_tau_s: float = 1.0
     self_heating_mean_window_s: float = 1.0
+    def __post_init__(self) -> None:
+        """Give the parameters declared beyond the typed fields their defaults."""
+        object.__setattr__(self, "_extra", MappingProxyType(dict(_EXTRA_DEFAULTS)))
+
+    @classmethod
+    def with_extra(cls, extra: Mapping[str, float], **typed: float) -> CompensationParams:
+        """Return the set with typed fields ``typed`` and the values ``extra`` of parameters.
+
+        ``extra`` holds, by name without prefix, the parameters that effects from other
+        packages declare (the declared default for any not given).
+
+        Raises:
+            ValueError: a name in ``extra`` that no effect declares beyond the typed fields.
+            TypeError: a name in ``typed`` that is no field.
+
+        """
+        unknown = set(extra) - set(_EXTRA_DEFAULTS)
+        if unknown:
+            raise ValueError(f"unknown compensation parameter(s) {sorted(unknown)}")
+        params = cls(**typed)
+        full = {**_EXTRA_DEFAULTS, **{k: float(v) for k, v in extra.items()}}
+        object.__setattr__(params, "_extra", MappingProxyType(full))
+        return params
+
+    def __getattr__(self, name: str) -> float:
+        """Return the value of a parameter declared beyond the typed fields.
+
+        Raises:
+            AttributeError: no effect declares ``name``.
+
+        """
+        extra = self.__dict__.get("_extra")
+        if extra is not None and name in extra:
+            return float(extra[name])
+        raise AttributeError(f"no compensation parameter {name!r}")
+
+    def __eq__(self, other: object) -> bool:
+        """Equal when every declared parameter has the same value."""
+        if not isinstance(other, CompensationParams):
+            return NotImplemented
+        return self.values() == other.values()
+
+    def __hash__(self) -> int:
+        """Hash of every declared parameter's value."""
+        return hash(tuple(sorted(self.values().items())))
+
+    def values(self) -> dict[str, float]:
+        """Return every declared compensation parameter's value by name (no prefix)."""
+        return {name: float(getattr(self, name)) for name in RANGES}
+
+    def of(self, effect_name: str) -> dict[str, float]:
+        """Return the values of the compensation parameters effect ``effect_name`` declares."""
+        return {p.name: float(getattr(self, p.name)) for p in registry()[effect_name].compensation}
+
+    def replaced(self, values: Mapping[str, float]) -> CompensationParams:
+        """Return a copy with the parameters named in ``values`` (no prefix) replaced.
+
+        Raises:
+            ValueError: an unknown name.
+
+        """
+        typed = {f.name for f in fields(self)}
+        unknown = set(values) - set(RANGES)
+        if unknown:
+            raise ValueError(f"unknown compensation parameter(s) {sorted(unknown)}")
+        kept = {f.name: getattr(self, f.name) for f in fields(self)}
+        extra = {k: v for k, v in self.values().items() if k not in typed}
+        for name, value in values.items():
+            (kept if name in typed else extra)[name] = float(value)
+        return CompensationParams.with_extra(extra, **kept)
 
     @classmethod
     def from_mapping(cls, values: dict[str, float]) -> CompensationParams:
@@ -106,12 +185,13 @@ class CompensationParams:
         """
         known = {f.name for f in fields(cls)}
         kwargs: dict[str, float] = {}
+        extra: dict[str, float] = {}
         for key, value in values.items():
             name = key.removeprefix(PREFIX)
-            if name not in known:
+            if name not in RANGES:
                 raise ValueError(f"unknown compensation parameter {key!r}")
-            kwargs[name] = float(value)
-        params = cls(**kwargs)
+            (kwargs if name in known else extra)[name] = float(value)
+        params = cls.with_extra(extra, **kwargs)
         reason = params.reason_to_reject()
         if reason is not None:
             raise ValueError(reason)
@@ -131,13 +211,7 @@ class CompensationParams:
 
     def hysteresis_operators(self) -> tuple[tuple[float, ...], tuple[float, ...]]:
         """Return the (weights, thresholds [V]) of the hysteresis operators in use."""
-        pairs = [
-            (self.hysteresis_weight, self.hysteresis_threshold_v),
-            (self.hysteresis_weight_2, self.hysteresis_threshold_v_2),
-            (self.hysteresis_weight_3, self.hysteresis_threshold_v_3),
-        ]
-        used = [(w, r) for w, r in pairs if w > 0.0]
-        return tuple(w for w, _ in used), tuple(r for _, r in used)
+        return compensated_operators(self.of("hysteresis"))
 
 
 #: Accepted range of every compensation parameter (inclusive), from the effect registry.
@@ -152,233 +226,18 @@ DESCRIPTIONS: Final[dict[str, str]] = {
 }
 
 
-class TemperatureLead:
-    """T_used = T + tau dT/dt with a first-order low-pass on the finite-difference derivative."""
-
-    def __init__(self, tau_s: float, filter_s: float) -> None:
-        self.tau_s = tau_s
-        self.filter_s = filter_s
-        self._last: tuple[FloatArray, float] | None = None
-        self._rate: FloatArray | None = None
-
-    def retuned(self, tau_s: float, filter_s: float) -> TemperatureLead:
-        """Return a copy with new parameters and this one's state (this one is unchanged)."""
-        other = TemperatureLead(tau_s, filter_s)
-        other._last, other._rate = self._last, self._rate
-        return other
-
-    def __call__(self, T: FloatArray, t: float) -> FloatArray:
-        """Return the lead-corrected temperatures for a sample ``T`` taken at ``t`` [s]."""
-        if self.tau_s == 0.0:
-            return T
-        if self._last is None or self._rate is None or self._last[0].shape != T.shape:
-            self._rate = np.zeros_like(T)
-        else:
-            T_prev, t_prev = self._last
-            dt = t - t_prev
-            if dt > 0.0:
-                raw = (T - T_prev) / dt
-                gain = dt / (dt + self.filter_s)
-                rate = self._rate + gain * (raw - self._rate)
-                self._rate = np.where(np.isfinite(rate), rate, 0.0)
-        self._last = (T, t)
-        return np.asarray(T + self.tau_s * self._rate, np.float64)
-
-
-class DelayPredictor:
-    """Predict the set point ``delay_s`` ahead from the slope of the last two set points."""
-
-    def __init__(self, delay_s: float) -> None:
-        self.delay_s = delay_s
-        self._last: tuple[FloatArray, float] | None = None
-        self._slope: FloatArray | None = None
-
-    def retuned(self, delay_s: float) -> DelayPredictor:
-        """Return a copy with a new delay and this one's state (this one is unchanged)."""
-        other = DelayPredictor(delay_s)
-        other._last, other._slope = self._last, self._slope
-        return other
-
-    def __call__(self, z: FloatArray, t: float) -> FloatArray:
-        """Return the predicted set points (never below 0 where ``z`` is not)."""
-        if self.delay_s == 0.0:
-            return z
-        if self._last is not None and self._last[0].shape == z.shape:
-            z_prev, t_prev = self._last
-            if t > t_prev:
-                self._slope = (z - z_prev) / (t - t_prev)
-        else:
-            self._slope = None
-        self._last = (z, t)
-        if self._slope is None:
-            return z
-        predicted = z + self.delay_s * self._slope
-        # a straight-line prediction must not push a reachable set point below 0
-        return np.asarray(np.where(z >= 0.0, np.maximum(predicted, 0.0), predicted), np.float64)
+#: Defaults of the compensation parameters declared beyond the typed fields (effects added
+#: by other packages).
+_EXTRA_DEFAULTS: Final[dict[str, float]] = {
+    p.name: p.default
+    for effect in registry().values()
+    for p in effect.compensation
+    if p.name not in {f.name for f in fields(CompensationParams)}
+}
 
 
 def drift_factor(params: CompensationParams, t: float) -> float:
     """Return M_eff / M = 1 - a (1 - exp(-(t_rel / tau)^nu)) at ROS time ``t`` [s]."""
-    if params.drift_fraction == 0.0:
-        return 1.0
-    t_rel = max(t - params.drift_epoch_s, 0.0)
-    decay = float(np.exp(-((t_rel / params.drift_tau_s) ** params.drift_nu)))
-    return 1.0 - params.drift_fraction * (1.0 - decay)
-
-
-def laplacian(shape: tuple[int, int]) -> csc_matrix:
-    """Return the 4-neighbour Laplacian of a row-major grid (edges: existing neighbours only)."""
-    rows, cols = shape
-    size = rows * cols
-    index = np.arange(size).reshape(shape)
-    pairs = [
-        (index[:, :-1].ravel(), index[:, 1:].ravel()),
-        (index[:-1, :].ravel(), index[1:, :].ravel()),
-    ]
-    i = np.concatenate([p[0] for p in pairs] + [p[1] for p in pairs])
-    j = np.concatenate([p[1] for p in pairs] + [p[0] for p in pairs])
-    adjacency = csc_matrix((np.ones(i.size), (i, j)), shape=(size, size))
-    degree = np.asarray(adjacency.sum(axis=1)).ravel()
-    return csc_matrix(adjacency - diags(degree))
-
-
-class CouplingInverse:
-    """Solve (I + c lap) z_free = z_ref for a grid; the LU factorisation is done once."""
-
-    def __init__(self, coefficient: float, shape: tuple[int, int]) -> None:
-        self.coefficient = coefficient
-        self.shape = shape
-        self._lu = (
-            splu(csc_matrix(identity(shape[0] * shape[1]) + coefficient * laplacian(shape)))
-            if coefficient != 0.0
-            else None
-        )
-
-    def __call__(self, z_ref: FloatArray) -> FloatArray:
-        """Return z_free for the set points ``z_ref`` (grid of ``shape``)."""
-        if self._lu is None:
-            return z_ref
-        return np.asarray(self._lu.solve(z_ref.ravel()).reshape(self.shape), np.float64)
-
-
-class HysteresisInverse:
-    """Exact inverse of V_eff = (1 - sum a_i) V + sum a_i play_(r_i)(V) on a grid.
-
-    One play state per operator and actuator, (K, *shape); the inverse is
-    :func:`es_physics.effects.hysteresis.pi_inverse` (with one operator: if the play stays,
-    V = (V_eff - a p) / (1 - a); pushed up, V = V_eff + a r; pushed down, V = V_eff - a r).
-    The states are updated with the voltage actually applied.
-    """
-
-    def __init__(
-        self,
-        weights: float | Sequence[float],
-        thresholds: float | Sequence[float],
-        shape: tuple[int, ...],
-    ) -> None:
-        w = np.atleast_1d(np.asarray(weights, np.float64))
-        r = np.atleast_1d(np.asarray(thresholds, np.float64))
-        use = w > 0.0
-        self.weights, self.thresholds = w[use], r[use]
-        self.shape = shape
-        self.play = np.zeros((self.weights.size, *shape))
-
-    @property
-    def active(self) -> bool:
-        """Whether the operator does anything."""
-        return self.weights.size > 0
-
-    def retuned(
-        self, weights: float | Sequence[float], thresholds: float | Sequence[float]
-    ) -> HysteresisInverse:
-        """Return a copy with new parameters and this one's play states (this one unchanged).
-
-        Operators carry their state by position; a new operator starts from the first one's
-        state (or 0).
-        """
-        other = HysteresisInverse(weights, thresholds, self.shape)
-        for k in range(other.weights.size):
-            if k < self.weights.size:
-                other.play[k] = self.play[k]
-            elif self.weights.size:
-                other.play[k] = self.play[0]
-        return other
-
-    def start_from(self, voltage: FloatArray) -> None:
-        """Set every play state to ``voltage`` (bumpless start)."""
-        self.play = np.broadcast_to(voltage, self.play.shape).copy()
-
-    def invert(self, v_eff: FloatArray) -> FloatArray:
-        """Return the voltage that makes the operator output ``v_eff``."""
-        if not self.active:
-            return v_eff
-        return pi_inverse(v_eff, self.play, self.weights, self.thresholds)
-
-    def apply(self, voltage: FloatArray) -> None:
-        """Advance the play states with the voltage that was actually sent."""
-        if self.active:
-            r = self.thresholds.reshape((-1,) + (1,) * voltage.ndim)
-            self.play = np.clip(self.play, voltage - r, voltage + r)
-
-    def output(self, voltage: FloatArray) -> FloatArray:
-        """Return the operator's output for ``voltage`` once :meth:`apply` has taken it [V]."""
-        if not self.active:
-            return voltage
-        w = self.weights.reshape((-1,) + (1,) * voltage.ndim)
-        return np.asarray((1.0 - self.weights.sum()) * voltage + (w * self.play).sum(0), np.float64)
-
-
-class RelaxationInverse:
-    """Exact inverse of the drive's first-order relaxation (effect ``frequency_dispersion``).
-
-    V_out = V - r D (V - s) at the end of a command interval h (D = exp(-2 pi f_c h), h taken
-    as the last interval), ds/dt = 2 pi f_c (V - s) with the drive held between commands;
-    per-actuator states s [V] (``shape``), advanced with the drive actually sent.
-    """
-
-    def __init__(self, fraction: float, corner_hz: float, shape: tuple[int, ...]) -> None:
-        self.fraction = fraction
-        self.corner_hz = corner_hz
-        self.state: FloatArray | None = None
-        self.shape = shape
-        self._last: tuple[FloatArray, float] | None = None
-        self._interval = 0.0
-
-    @property
-    def active(self) -> bool:
-        """Whether the relaxation does anything."""
-        return self.fraction > 0.0
-
-    def retuned(self, fraction: float, corner_hz: float) -> RelaxationInverse:
-        """Return a copy with new parameters and this one's state (this one is unchanged)."""
-        other = RelaxationInverse(fraction, corner_hz, self.shape)
-        other.state, other._last, other._interval = self.state, self._last, self._interval
-        return other
-
-    def _state_at(self, t: float) -> FloatArray | None:
-        """Return the state at time ``t`` [s]: the last drive held since it was sent."""
-        if self._last is None or self.state is None:
-            return None
-        drive, sent = self._last
-        if t <= sent:
-            return self.state
-        return relaxation_advance(drive, self.state, relaxation_decay(self.corner_hz, t - sent))
-
-    def invert(self, v_out: FloatArray, t: float) -> FloatArray:
-        """Return the drive sent at ``t`` [s] that makes the output ``v_out`` [V] an interval on.
-
-        Before any drive was sent the state starts at ``v_out`` (bumpless: drive = v_out).
-        """
-        state = self._state_at(t)
-        if not self.active or state is None:
-            return v_out
-        decay = relaxation_decay(self.corner_hz, self._interval)
-        return relaxation_inverse(v_out, state, self.fraction, decay)
-
-    def apply(self, drive: FloatArray, t: float) -> None:
-        """Advance the state to ``t`` [s] and hold ``drive`` [V] (the voltage sent) from then."""
-        state = self._state_at(t)
-        if self._last is not None and t > self._last[1]:
-            self._interval = t - self._last[1]
-        self.state = np.array(drive, np.float64) if state is None else state
-        self._last = (np.array(drive, np.float64), t)
+    return compensated_drift(
+        t, params.drift_fraction, params.drift_tau_s, params.drift_nu, params.drift_epoch_s
+    )

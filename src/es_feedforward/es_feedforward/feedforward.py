@@ -13,8 +13,9 @@ Pure numpy core of the feedforward node (no rclpy). Modes (``Mode``), all per ac
 - ``uncompensated``: the hyperbolic inverse at the fixed ``reference_temperature``, no
   temperature input needed: the baseline reports compare against.
 
-The effects of :mod:`es_feedforward.compensation` are applied around the model in every mode
-(temperature-based ones use the reference temperature in ``uncompensated``).
+The compensation stages of the effects (:meth:`es_physics.effects.Effect.compensator`, from
+the ``compensation.*`` parameters, chained in model order) are applied around the model in
+every mode (temperature-based ones use the reference temperature in ``uncompensated``).
 
 Safety: the output is always finite and within [0, v_limit]. A missing, stale (older than
 ``temperature_timeout``) or invalid (non-finite or outside ``PLAUSIBLE_TEMPERATURE``)
@@ -31,16 +32,8 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
-from es_feedforward.compensation import (
-    CompensationParams,
-    CouplingInverse,
-    DelayPredictor,
-    HysteresisInverse,
-    RelaxationInverse,
-    TemperatureLead,
-    drift_factor,
-)
-from es_physics.effects.self_heating import HeatingEstimate
+from es_feedforward.compensation import CompensationParams
+from es_physics.effects import Compensator, in_model_order
 from es_physics.laws import (
     CODE_CLIPPED_HIGH,
     CODE_CLIPPED_LOW,
@@ -184,15 +177,13 @@ def linearization_error_bound(laws: LawsAtTemperature, amplitude: npt.ArrayLike)
 class Feedforward:
     """Stateful feedforward for one grid: feed temperatures and set points, get commands.
 
-    States (temperature filter, delay slope, hysteresis play, observer integrator, last good
-    command) carry over to a new configuration of the same grid via ``previous``.
+    States (the compensation stages', e.g. temperature filter, delay slope, hysteresis play;
+    observer integrator, last good command) carry over to a new configuration of the same grid
+    via ``previous``.
     """
 
-    _lead: TemperatureLead
-    _delay: DelayPredictor
-    _hysteresis: HysteresisInverse
-    _relaxation: RelaxationInverse
-    _heating: HeatingEstimate
+    #: The compensation stages in model order, by effect name.
+    _stages: dict[str, Compensator]
     _integral: FloatArray
     _last_voltage: FloatArray
     _last_status: StatusArray
@@ -210,40 +201,33 @@ class Feedforward:
         self._laws_compiled = CompiledLaws(config.params, shape)
         self._reference_T = np.full(shape, config.reference_temperature)
         self._reference_laws = self._laws_compiled.at(self._reference_T)
-        self._coupling = CouplingInverse(comp.coupling, shape)
-        heating = (comp.self_heating_gain, comp.self_heating_tau_s, comp.self_heating_mean_window_s)
-        if previous is not None and previous.config.shape == shape:
-            # Carry the states over into new objects: ``previous`` stays untouched and usable
-            # until the caller swaps this one in (a rejected reload changes nothing).
-            self._lead = previous._lead.retuned(
-                comp.temperature_lead_s, comp.temperature_lead_filter_s
+        carry = previous is not None and previous.config.shape == shape
+        self._stages = {}
+        for effect in in_model_order():
+            # carried over into new objects: ``previous`` stays untouched and usable until
+            # the caller swaps this one in (a rejected reload changes nothing); a stage
+            # new to the configuration starts from the command in force (bumpless)
+            stage = effect.compensator(
+                comp.of(effect.name),
+                shape,
+                previous._stages.get(effect.name) if previous is not None and carry else None,
+                previous._last_voltage if previous is not None and carry else None,
             )
-            self._delay = previous._delay.retuned(comp.delay_s)
-            self._hysteresis = previous._hysteresis.retuned(*comp.hysteresis_operators())
-            self._relaxation = previous._relaxation.retuned(
-                comp.dispersion_fraction, comp.dispersion_corner_hz
-            )
-            self._heating = previous._heating.retuned(*heating)
+            if stage is not None:
+                self._stages[effect.name] = stage
+        #: the stages that reshape the drive, in model order
+        self._drive_stages = [s for s in self._stages.values() if s.reshapes_drive]
+        if previous is not None and carry:
             self._integral = previous._integral
             self._last_voltage = previous._last_voltage
             self._last_status = previous._last_status
             self._temperature = previous._temperature
             self._temperature_time = previous._temperature_time
             self._temperature_problem = previous._temperature_problem
-            # bumpless switches: a new observer starts from the command being applied, a new
-            # hysteresis inverse from the play output nearest to it
+            # bumpless switch: a new observer starts from the command being applied
             if previous.config.mode is not Mode.OBSERVER:
                 self._integral = np.array(self._last_voltage)
-            if not previous._hysteresis.active:
-                self._hysteresis.start_from(np.array(self._last_voltage))
         else:
-            self._lead = TemperatureLead(comp.temperature_lead_s, comp.temperature_lead_filter_s)
-            self._delay = DelayPredictor(comp.delay_s)
-            self._hysteresis = HysteresisInverse(*comp.hysteresis_operators(), shape)
-            self._relaxation = RelaxationInverse(
-                comp.dispersion_fraction, comp.dispersion_corner_hz, shape
-            )
-            self._heating = HeatingEstimate(*heating)
             self._integral = np.zeros(shape)
             self._last_voltage = np.zeros(shape)
             self._last_status = np.zeros(shape, np.int8)
@@ -291,7 +275,9 @@ class Feedforward:
             )
             self._laws = None
             return self._temperature_problem
-        self._temperature = self._lead(T, t)
+        for stage in self._stages.values():
+            T = stage.measured_temperature(T, t)
+        self._temperature = T
         self._temperature_problem = None
         self._laws = self._laws_compiled.at(self._temperature)
         return None
@@ -326,8 +312,11 @@ class Feedforward:
             laws, T = self._laws, self._temperature
         else:
             laws, T = self._reference_laws, self._reference_T
-        if self._heating.active:
-            T = T + self._heating.at(t)
+        T_law = T
+        for stage in self._stages.values():
+            T_law = stage.law_temperature(T_law, t)
+        if T_law is not T:
+            T = T_law
             laws = self._laws_compiled.at(T)
 
         lo, hi = (z.min(), z.max()) if z.size else (0.0, 0.0)
@@ -352,9 +341,9 @@ class Feedforward:
             result = laws.hyperbolic_inverse(z, v_limit)
 
         # the model inverses already return finite voltages in [0, v_limit]; only the
-        # hysteresis inverse can leave that range
+        # drive's inverses can leave that range
         voltage, status = result.voltage, result.status
-        reshaped = self._hysteresis.active or self._relaxation.active
+        reshaped = bool(self._drive_stages)
         if reshaped:
             voltage, status = self._drive_and_limits(result, t)
         if raw_status is not None:
@@ -365,11 +354,9 @@ class Feedforward:
             voltage[invalid] = self._last_voltage[invalid]
             if model_error is not None:
                 model_error[invalid] = 0.0
-        self._hysteresis.apply(voltage)
-        if self._relaxation.active:
-            self._relaxation.apply(self._hysteresis.output(voltage), t)
-        if self._heating.active:
-            self._heating.apply(voltage, t)
+        drive = voltage
+        for stage in self._stages.values():
+            drive = stage.commit(voltage, drive, t)
         # shared with the caller without a copy: frozen so that nobody changes the state
         voltage.flags.writeable = False
         status.flags.writeable = False
@@ -379,14 +366,10 @@ class Feedforward:
 
     def _compensate_setpoint(self, z: FloatArray, T: FloatArray, t: float) -> FloatArray:
         """Turn the wanted displacement into the wanted free (basic-model) displacement."""
-        comp = self.config.compensation
-        z = self._delay(z, t)
-        if comp.thermal_expansion != 0.0:
-            z = z - comp.thermal_expansion * (T - comp.expansion_reference_temperature)
-        factor = drift_factor(comp, t)
-        if factor != 1.0:
-            z = z / factor
-        return self._coupling(z)
+        # the forward chain undone from its end: the last stage's effect is removed first
+        for stage in reversed(self._stages.values()):
+            z = stage.setpoint(z, T, t)
+        return z
 
     def _linearized(
         self, laws: LawsAtTemperature, z: FloatArray
@@ -443,9 +426,11 @@ class Feedforward:
     def _drive_and_limits(
         self, result: InverseResult, t: float
     ) -> tuple[FloatArray, StatusArray]:
-        """Undo the relaxation and the hysteresis, then keep every voltage in [0, v_limit]."""
+        """Undo the drive's stages (last first), then keep every voltage in [0, v_limit]."""
         status = result.status
-        voltage = self._hysteresis.invert(self._relaxation.invert(result.voltage, t))
+        voltage = result.voltage
+        for stage in reversed(self._drive_stages):
+            voltage = stage.invert_drive(voltage, t)
         v_limit = self.config.v_limit
         if voltage.size and not (voltage.min() >= 0.0 and voltage.max() <= v_limit):
             bad = ~np.isfinite(voltage)

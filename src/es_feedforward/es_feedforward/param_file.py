@@ -23,7 +23,7 @@ import numpy as np
 import yaml
 
 from es_feedforward.compensation import PREFIX as COMPENSATION_PREFIX
-from es_feedforward.compensation import CompensationParams
+from es_feedforward.compensation import RANGES as COMPENSATION_RANGES
 from es_feedforward.feedforward import FeedforwardConfig, Mode, ObserverGains
 from es_msgs_py.param_yaml import dump_parameters, floats_from_strings
 from es_physics.params import ActuatorParams
@@ -33,7 +33,6 @@ OBSERVER_PREFIX: Final = "observer."
 #: Node name the calibration tool writes files for.
 DEFAULT_NODE_NAME: Final = "feedforward"
 LAW_FIELDS: Final = tuple(f.name for f in fields(ActuatorParams))
-COMPENSATION_FIELDS: Final = tuple(f.name for f in fields(CompensationParams))
 OBSERVER_FIELDS: Final = tuple(f.name for f in fields(ObserverGains))
 
 
@@ -90,7 +89,7 @@ def _config_from_parameters(
     }
     compensation = {
         name: float(values[COMPENSATION_PREFIX + name])  # type: ignore[arg-type]
-        for name in COMPENSATION_FIELDS
+        for name in COMPENSATION_RANGES
         if COMPENSATION_PREFIX + name in values
     }
     observer = {
@@ -109,7 +108,7 @@ def _config_from_parameters(
         temperature_timeout=float(
             values.get("temperature_timeout", base.temperature_timeout)  # type: ignore[arg-type]
         ),
-        compensation=replace(base.compensation, **compensation),
+        compensation=base.compensation.replaced(compensation),
         observer=replace(base.observer, **observer),  # type: ignore[arg-type]
     )
     reason = config.reason_to_reject()
@@ -133,8 +132,8 @@ def config_to_parameters(config: FeedforwardConfig) -> dict[str, object]:
         if value.ndim:
             value = np.broadcast_to(value, config.shape)
         out[LAW_PREFIX + name] = [float(v) for v in value.ravel()]
-    for name in COMPENSATION_FIELDS:
-        out[COMPENSATION_PREFIX + name] = float(getattr(config.compensation, name))
+    for name, number in config.compensation.values().items():
+        out[COMPENSATION_PREFIX + name] = number
     for name in OBSERVER_FIELDS:
         out[OBSERVER_PREFIX + name] = getattr(config.observer, name)
     return out

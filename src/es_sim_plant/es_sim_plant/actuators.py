@@ -9,11 +9,13 @@ Time: a plant step of ``dt`` is split into ``substeps`` internal steps (default 
 a 100 Hz control rate). The amplifier holds the command over the step and saturates at
 ``v_limit``; the transport delay is resolved to one internal step, so within a plant step the
 applied voltage switches once, from the older to the newer delayed command, at a known
-internal step. Hysteresis (a rate-independent play operator) therefore changes state at most
-twice per step and is evaluated exactly; the frequency dispersion (a first-order relaxation)
-filters its output at every internal step; the dielectric loss of that switch heats the
-actuator (effect ``self_heating``). Displacements can be returned for every internal step
-(a high-rate "interferometer") or only for the end of the step.
+internal step. The effects that are on act through their stages
+(:mod:`es_physics.effects.stages`, built by :meth:`es_sim_plant.effects.Effects.stages`, in
+model order): on the law's coefficients, the command's delay, the heat of the drive, the
+voltage in effect (e.g. hysteresis, evaluated exactly since the applied voltage switches once
+per step; a relaxation that needs every internal step) and the displacement after the law.
+Displacements can be returned for every internal step (a high-rate "interferometer") or only
+for the end of the step.
 """
 
 from __future__ import annotations
@@ -24,19 +26,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from es_physics.effects.coupling import grid_laplacian
-from es_physics.effects.drift import drift_factor
-from es_physics.effects.frequency_dispersion import (
-    relaxation_advance,
-    relaxation_decay,
-    relaxation_output,
-)
-from es_physics.effects.hysteresis import (
-    MAX_OPERATORS,
-    hysteresis_weight,
-    operator_names,
-    play,
-)
+from es_physics.effects import Drive, PlantContext, StepState
 from es_physics.laws import DEFAULT_V_LIMIT, hyperbolic_forward
 from es_physics.params import ActuatorParams
 from es_sim_plant.effects import Effects
@@ -141,60 +131,56 @@ class ActuatorGrid:
         self.dt = dt
         self.substeps = config.substeps
         self.reference_temperature = reference_temperature
+        context = PlantContext(shape, dt, self.substeps, reference_temperature)
+        #: The stages of the effects that are on, in model order.
+        self.stages = effects.stages(context)
         nominal = config.params
-        if effects.temperature_curvature.enabled:
-            nominal = replace(
-                nominal,
-                m3=nominal.m3 + effects.temperature_curvature.m3,
-                k3=nominal.k3 + effects.temperature_curvature.k3,
-            )
+        for stage in self.stages:
+            nominal = stage.law(nominal)
         #: Per-actuator parameters (arrays of ``shape``) the plant really has.
         self.params = spread_params(nominal, config.spread, shape, rng)
-        delay_steps = (
-            round(effects.delay.delay_s * self.substeps / dt) if effects.delay.enabled else 0
-        )
+        lags = [lag for lag in (s.sensor_lag_s() for s in self.stages) if lag is not None]
+        #: First-order lag [s] of the temperature sensors behind the actuators, or None.
+        self.sensor_lag_s: float | None = lags[0] if lags else None
+        delay_steps = sum(stage.transport_steps() for stage in self.stages)
         # A delay of m internal steps = q whole plant steps and r internal steps.
         self._delay_whole, self._switch = divmod(delay_steps, self.substeps)
         self._history = np.zeros((self._delay_whole + 2, *shape))
-        hyst = effects.hysteresis
-        self._operators = [
-            (getattr(hyst, w), getattr(hyst, r))
-            for k, (w, r) in enumerate(operator_names(i) for i in range(MAX_OPERATORS))
-            if k == 0 or getattr(hyst, w) > 0.0
-        ]
-        self._play = np.zeros((len(self._operators), *shape))
-        self._mean_voltage = np.zeros(shape)
-        self._mean_decay = float(np.exp(-dt / effects.self_heating.mean_window_s))
-        dispersion = effects.frequency_dispersion
-        self._relaxation_decay = relaxation_decay(dispersion.corner_hz, dt / self.substeps)
-        #: Relaxation state of the drive (effect ``frequency_dispersion``) [V], (R, C).
-        self._relaxation = np.zeros(shape)
+        self._every_substep = any(stage.every_substep for stage in self.stages)
         self.command = np.zeros(shape)
-        #: Actuator heat from dielectric loss over the current step [W], (R, C).
-        self.heating_power = np.zeros(shape)
-        #: Voltages actually applied (after delay) before and after the in-step switch.
-        self.voltage_before = np.zeros(shape)
-        self.voltage_after = np.zeros(shape)
+        #: Actuator heat from the drive over the current step [W], (R, C); None when no
+        #: effect heats the actuators.
+        self.heating_power: FloatArray | None = None
+        zero = np.zeros(shape)
+        self._drive = Drive(zero, zero, zero, zero)
+
+    @property
+    def voltage_before(self) -> FloatArray:
+        """Voltage applied (after delay) before the in-step switch [V] (R, C)."""
+        return self._drive.before
+
+    @property
+    def voltage_after(self) -> FloatArray:
+        """Voltage applied (after delay) after the in-step switch [V] (R, C)."""
+        return self._drive.after
 
     def apply(self, command: FloatArray) -> None:
-        """Latch ``command`` (R, C) [V] for the coming step: saturate, delay, compute loss."""
+        """Latch ``command`` (R, C) [V] for the coming step: saturate, delay, compute heat."""
         self.command = np.clip(command, -self.config.v_limit, self.config.v_limit)
         hist = self._history
         hist[1:] = hist[:-1].copy()
         hist[0] = self.command
         # Applied voltage switches from u[k - q - 1] to u[k - q] at internal step r.
-        self.voltage_before = hist[self._delay_whole + 1]
-        self.voltage_after = hist[self._delay_whole]
-        if self._switch == 0:
-            self.voltage_before = self.voltage_after
-        if self.effects.self_heating.enabled:
-            previous = hist[self._delay_whole + 1]
-            current = hist[self._delay_whole]
-            swing = np.abs(current - previous)
-            level = np.abs(0.5 * (current + previous) - self._mean_voltage)
-            loss = self.effects.self_heating.loss_w_per_hz_v2
-            self.heating_power = 0.5 * loss * swing * level / self.dt
-            self._mean_voltage = current + (self._mean_voltage - current) * self._mean_decay
+        previous = hist[self._delay_whole + 1]
+        current = hist[self._delay_whole]
+        before = current if self._switch == 0 else previous
+        self._drive = Drive(previous, current, before, current)
+        heat = [h for h in (stage.heating(self._drive) for stage in self.stages) if h is not None]
+        if heat:
+            total = heat[0]
+            for h in heat[1:]:
+                total = total + h
+            self.heating_power = total
 
     def respond(
         self,
@@ -213,44 +199,27 @@ class ActuatorGrid:
 
         """
         n = self.substeps
-        dispersion = self.effects.frequency_dispersion
-        # the relaxation filters every internal step, so then they are all computed
-        every = all_substeps or dispersion.enabled
+        # a stage that filters in time needs every internal step, so then they are all computed
+        every = all_substeps or self._every_substep
         ends = np.arange(1, n + 1) if every else np.array([n])
         frac = (ends / n)[:, None, None]
         T = T_start + frac * (T_end - T_start)
         before_switch = (ends - 1 < self._switch)[:, None, None]
-        V = np.where(before_switch, self.voltage_before, self.voltage_after)
-        hyst = self.effects.hysteresis
-        if hyst.enabled:
-            # Prandtl-Ishlinskii: operator 1 always, further ones where their weight is > 0
-            total: FloatArray | float = 0.0
-            mix: FloatArray | float = 0.0
-            for k, (weight, threshold) in enumerate(self._operators):
-                first = play(self._play[k], self.voltage_before, threshold)
-                second = play(first, self.voltage_after, threshold)
-                self._play[k] = second
-                a = hysteresis_weight(T, self.params.Tm, weight)
-                played = np.where(before_switch, first, second)
-                total, mix = (a, a * played) if k == 0 else (total + a, mix + a * played)
-            V = (1.0 - total) * V + mix
-        if dispersion.enabled:
-            V = np.array(np.broadcast_to(V, T.shape))
-            for i in range(n):  # over time; vectorised over the grid
-                drive = V[i].copy()
-                V[i] = relaxation_output(drive, self._relaxation, dispersion.fraction)
-                decay = self._relaxation_decay
-                self._relaxation = relaxation_advance(drive, self._relaxation, decay)
+        drive = self._drive
+        V = np.where(before_switch, drive.before, drive.after)
+        step = StepState(
+            drive=drive,
+            T=T,
+            times=np.asarray(t_start + ends * (self.dt / n), np.float64),
+            before_switch=before_switch,
+            params=self.params,
+            reference_temperature=self.reference_temperature,
+        )
+        for stage in self.stages:
+            V = stage.drive(V, step)
         z = hyperbolic_forward(V, T, self.params)
-        if self.effects.drift.enabled:
-            times = np.asarray(t_start + ends * (self.dt / n), np.float64)
-            drift = self.effects.drift
-            z = z * drift_factor(times, drift.fraction, drift.tau_s, drift.nu)[:, None, None]
-        if self.effects.coupling.enabled:
-            z = z + self.effects.coupling.coefficient * grid_laplacian(z)
-        if self.effects.thermal_expansion.enabled:
-            alpha = self.effects.thermal_expansion.alpha_m_per_degc
-            z = z + alpha * (T - self.reference_temperature)
+        for stage in self.stages:
+            z = stage.displacement(z, step)
         if every and not all_substeps:
             z = z[-1:]
         return np.asarray(z, np.float64)

@@ -4,7 +4,8 @@ Which effects exist, their parameters, ranges, defaults and which are slow times
 scenario's ``time_scale`` multiplies all come from the effect registry
 (:mod:`es_physics.effects`); this module only holds the settings a scenario or a node
 parameter gives (``effects.<name>.enabled``, ``effects.<name>.<param>``). Every effect is off
-by default. The forward models live with each effect's definition in es_physics.
+by default. The forward models live with each effect's definition in es_physics; this
+module builds their stages (:meth:`Effects.stages`).
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 from typing import Any, Final
 
-from es_physics.effects import EffectError, registry
+from es_physics.effects import EffectError, PlantContext, PlantStage, in_model_order, registry
 
 #: Canonical names of the effects the simulator implements, in registry order.
 EFFECT_NAMES: Final = tuple(name for name, e in registry().items() if e.simulated)
@@ -86,6 +87,13 @@ class Effects:
     def enabled_names(self) -> list[str]:
         """Return the canonical names of the effects that are on."""
         return [s.name for s in self.settings if s.enabled]
+
+    def stages(self, context: PlantContext) -> list[PlantStage]:
+        """Return the simulator's stage of every effect that is on, in model order."""
+        return [
+            effect.plant_stage(dict(getattr(self, effect.name).values), context)
+            for effect in in_model_order(self.enabled_names())
+        ]
 
     def with_switches(self, switches: dict[str, bool]) -> Effects:
         """Return a copy with ``enabled`` of the named effects replaced.

@@ -32,7 +32,6 @@ from es_sim_plant.thermal import ThermalNetwork
 FloatArray = npt.NDArray[np.float64]
 
 
-
 def sensor_every(control_rate: float, sensor_rate: float) -> int:
     """Return after how many control steps the plant takes a sensor sample (at least 1)."""
     return max(1, round(control_rate / sensor_rate))
@@ -71,16 +70,6 @@ class Plant:
         self._displacement_rng = rngs["displacement_noise"]
         t0 = scenario.initial_base_temperature
         self.thermal = ThermalNetwork(self.shape, scenario.thermal, self.dt, t0)
-        lag = scenario.effects.sensor_lag
-        self.sensors = SensorArray(
-            self.shape,
-            config=scenario.sensors,
-            lag_tau=lag.tau_s if lag.enabled else None,
-            dt=self.dt,
-            initial_temperature=t0,
-            rng_offsets=rngs["sensor_offsets"],
-            rng_noise=rngs["sensor_noise"],
-        )
         self.actuators = ActuatorGrid(
             self.shape,
             config=scenario.actuators,
@@ -88,6 +77,15 @@ class Plant:
             dt=self.dt,
             reference_temperature=t0,
             rng=rngs["spread"],
+        )
+        self.sensors = SensorArray(
+            self.shape,
+            config=scenario.sensors,
+            lag_tau=self.actuators.sensor_lag_s,
+            dt=self.dt,
+            initial_temperature=t0,
+            rng_offsets=rngs["sensor_offsets"],
+            rng_noise=rngs["sensor_noise"],
         )
         self.setpoints = SetpointGenerator(scenario.setpoint, self.shape)
         self.excitation = (
@@ -232,9 +230,7 @@ class Plant:
         t0 = self.time
         self.actuators.apply(cmd)
         heat = self.heat_load()
-        actuator_heat = (
-            self.actuators.heating_power if self.scenario.effects.self_heating.enabled else None
-        )
+        actuator_heat = self.actuators.heating_power
         T_start = self.thermal.actuator_temperatures()
         self.thermal.step(heat, actuator_heat, self.scenario.base.mean(t0, t0 + self.dt))
         T_end = self.thermal.actuator_temperatures()

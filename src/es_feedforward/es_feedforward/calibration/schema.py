@@ -82,7 +82,7 @@ def compensation(cal: Calibration) -> tuple[CompensationParams, list[str]]:
         if not low <= value <= high:
             values[name] = float(np.clip(value, low, high))
             notes.append(f"compensation.{name} = {value:.4g} clipped to [{low}, {high}]")
-    return CompensationParams(**{k: float(v) for k, v in values.items()}), notes
+    return CompensationParams().replaced(values), notes
 
 
 def write_parameters_yaml(cal: Calibration, path: Path) -> list[str]:

@@ -12,7 +12,9 @@ calibration and the feedforward never name an effect: they read these declaratio
 - :meth:`Effect.reported`, :meth:`Effect.uncertainties`, :meth:`Effect.problem`: the
   physical parameters calibration.json and the report give, and when they are unphysical;
 - :attr:`Effect.compensation` and :meth:`Effect.compensation_values`: the feedforward's
-  ``compensation.<param>`` parameters and how a calibration sets them.
+  ``compensation.<param>`` parameters and how a calibration sets them;
+- :meth:`Effect.plant_stage` and :meth:`Effect.compensator`: the stages the simulator and
+  the feedforward build from the settings (:mod:`es_physics.effects.stages`).
 """
 
 from __future__ import annotations
@@ -26,6 +28,8 @@ from typing import ClassVar
 
 import numpy as np
 import numpy.typing as npt
+
+from es_physics.effects.stages import Compensator, PlantContext, PlantStage
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -239,3 +243,36 @@ class Effect(ABC):
 
         """
         raise EffectError(f"effect {self.name} is not an additive term")
+
+    def plant_stage(self, settings: Mapping[str, float], context: PlantContext) -> PlantStage:
+        """Return the simulator's stage of the effect for its :attr:`plant` settings.
+
+        Args:
+            settings: every :attr:`plant` parameter's value (SI units, time already scaled).
+            context: the grid and time step the stage is built for.
+
+        Raises:
+            EffectError: the effect has no simulator model (:attr:`simulated` is False).
+
+        """
+        raise EffectError(f"effect {self.name} has no simulator model")
+
+    def compensator(
+        self,
+        values: Mapping[str, float],
+        shape: tuple[int, int],
+        previous: Compensator | None = None,
+        last_voltage: FloatArray | None = None,
+    ) -> Compensator | None:
+        """Return the feedforward's stage for :attr:`compensation` values, or None when off.
+
+        Args:
+            values: every :attr:`compensation` parameter's value (no prefix).
+            shape: the grid (R, C).
+            previous: this effect's compensator of the configuration being replaced (its
+                state carries over), or None.
+            last_voltage: when a configuration is replaced, the command in force [V] (R, C)
+                (for a bumpless start), else None.
+
+        """
+        return None

@@ -7,11 +7,15 @@ solved for z_free (``compensation.coupling``).
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import ClassVar
 
 import numpy as np
+from scipy.sparse import csc_matrix, diags, identity
+from scipy.sparse.linalg import splu
 
 from es_physics.effects.base import Effect, FittedEffect, FloatArray, Parameter, Role
+from es_physics.effects.stages import Compensator, PlantContext, PlantStage, StepState
 
 
 def grid_laplacian(z: FloatArray) -> FloatArray:
@@ -48,6 +52,56 @@ def neighbour_count(grid: tuple[int, int]) -> FloatArray:
     return -neighbour_laplacian(ones, grid)
 
 
+class CouplingStage(PlantStage):
+    """z = z_free + c lap(z_free) over the grid."""
+
+    def __init__(self, coefficient: float) -> None:
+        self.coefficient = coefficient
+
+    def displacement(self, z: FloatArray, step: StepState) -> FloatArray:
+        """Return z + c lap(z)."""
+        return np.asarray(z + self.coefficient * grid_laplacian(z), np.float64)
+
+
+def laplacian(shape: tuple[int, int]) -> csc_matrix:
+    """Return the 4-neighbour Laplacian of a row-major grid (edges: existing neighbours only)."""
+    rows, cols = shape
+    size = rows * cols
+    index = np.arange(size).reshape(shape)
+    pairs = [
+        (index[:, :-1].ravel(), index[:, 1:].ravel()),
+        (index[:-1, :].ravel(), index[1:, :].ravel()),
+    ]
+    i = np.concatenate([p[0] for p in pairs] + [p[1] for p in pairs])
+    j = np.concatenate([p[1] for p in pairs] + [p[0] for p in pairs])
+    adjacency = csc_matrix((np.ones(i.size), (i, j)), shape=(size, size))
+    degree = np.asarray(adjacency.sum(axis=1)).ravel()
+    return csc_matrix(adjacency - diags(degree))
+
+
+class CouplingInverse(Compensator):
+    """Solve (I + c lap) z_free = z_ref for a grid; the LU factorisation is done once."""
+
+    def __init__(self, coefficient: float, shape: tuple[int, int]) -> None:
+        self.coefficient = coefficient
+        self.shape = shape
+        self._lu = (
+            splu(csc_matrix(identity(shape[0] * shape[1]) + coefficient * laplacian(shape)))
+            if coefficient != 0.0
+            else None
+        )
+
+    def __call__(self, z_ref: FloatArray) -> FloatArray:
+        """Return z_free [m] for the set points ``z_ref`` (grid of ``shape``)."""
+        if self._lu is None:
+            return z_ref
+        return np.asarray(self._lu.solve(z_ref.ravel()).reshape(self.shape), np.float64)
+
+    def setpoint(self, z: FloatArray, T: FloatArray, t: float) -> FloatArray:
+        """Return the free displacements (see :meth:`__call__`)."""
+        return self(z)
+
+
 class Coupling(Effect):
     """Face-sheet coupling of neighbouring actuators."""
 
@@ -79,3 +133,19 @@ class Coupling(Effect):
     ) -> dict[str, float]:
         """Solve the coupling for the free displacements."""
         return {"coupling": reported["coefficient"]}
+
+    def plant_stage(self, settings: Mapping[str, float], context: PlantContext) -> PlantStage:
+        """Return the face sheet's spreading."""
+        return CouplingStage(settings["coefficient"])
+
+    def compensator(
+        self,
+        values: Mapping[str, float],
+        shape: tuple[int, int],
+        previous: Compensator | None = None,
+        last_voltage: FloatArray | None = None,
+    ) -> Compensator | None:
+        """Return the coupling solver, or None when ``coupling`` is 0."""
+        if values["coupling"] == 0.0:
+            return None
+        return CouplingInverse(values["coupling"], shape)

@@ -9,9 +9,60 @@ reported. Feedforward: the set point is predicted ``delay_s`` ahead.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import ClassVar
 
-from es_physics.effects.base import Effect, FittedEffect, Parameter, Role
+import numpy as np
+
+from es_physics.effects.base import Effect, FittedEffect, FloatArray, Parameter, Role
+from es_physics.effects.stages import Compensator, PlantContext, PlantStage
+
+
+class DelayStage(PlantStage):
+    """The command reaches the actuators ``steps`` internal steps late."""
+
+    def __init__(self, steps: int) -> None:
+        self.steps = steps
+
+    def transport_steps(self) -> int:
+        """Return the delay in internal steps."""
+        return self.steps
+
+
+class DelayPredictor(Compensator):
+    """Predict the set point ``delay_s`` ahead from the slope of the last two set points."""
+
+    def __init__(self, delay_s: float) -> None:
+        self.delay_s = delay_s
+        self._last: tuple[FloatArray, float] | None = None
+        self._slope: FloatArray | None = None
+
+    def retuned(self, delay_s: float) -> DelayPredictor:
+        """Return a copy with a new delay and this one's state (this one is unchanged)."""
+        other = DelayPredictor(delay_s)
+        other._last, other._slope = self._last, self._slope
+        return other
+
+    def __call__(self, z: FloatArray, t: float) -> FloatArray:
+        """Return the predicted set points [m] (never below 0 where ``z`` is not)."""
+        if self.delay_s == 0.0:
+            return z
+        if self._last is not None and self._last[0].shape == z.shape:
+            z_prev, t_prev = self._last
+            if t > t_prev:
+                self._slope = (z - z_prev) / (t - t_prev)
+        else:
+            self._slope = None
+        self._last = (z, t)
+        if self._slope is None:
+            return z
+        predicted = z + self.delay_s * self._slope
+        # a straight-line prediction must not push a reachable set point below 0
+        return np.asarray(np.where(z >= 0.0, np.maximum(predicted, 0.0), predicted), np.float64)
+
+    def setpoint(self, z: FloatArray, T: FloatArray, t: float) -> FloatArray:
+        """Return the set point predicted over the delay (see :meth:`__call__`)."""
+        return self(z, t)
 
 
 class Delay(Effect):
@@ -44,3 +95,21 @@ class Delay(Effect):
     ) -> dict[str, float]:
         """Predict the set point over the reported delay."""
         return {"delay_s": reported["delay_s"]}
+
+    def plant_stage(self, settings: Mapping[str, float], context: PlantContext) -> PlantStage:
+        """Return the delay resolved to the plant's internal step."""
+        return DelayStage(round(settings["delay_s"] * context.substeps / context.dt))
+
+    def compensator(
+        self,
+        values: Mapping[str, float],
+        shape: tuple[int, int],
+        previous: Compensator | None = None,
+        last_voltage: FloatArray | None = None,
+    ) -> Compensator | None:
+        """Return the set-point predictor, or None when ``delay_s`` is 0."""
+        if values["delay_s"] == 0.0:
+            return None
+        if isinstance(previous, DelayPredictor):
+            return previous.retuned(values["delay_s"])
+        return DelayPredictor(values["delay_s"])

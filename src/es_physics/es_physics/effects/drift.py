@@ -7,11 +7,13 @@ same factor (``compensation.drift_*``, with the data's start as epoch).
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import ClassVar, Final
 
 import numpy as np
 
 from es_physics.effects.base import Effect, FittedEffect, FloatArray, Parameter, Role
+from es_physics.effects.stages import Compensator, PlantContext, PlantStage, StepState
 
 #: The drift exponent nu is kept within exp(+-DRIFT_LOG_NU_LIMIT) by the calibration.
 DRIFT_LOG_NU_LIMIT: Final = float(np.log(5.0))
@@ -23,6 +25,39 @@ def drift_factor(t: FloatArray | float, fraction: float, tau_s: float, nu: float
     """Return M_eff / M = 1 - a (1 - exp(-(t / tau)^nu)) at run time(s) t >= 0 [s]."""
     tt = np.maximum(np.asarray(t, np.float64), 0.0)
     return np.asarray(1.0 - fraction * (1.0 - np.exp(-((tt / tau_s) ** nu))), np.float64)
+
+
+def compensated_drift(t: float, fraction: float, tau_s: float, nu: float, epoch_s: float) -> float:
+    """Return M_eff / M = 1 - a (1 - exp(-(t_rel / tau)^nu)), t_rel = max(t - epoch, 0) [s]."""
+    if fraction == 0.0:
+        return 1.0
+    t_rel = max(t - epoch_s, 0.0)
+    decay = float(np.exp(-((t_rel / tau_s) ** nu)))
+    return 1.0 - fraction * (1.0 - decay)
+
+
+class DriftStage(PlantStage):
+    """The law's displacement times the drift factor at the run time."""
+
+    def __init__(self, fraction: float, tau_s: float, nu: float) -> None:
+        self.fraction, self.tau_s, self.nu = fraction, tau_s, nu
+
+    def displacement(self, z: FloatArray, step: StepState) -> FloatArray:
+        """Return z (1 - a (1 - exp(-(t / tau)^nu)))."""
+        factor = drift_factor(step.times, self.fraction, self.tau_s, self.nu)
+        return np.asarray(z * factor[:, None, None], np.float64)
+
+
+class DriftCompensation(Compensator):
+    """The set point divided by the drift factor (t = ROS time - epoch)."""
+
+    def __init__(self, fraction: float, tau_s: float, nu: float, epoch_s: float) -> None:
+        self.fraction, self.tau_s, self.nu, self.epoch_s = fraction, tau_s, nu, epoch_s
+
+    def setpoint(self, z: FloatArray, T: FloatArray, t: float) -> FloatArray:
+        """Return z / (1 - a (1 - exp(-(t_rel / tau)^nu)))."""
+        factor = compensated_drift(t, self.fraction, self.tau_s, self.nu, self.epoch_s)
+        return z / factor if factor != 1.0 else z
 
 
 class Drift(Effect):
@@ -84,3 +119,24 @@ class Drift(Effect):
             "drift_nu": reported["nu"],
             "drift_epoch_s": start_time,
         }
+
+    def plant_stage(self, settings: Mapping[str, float], context: PlantContext) -> PlantStage:
+        """Return the gain loss over the run."""
+        return DriftStage(settings["fraction"], settings["tau_s"], settings["nu"])
+
+    def compensator(
+        self,
+        values: Mapping[str, float],
+        shape: tuple[int, int],
+        previous: Compensator | None = None,
+        last_voltage: FloatArray | None = None,
+    ) -> Compensator | None:
+        """Return the set point's division by the drift, or None when the fraction is 0."""
+        if values["drift_fraction"] == 0.0:
+            return None
+        return DriftCompensation(
+            values["drift_fraction"],
+            values["drift_tau_s"],
+            values["drift_nu"],
+            values["drift_epoch_s"],
+        )

@@ -21,11 +21,13 @@ calibration model yet.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import ClassVar
 
 import numpy as np
 
 from es_physics.effects.base import Effect, FittedEffect, FloatArray, Parameter, Role
+from es_physics.effects.stages import Compensator, PlantContext, PlantStage, StepState
 
 #: Highest relaxation fraction the compensation accepts (its inverse gains 1 / (1 - r)).
 MAX_FRACTION = 0.9
@@ -85,6 +87,94 @@ def relaxation_inverse(
     return np.asarray((v_eff - rd * state) / (1.0 - rd), np.float64)
 
 
+class RelaxationInverse(Compensator):
+    """Exact inverse of the drive's first-order relaxation (effect ``frequency_dispersion``).
+
+    V_out = V - r D (V - s) at the end of a command interval h (D = exp(-2 pi f_c h), h taken
+    as the last interval), ds/dt = 2 pi f_c (V - s) with the drive held between commands;
+    per-actuator states s [V] (``shape``), advanced with the drive actually sent.
+    """
+
+    reshapes_drive = True
+
+    def __init__(self, fraction: float, corner_hz: float, shape: tuple[int, ...]) -> None:
+        self.fraction = fraction
+        self.corner_hz = corner_hz
+        self.state: FloatArray | None = None
+        self.shape = shape
+        self._last: tuple[FloatArray, float] | None = None
+        self._interval = 0.0
+
+    @property
+    def active(self) -> bool:
+        """Whether the relaxation does anything."""
+        return self.fraction > 0.0
+
+    def retuned(self, fraction: float, corner_hz: float) -> RelaxationInverse:
+        """Return a copy with new parameters and this one's state (this one is unchanged)."""
+        other = RelaxationInverse(fraction, corner_hz, self.shape)
+        other.state, other._last, other._interval = self.state, self._last, self._interval
+        return other
+
+    def _state_at(self, t: float) -> FloatArray | None:
+        """Return the state at time ``t`` [s]: the last drive held since it was sent."""
+        if self._last is None or self.state is None:
+            return None
+        drive, sent = self._last
+        if t <= sent:
+            return self.state
+        return relaxation_advance(drive, self.state, relaxation_decay(self.corner_hz, t - sent))
+
+    def invert(self, v_out: FloatArray, t: float) -> FloatArray:
+        """Return the drive sent at ``t`` [s] that makes the output ``v_out`` [V] an interval on.
+
+        Before any drive was sent the state starts at ``v_out`` (bumpless: drive = v_out).
+        """
+        state = self._state_at(t)
+        if not self.active or state is None:
+            return v_out
+        decay = relaxation_decay(self.corner_hz, self._interval)
+        return relaxation_inverse(v_out, state, self.fraction, decay)
+
+    def apply(self, drive: FloatArray, t: float) -> None:
+        """Advance the state to ``t`` [s] and hold ``drive`` [V] (the voltage sent) from then."""
+        state = self._state_at(t)
+        if self._last is not None and t > self._last[1]:
+            self._interval = t - self._last[1]
+        self.state = np.array(drive, np.float64) if state is None else state
+        self._last = (np.array(drive, np.float64), t)
+
+    def invert_drive(self, voltage: FloatArray, t: float) -> FloatArray:
+        """Return the drive through the relaxation's inverse (see :meth:`invert`)."""
+        return self.invert(voltage, t)
+
+    def commit(self, sent: FloatArray, drive: FloatArray, t: float) -> FloatArray:
+        """Advance the state with ``drive`` (the relaxation's input) and pass it on."""
+        self.apply(drive, t)
+        return drive
+
+
+class RelaxationStage(PlantStage):
+    """The plant's relaxation of the drive, at every internal step."""
+
+    every_substep = True
+
+    def __init__(self, fraction: float, corner_hz: float, context: PlantContext) -> None:
+        self.fraction = fraction
+        self._decay = relaxation_decay(corner_hz, context.dt / context.substeps)
+        #: Relaxation state of the drive [V], (R, C).
+        self.state = np.zeros(context.shape)
+
+    def drive(self, voltage: FloatArray, step: StepState) -> FloatArray:
+        """Return the relaxed drive at every internal step (m, R, C) [V]."""
+        V = np.array(np.broadcast_to(voltage, step.T.shape))
+        for i in range(V.shape[0]):  # over time; vectorised over the grid
+            drive = V[i].copy()
+            V[i] = relaxation_output(drive, self.state, self.fraction)
+            self.state = relaxation_advance(drive, self.state, self._decay)
+        return V
+
+
 class FrequencyDispersion(Effect):
     """First-order relaxation of the actuator's gain with drive frequency."""
 
@@ -115,3 +205,22 @@ class FrequencyDispersion(Effect):
             "dispersion_fraction": reported["fraction"],
             "dispersion_corner_hz": reported["corner_hz"],
         }
+
+    def plant_stage(self, settings: Mapping[str, float], context: PlantContext) -> PlantStage:
+        """Return the drive's relaxation."""
+        return RelaxationStage(settings["fraction"], settings["corner_hz"], context)
+
+    def compensator(
+        self,
+        values: Mapping[str, float],
+        shape: tuple[int, int],
+        previous: Compensator | None = None,
+        last_voltage: FloatArray | None = None,
+    ) -> Compensator | None:
+        """Return the relaxation's inverse, or None when the fraction is 0."""
+        fraction, corner = values["dispersion_fraction"], values["dispersion_corner_hz"]
+        if fraction == 0.0:
+            return None
+        if isinstance(previous, RelaxationInverse):
+            return previous.retuned(fraction, corner)
+        return RelaxationInverse(fraction, corner, shape)

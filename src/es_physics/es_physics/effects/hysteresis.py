@@ -12,11 +12,13 @@ inverse, per actuator with its play states (:func:`pi_inverse`).
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from typing import ClassVar, Final
 
 import numpy as np
 
 from es_physics.effects.base import Effect, FittedEffect, FloatArray, Parameter, Role
+from es_physics.effects.stages import Compensator, PlantContext, PlantStage, StepState
 
 #: Hysteresis weight a = a0 exp(-(T_a - Tm - HYSTERESIS_ONSET) / HYSTERESIS_DECAY) [degC].
 HYSTERESIS_ONSET: Final = 2.0
@@ -87,6 +89,122 @@ def pi_inverse(
         np.where(target >= outs[-1], breaks[-1] + (target - outs[-1]), inside),
     )
     return np.asarray(V, np.float64)
+
+
+class HysteresisStage(PlantStage):
+    """The plant's Prandtl-Ishlinskii operator: operator 1 always, further ones if weighted.
+
+    Rate independent, so with one switch of the applied voltage per plant step each play
+    state changes at most twice per step and is evaluated exactly.
+    """
+
+    def __init__(self, operators: list[tuple[float, float]], shape: tuple[int, int]) -> None:
+        self._operators = operators
+        self._play = np.zeros((len(operators), *shape))
+
+    def drive(self, voltage: FloatArray, step: StepState) -> FloatArray:
+        """Return (1 - sum a_i) V + sum a_i play_(r_i)(V), a_i at the actuator temperature."""
+        total: FloatArray | float = 0.0
+        mix: FloatArray | float = 0.0
+        before, after = step.drive.before, step.drive.after
+        for k, (weight, threshold) in enumerate(self._operators):
+            first = play(self._play[k], before, threshold)
+            second = play(first, after, threshold)
+            self._play[k] = second
+            a = hysteresis_weight(step.T, step.params.Tm, weight)
+            played = np.where(step.before_switch, first, second)
+            total, mix = (a, a * played) if k == 0 else (total + a, mix + a * played)
+        return np.asarray((1.0 - total) * voltage + mix, np.float64)
+
+
+class HysteresisInverse(Compensator):
+    """Exact inverse of V_eff = (1 - sum a_i) V + sum a_i play_(r_i)(V) on a grid.
+
+    One play state per operator and actuator, (K, *shape); the inverse is :func:`pi_inverse`
+    (with one operator: if the play stays, V = (V_eff - a p) / (1 - a); pushed up,
+    V = V_eff + a r; pushed down, V = V_eff - a r). The states are updated with the voltage
+    actually applied.
+    """
+
+    reshapes_drive = True
+
+    def __init__(
+        self,
+        weights: float | Sequence[float],
+        thresholds: float | Sequence[float],
+        shape: tuple[int, ...],
+    ) -> None:
+        w = np.atleast_1d(np.asarray(weights, np.float64))
+        r = np.atleast_1d(np.asarray(thresholds, np.float64))
+        use = w > 0.0
+        self.weights, self.thresholds = w[use], r[use]
+        self.shape = shape
+        self.play = np.zeros((self.weights.size, *shape))
+
+    @property
+    def active(self) -> bool:
+        """Whether the operator does anything."""
+        return self.weights.size > 0
+
+    def retuned(
+        self, weights: float | Sequence[float], thresholds: float | Sequence[float]
+    ) -> HysteresisInverse:
+        """Return a copy with new parameters and this one's play states (this one unchanged).
+
+        Operators carry their state by position; a new operator starts from the first one's
+        state (or 0).
+        """
+        other = HysteresisInverse(weights, thresholds, self.shape)
+        for k in range(other.weights.size):
+            if k < self.weights.size:
+                other.play[k] = self.play[k]
+            elif self.weights.size:
+                other.play[k] = self.play[0]
+        return other
+
+    def start_from(self, voltage: FloatArray) -> None:
+        """Set every play state to ``voltage`` [V] (bumpless start)."""
+        self.play = np.broadcast_to(voltage, self.play.shape).copy()
+
+    def invert(self, v_eff: FloatArray) -> FloatArray:
+        """Return the voltage [V] that makes the operator output ``v_eff``."""
+        if not self.active:
+            return v_eff
+        return pi_inverse(v_eff, self.play, self.weights, self.thresholds)
+
+    def apply(self, voltage: FloatArray) -> None:
+        """Advance the play states with the voltage [V] that was actually sent."""
+        if self.active:
+            r = self.thresholds.reshape((-1,) + (1,) * voltage.ndim)
+            self.play = np.clip(self.play, voltage - r, voltage + r)
+
+    def output(self, voltage: FloatArray) -> FloatArray:
+        """Return the operator's output for ``voltage`` once :meth:`apply` has taken it [V]."""
+        if not self.active:
+            return voltage
+        w = self.weights.reshape((-1,) + (1,) * voltage.ndim)
+        return np.asarray((1.0 - self.weights.sum()) * voltage + (w * self.play).sum(0), np.float64)
+
+    def invert_drive(self, voltage: FloatArray, t: float) -> FloatArray:
+        """Return the drive through the operator's inverse (see :meth:`invert`)."""
+        return self.invert(voltage)
+
+    def commit(self, sent: FloatArray, drive: FloatArray, t: float) -> FloatArray:
+        """Advance the play states with ``drive`` and return the operator's output."""
+        self.apply(drive)
+        return self.output(drive)
+
+
+def compensated_operators(
+    values: Mapping[str, float],
+) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """Return the (weights, thresholds [V]) of the compensation's operators in use."""
+    pairs = [
+        (values[f"hysteresis_{w}"], values[f"hysteresis_{r}"])
+        for w, r in (operator_names(i) for i in range(MAX_OPERATORS))
+    ]
+    used = [(w, r) for w, r in pairs if w > 0.0]
+    return tuple(w for w, _ in used), tuple(r for _, r in used)
 
 
 def _operator_parameters(prefix: str, high_weight: float, high_r: float) -> tuple[Parameter, ...]:
@@ -173,3 +291,33 @@ class Hysteresis(Effect):
     ) -> dict[str, float]:
         """Invert the fitted operator (weights at the data's mean temperature)."""
         return {f"hysteresis_{k}": v for k, v in reported.items() if k != "decay_per_degc"}
+
+    def plant_stage(self, settings: Mapping[str, float], context: PlantContext) -> PlantStage:
+        """Return the plant's operator (operator 1 always, further ones where weighted)."""
+        operators = [
+            (settings[w], settings[r])
+            for k, (w, r) in enumerate(operator_names(i) for i in range(MAX_OPERATORS))
+            if k == 0 or settings[w] > 0.0
+        ]
+        return HysteresisStage(operators, context.shape)
+
+    def compensator(
+        self,
+        values: Mapping[str, float],
+        shape: tuple[int, int],
+        previous: Compensator | None = None,
+        last_voltage: FloatArray | None = None,
+    ) -> Compensator | None:
+        """Return the operator's inverse, or None when no weight is > 0.
+
+        A new inverse replacing none starts from the command in force (bumpless).
+        """
+        weights, thresholds = compensated_operators(values)
+        if not weights:
+            return None
+        if isinstance(previous, HysteresisInverse):
+            return previous.retuned(weights, thresholds)
+        inverse = HysteresisInverse(weights, thresholds, shape)
+        if last_voltage is not None:
+            inverse.start_from(np.array(last_voltage))
+        return inverse

@@ -118,3 +118,18 @@ def with_role(role: Role, among: tuple[str, ...] | None = None) -> Effect | None
         if effect.role is role and (among is None or name in among):
             return effect
     return None
+
+
+def in_model_order(among: tuple[str, ...] | list[str] | None = None) -> list[Effect]:
+    """Return the effects (all, or those named), sorted by :class:`Role` then registry order.
+
+    The order in which the simulator and the feedforward chain the effects' stages.
+
+    Raises:
+        UnknownEffectError: a name that no registered effect has.
+
+    """
+    order = list(Role)
+    chosen = registry().values() if among is None else [get(n) for n in among]
+    index = {name: i for i, name in enumerate(registry())}
+    return sorted(chosen, key=lambda e: (order.index(e.role), index[e.name]))

@@ -15,14 +15,35 @@ drive's own history, d(dT)/dt = (g P_drive - dT) / tau with P_drive = |V - V_mea
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import ClassVar
 
 import numpy as np
 
 from es_physics.effects.base import Effect, FittedEffect, FloatArray, Parameter, Role
+from es_physics.effects.stages import Compensator, Drive, PlantContext, PlantStage
 
 
-class HeatingEstimate:
+class HeatingStage(PlantStage):
+    """The actuators' dielectric loss from the switch of the applied drive in each step."""
+
+    def __init__(self, loss: float, mean_window_s: float, context: PlantContext) -> None:
+        self.loss = loss
+        self.dt = context.dt
+        self._mean_decay = float(np.exp(-context.dt / mean_window_s))
+        self._mean_voltage = np.zeros(context.shape)
+
+    def heating(self, drive: Drive) -> FloatArray | None:
+        """Return p_d |dV| |V_mid - V_mean| / (2 dt) [W] and advance the running mean."""
+        previous, current = drive.previous, drive.current
+        swing = np.abs(current - previous)
+        level = np.abs(0.5 * (current + previous) - self._mean_voltage)
+        power = np.asarray(0.5 * self.loss * swing * level / self.dt, np.float64)
+        self._mean_voltage = current + (self._mean_voltage - current) * self._mean_decay
+        return power
+
+
+class HeatingEstimate(Compensator):
     """Excess temperature dT [degC] of each actuator from its drive history (see above).
 
     The drive is held between commands. A command V_k sent at t_k dissipates, until the next
@@ -100,6 +121,16 @@ class HeatingEstimate:
         self._interval = dt
 
 
+    def law_temperature(self, T: FloatArray, t: float) -> FloatArray:
+        """Return T + dT: the law at the actuator's own temperature [degC]."""
+        return np.asarray(T + self.at(t), np.float64)
+
+    def commit(self, sent: FloatArray, drive: FloatArray, t: float) -> FloatArray:
+        """Take the command ``sent`` (its loss heats the actuator); pass ``drive`` on."""
+        self.apply(sent, t)
+        return drive
+
+
 class SelfHeating(Effect):
     """Dielectric-loss heating of the actuators."""
 
@@ -124,3 +155,28 @@ class SelfHeating(Effect):
     def reported(self, fit: FittedEffect) -> dict[str, float]:
         """Return the values as given (the effect is not fitted)."""
         return {k: float(v) for k, v in fit.values.items()}
+
+    def plant_stage(self, settings: Mapping[str, float], context: PlantContext) -> PlantStage:
+        """Return the dielectric loss of the drive."""
+        return HeatingStage(settings["loss_w_per_hz_v2"], settings["mean_window_s"], context)
+
+    def compensator(
+        self,
+        values: Mapping[str, float],
+        shape: tuple[int, int],
+        previous: Compensator | None = None,
+        last_voltage: FloatArray | None = None,
+    ) -> Compensator | None:
+        """Return the excess-temperature estimate, or None when the gain is 0.
+
+        Raises:
+            ValueError: as :class:`HeatingEstimate`.
+
+        """
+        gain = values["self_heating_gain"]
+        if gain == 0.0:
+            return None
+        args = (gain, values["self_heating_tau_s"], values["self_heating_mean_window_s"])
+        if isinstance(previous, HeatingEstimate):
+            return previous.retuned(*args)
+        return HeatingEstimate(*args)

@@ -7,9 +7,67 @@ low-pass filtered (``compensation.temperature_lead_s``, ``temperature_lead_filte
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import ClassVar
 
-from es_physics.effects.base import Effect, FittedEffect, Parameter, Role
+import numpy as np
+
+from es_physics.effects.base import Effect, FittedEffect, FloatArray, Parameter, Role
+from es_physics.effects.stages import Compensator, PlantContext, PlantStage
+
+
+class SensorLagStage(PlantStage):
+    """The sensor's first-order lag (the sensor array applies it)."""
+
+    def __init__(self, tau_s: float) -> None:
+        self.tau_s = tau_s
+
+    def sensor_lag_s(self) -> float | None:
+        """Return tau [s]."""
+        return self.tau_s
+
+
+class TemperatureLead(Compensator):
+    """T_used = T + tau dT/dt with a first-order low-pass on the finite-difference derivative.
+
+    Args:
+        tau_s: the lag to undo [s] (0 = pass the temperature through).
+        filter_s: time constant of the derivative's low-pass [s].
+
+    """
+
+    def __init__(self, tau_s: float, filter_s: float) -> None:
+        self.tau_s = tau_s
+        self.filter_s = filter_s
+        self._last: tuple[FloatArray, float] | None = None
+        self._rate: FloatArray | None = None
+
+    def retuned(self, tau_s: float, filter_s: float) -> TemperatureLead:
+        """Return a copy with new parameters and this one's state (this one is unchanged)."""
+        other = TemperatureLead(tau_s, filter_s)
+        other._last, other._rate = self._last, self._rate
+        return other
+
+    def __call__(self, T: FloatArray, t: float) -> FloatArray:
+        """Return the lead-corrected temperatures for a sample ``T`` [degC] taken at ``t`` [s]."""
+        if self.tau_s == 0.0:
+            return T
+        if self._last is None or self._rate is None or self._last[0].shape != T.shape:
+            self._rate = np.zeros_like(T)
+        else:
+            T_prev, t_prev = self._last
+            dt = t - t_prev
+            if dt > 0.0:
+                raw = (T - T_prev) / dt
+                gain = dt / (dt + self.filter_s)
+                rate = self._rate + gain * (raw - self._rate)
+                self._rate = np.where(np.isfinite(rate), rate, 0.0)
+        self._last = (T, t)
+        return np.asarray(T + self.tau_s * self._rate, np.float64)
+
+    def measured_temperature(self, T: FloatArray, t: float) -> FloatArray:
+        """Return the lead-corrected temperatures (see :meth:`__call__`)."""
+        return self(T, t)
 
 
 class SensorLag(Effect):
@@ -47,3 +105,22 @@ class SensorLag(Effect):
     ) -> dict[str, float]:
         """Lead the measured temperature by the fitted lag."""
         return {"temperature_lead_s": reported["tau_s"]}
+
+    def plant_stage(self, settings: Mapping[str, float], context: PlantContext) -> PlantStage:
+        """Return the sensor's lag."""
+        return SensorLagStage(settings["tau_s"])
+
+    def compensator(
+        self,
+        values: Mapping[str, float],
+        shape: tuple[int, int],
+        previous: Compensator | None = None,
+        last_voltage: FloatArray | None = None,
+    ) -> Compensator | None:
+        """Return the temperature lead, or None when ``temperature_lead_s`` is 0."""
+        tau, filter_s = values["temperature_lead_s"], values["temperature_lead_filter_s"]
+        if tau == 0.0:
+            return None
+        if isinstance(previous, TemperatureLead):
+            return previous.retuned(tau, filter_s)
+        return TemperatureLead(tau, filter_s)

@@ -6,11 +6,26 @@ coefficients; the grid's medians are reported. Feedforward: the parameter file's
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from dataclasses import replace
 from typing import ClassVar
 
 import numpy as np
 
 from es_physics.effects.base import Effect, FittedEffect, Parameter, Role
+from es_physics.effects.stages import PlantContext, PlantStage
+from es_physics.params import ActuatorParams
+
+
+class CurvatureStage(PlantStage):
+    """m3, k3 added to the actuators' nominal law coefficients."""
+
+    def __init__(self, m3: float, k3: float) -> None:
+        self.m3, self.k3 = m3, k3
+
+    def law(self, params: ActuatorParams) -> ActuatorParams:
+        """Return the coefficients with the curvature added."""
+        return replace(params, m3=params.m3 + self.m3, k3=params.k3 + self.k3)
 
 
 class TemperatureCurvature(Effect):
@@ -37,3 +52,7 @@ class TemperatureCurvature(Effect):
     def problem(self, reported: dict[str, float]) -> str | None:
         """Accept any curvature."""
         return None
+
+    def plant_stage(self, settings: Mapping[str, float], context: PlantContext) -> PlantStage:
+        """Return the law's curvature (the feedforward reads it from ``law.m3``/``law.k3``)."""
+        return CurvatureStage(settings["m3"], settings["k3"])

@@ -13,6 +13,29 @@ from typing import ClassVar
 import numpy as np
 
 from es_physics.effects.base import Additive, Effect, FittedEffect, FloatArray, Parameter, Role
+from es_physics.effects.stages import Compensator, PlantContext, PlantStage, StepState
+
+
+class ExpansionStage(PlantStage):
+    """z += alpha (T_a - T_ref), T_ref the run's initial base temperature."""
+
+    def __init__(self, alpha: float) -> None:
+        self.alpha = alpha
+
+    def displacement(self, z: FloatArray, step: StepState) -> FloatArray:
+        """Return z + alpha (T_a - T_ref)."""
+        return np.asarray(z + self.alpha * (step.T - step.reference_temperature), np.float64)
+
+
+class ExpansionCompensation(Compensator):
+    """alpha (T - T_ref) subtracted from the set point."""
+
+    def __init__(self, alpha: float, reference_temperature: float) -> None:
+        self.alpha, self.reference_temperature = alpha, reference_temperature
+
+    def setpoint(self, z: FloatArray, T: FloatArray, t: float) -> FloatArray:
+        """Return z - alpha (T - T_ref)."""
+        return np.asarray(z - self.alpha * (T - self.reference_temperature), np.float64)
 
 
 class ThermalExpansion(Effect):
@@ -62,3 +85,21 @@ class ThermalExpansion(Effect):
             "thermal_expansion": reported["alpha_m_per_degc"],
             "expansion_reference_temperature": reported["reference_temperature"],
         }
+
+    def plant_stage(self, settings: Mapping[str, float], context: PlantContext) -> PlantStage:
+        """Return the expansion term."""
+        return ExpansionStage(settings["alpha_m_per_degc"])
+
+    def compensator(
+        self,
+        values: Mapping[str, float],
+        shape: tuple[int, int],
+        previous: Compensator | None = None,
+        last_voltage: FloatArray | None = None,
+    ) -> Compensator | None:
+        """Return the expansion's subtraction, or None when alpha is 0."""
+        if values["thermal_expansion"] == 0.0:
+            return None
+        return ExpansionCompensation(
+            values["thermal_expansion"], values["expansion_reference_temperature"]
+        )
