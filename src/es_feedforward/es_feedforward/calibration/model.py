@@ -7,10 +7,14 @@ effect registry (:mod:`es_physics.effects`); each effect acts in one stage (its
 :class:`~es_physics.effects.Role`), in this order:
 
 - ``TEMPERATURE``: T_a = T + tau dT/dt (the actuator leads the sensor by a first-order lag);
+- ``HEATING``: T_a += g LP_tau(P), P the effect's drive signal (the drive's loss), g and
+  log tau fitted (the low-pass runs over the whole command, see history.py);
 - ``INPUT_SHIFT``: V(t - d), applied when the inputs are built (see ``FitInputs``);
 - ``PLAY``: V_eff = V + a(T_a) sum_i weight_i (play_(r_i)(V) - V),
   a(T_a) = exp(-beta (T_a - T_mean)) with beta fitted too; the play operators are applied
   when the inputs are built;
+- ``RELAXATION``: V_eff -= r (V - LP_tau(V)), tau = 1 / (2 pi f_c), r and log f_c fitted
+  (side by side with the play: their product is left out);
 - ``LAW``: quadratic T* terms m3, k3 in M(T*) and k(T*) (two more local coefficients);
 - ``GAIN``: M_eff = M (1 - f (1 - exp(-(t / tau)^nu))), t from the start of the data;
 - ``SPATIAL``: z = z_free + c lap(z_free), 4-neighbour Laplacian, edges use only existing
@@ -34,6 +38,7 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
+from es_feedforward.calibration.history import DriveSamples
 from es_physics.effects import Effect, EffectError, Role, candidates, get, with_role
 from es_physics.effects.coupling import neighbour_count, neighbour_laplacian
 from es_physics.effects.drift import DRIFT_LOG_NU_LIMIT
@@ -61,6 +66,8 @@ class FitInputs:
         valid: samples that enter the cost, shape (A, n).
         grid: (rows, cols) of the block (row-major), used by the coupling Laplacian.
         mean_temperature: mean temperature of the whole data set [degC].
+        drive: the command history read at these samples (for ``HEATING`` and
+            ``RELAXATION`` effects), or None.
 
     """
 
@@ -73,6 +80,7 @@ class FitInputs:
     valid: BoolArray
     grid: tuple[int, int]
     mean_temperature: float
+    drive: DriveSamples | None = None
 
 
 @dataclass(frozen=True)
@@ -108,6 +116,8 @@ class CompositeModel:
         self.L = float(np.asarray(base.L).ravel()[0])
         self.Tm = float(np.asarray(base.Tm).ravel()[0])
         self.lead = with_role(Role.TEMPERATURE, self.effects)
+        self.heating = with_role(Role.HEATING, self.effects)
+        self.relaxation = with_role(Role.RELAXATION, self.effects)
         #: the effect that shifts the command in time, and the play effect (or None)
         self.shift = with_role(Role.INPUT_SHIFT, self.effects)
         self.play = with_role(Role.PLAY, self.effects)
@@ -136,6 +146,16 @@ class CompositeModel:
         """Return the global name of the effect's ``index``-th fit parameter."""
         return f"{effect.name}.{self.parameter_names(effect)[index]}"
 
+    @staticmethod
+    def _lowpass(
+        data: FitInputs, effect: Effect, log_tau: float
+    ) -> tuple[FloatArray, FloatArray]:
+        """Return the effect's filtered drive signal at the samples and its d / d(log tau)."""
+        if data.drive is None:
+            raise ValueError(f"{effect.name} needs the command history in the inputs")
+        # a time constant beyond e^+-30 s is no physical one (and would overflow)
+        return data.drive.lowpass(effect, float(np.exp(np.clip(log_tau, -30.0, 30.0))))
+
     def evaluate(
         self, local: FloatArray, g: FloatArray, data: FitInputs, jacobian: bool = True
     ) -> Evaluation:
@@ -144,7 +164,8 @@ class CompositeModel:
         With ``jacobian=False`` only the prediction is computed (the Jacobians are empty).
 
         Raises:
-            ValueError: a play effect is on but the inputs carry no play operator.
+            ValueError: a play effect is on but the inputs carry no play operator, or a
+                heating or relaxation effect is on but they carry no command history.
 
         """
         names = self.global_names
@@ -152,8 +173,19 @@ class CompositeModel:
         T = data.temperature
         tau = self._global(g, self.lead) if self.lead else 0.0
         Ta = T + tau * data.temperature_rate if tau else T
+        # d T_a / d parameter of the effects that move T_a, for their Jacobian columns
+        dTa: dict[str, FloatArray] = {}
+        if self.lead:
+            dTa[self.key(self.lead)] = data.temperature_rate
+        if self.heating:
+            gain_h = self._global(g, self.heating, 0)
+            excess, d_excess = self._lowpass(data, self.heating, self._global(g, self.heating, 1))
+            Ta = Ta + gain_h * excess
+            dTa[self.key(self.heating, 0)] = excess
+            dTa[self.key(self.heating, 1)] = gain_h * d_excess
 
         V = data.voltage
+        dV: dict[str, FloatArray] = {}  # d V_eff / d parameter
         dV_dTa: FloatArray | None = None
         if self.play:
             if data.play is None:
@@ -165,9 +197,19 @@ class CompositeModel:
             gaps = data.play - V  # (K, A, n)
             mix = sum(self._global(g, self.play, i) * gaps[i] for i in range(self.operators))
             V = V + a_T * mix
-            dV_dweights = [a_T * gaps[i] for i in range(self.operators)]
-            dV_dweights.append(-dT * a_T * mix)
+            for i in range(self.operators):
+                dV[self.key(self.play, i)] = a_T * gaps[i]
+            dV[self.key(self.play, self.operators)] = -dT * a_T * mix
             dV_dTa = -beta * a_T * mix
+        if self.relaxation:
+            r = self._global(g, self.relaxation, 0)
+            log_fc = self._global(g, self.relaxation, 1)
+            # tau = 1 / (2 pi f_c): d / d(log f_c) = -d / d(log tau)
+            state, d_state = self._lowpass(data, self.relaxation, -log_fc - np.log(2.0 * np.pi))
+            high = data.voltage - state
+            V = V - r * high
+            dV[self.key(self.relaxation, 0)] = -high
+            dV[self.key(self.relaxation, 1)] = -r * d_state
 
         Ts = Ta - self.Tm
         m2, m1, k2, k1 = (local[:, i : i + 1] for i in range(4))
@@ -189,15 +231,15 @@ class CompositeModel:
             columns = [dH_dM, dH_dM * Ts, dH_dk, dH_dk * Ts]
             if curved:
                 columns += [dH_dM * Ts * Ts, dH_dk * Ts * Ts]
-            if self.lead:
+            if dTa:
                 dH_dT = dH_dM * (m1 + 2.0 * m3 * Ts) + dH_dk * (k1 + 2.0 * k3 * Ts)
                 if dV_dTa is not None:
                     dH_dT = dH_dT + dH_dV * dV_dTa
 
         scale: FloatArray | float = 1.0  # d(prediction)/dH
-        if self.play and jacobian:
-            for i, dV in enumerate(dV_dweights):
-                jac_g[self.key(self.play, i)] = dH_dV * dV
+        if jacobian:
+            for key, column in dV.items():
+                jac_g[key] = dH_dV * column
         F = H
         if self.gain:
             frac = self._global(g, self.gain, 0)
@@ -215,14 +257,13 @@ class CompositeModel:
                 jac_g[self.key(self.gain, 0)] = -(1.0 - e) * H
                 jac_g[self.key(self.gain, 1)] = frac * e * nu * s * H
                 jac_g[self.key(self.gain, 2)] = -frac * e * s * log_ratio * nu * H
-                if self.play:
-                    for i in range(len(self.parameter_names(self.play))):
-                        key = self.key(self.play, i)
-                        jac_g[key] = jac_g[key] * gain
+                for key in dV:
+                    jac_g[key] = jac_g[key] * gain
             scale = gain
-        # d F / d T_a, for the sensor lag (before the coupling spreads it to the neighbours)
-        if self.lead and jacobian:
-            jac_g[self.key(self.lead)] = scale * dH_dT * data.temperature_rate
+        # d F / d T_a, for the sensor lag and the heating (before the coupling spreads them)
+        if jacobian:
+            for key, column in dTa.items():
+                jac_g[key] = scale * dH_dT * column
         Z = F
         if self.spatial:
             c = self._global(g, self.spatial)
@@ -240,9 +281,9 @@ class CompositeModel:
             Z = Z + term.value
             for i, column in enumerate(term.columns):
                 jac_g[self.key(effect, i)] = column
-            if self.lead and jacobian:
-                lead_key = self.key(self.lead)
-                jac_g[lead_key] = jac_g[lead_key] + term.d_temperature * data.temperature_rate
+            if jacobian:
+                for key, column in dTa.items():
+                    jac_g[key] = jac_g[key] + term.d_temperature * column
         A, n = Z.shape
         if not jacobian:
             return Evaluation(np.asarray(Z, np.float64), np.zeros((A, n, 0)), np.zeros((A, n, 0)))

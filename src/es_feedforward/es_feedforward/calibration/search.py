@@ -16,6 +16,7 @@ import numpy as np
 
 from es_feedforward.calibration.align import AlignedData, IndexArray, select_rows
 from es_feedforward.calibration.fit import FitResult, levenberg_marquardt
+from es_feedforward.calibration.history import DriveHistory, DriveSamples
 from es_feedforward.calibration.model import (
     BoolArray,
     CompositeModel,
@@ -72,6 +73,7 @@ class Workspace:
         self.score_rows = select_rows(~aligned.train, n_score)
         self._play: dict[tuple[float, float], FloatArray] = {}
         self._static_cache: dict[tuple[int, int], dict[str, FloatArray]] = {}
+        self.history = DriveHistory(aligned.command[:, actuators], aligned.command_period)
 
     def _command_rows(self, delay_s: float) -> tuple[IndexArray, IndexArray]:
         a = self.aligned
@@ -140,8 +142,10 @@ class Workspace:
             shifts.append((whole_s + a.command_period, frac))
         voltage: FloatArray = np.zeros(static["displacement"].shape)
         valid: BoolArray = np.array(static["finite"], dtype=bool)
+        taps = []
         for shift, weight in shifts:
             ci = a.command_index(rows, shift)
+            taps.append((np.maximum(ci, 0), weight))
             u = a.command[np.ix_(np.maximum(ci, 0), self.actuators)].T
             valid &= np.isfinite(u) & (ci >= 0)[None, :]
             if not a.command_finite_all:
@@ -157,6 +161,7 @@ class Workspace:
             valid=valid,
             grid=self.grid,
             mean_temperature=a.mean_temperature,
+            drive=DriveSamples(self.history, tuple(taps)),
         )
 
     def input_pair(
