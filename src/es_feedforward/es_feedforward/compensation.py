@@ -12,7 +12,8 @@ around the model inverse:
 6. frequency dispersion: exact inverse of the first-order relaxation
    V_law = V_pi - r D (V_pi - s) at the end of the command interval (per-actuator states);
 7. hysteresis: exact inverse of the Prandtl-Ishlinskii operator
-   V_pi = (1 - sum a_i) V + sum a_i play_(r_i)(V), per-actuator play states.
+   V_pi = (1 - sum a_i) V + sum a_i play_(r_i)(V), per-actuator play states, the weights
+   a_i = weight_i exp(-beta (T_used - T_ref)) at each actuator's temperature.
 
 Self-heating moves the temperature the law is evaluated at: T_used + dT, dT the excess the
 drive sent causes (:class:`es_physics.effects.self_heating.HeatingEstimate`, in feedforward).
@@ -58,6 +59,8 @@ class CompensationParams:
         hysteresis_weight_2, hysteresis_threshold_v_2, hysteresis_weight_3,
         hysteresis_threshold_v_3: the second and third operators of a Prandtl-Ishlinskii
             hysteresis (weight 0 = unused).
+        hysteresis_decay_per_degc: beta of the weights' temperature law [1/degC] (0 = none).
+        hysteresis_reference_temperature: temperature at which the weights hold [degC].
         coupling: coefficient c of the 4-neighbour Laplacian coupling (0 = off).
         thermal_expansion: expansion coefficient alpha [m/degC] (0 = off).
         expansion_reference_temperature: temperature of zero expansion [degC].
@@ -83,6 +86,8 @@ class CompensationParams:
     hysteresis_threshold_v_2: float = 0.0
     hysteresis_weight_3: float = 0.0
     hysteresis_threshold_v_3: float = 0.0
+    hysteresis_decay_per_degc: float = 0.0
+    hysteresis_reference_temperature: float = 46.0
     coupling: float = 0.0
     thermal_expansion: float = 0.0
     expansion_reference_temperature: float = 46.0
@@ -261,13 +266,19 @@ class CouplingInverse:
         return np.asarray(self._lu.solve(z_ref.ravel()).reshape(self.shape), np.float64)
 
 
+#: Largest sum of hysteresis weights the inverse uses (its slope 1 - sum stays >= 0.1).
+MAX_WEIGHT_SUM: Final = 0.9
+
+
 class HysteresisInverse:
     """Exact inverse of V_eff = (1 - sum a_i) V + sum a_i play_(r_i)(V) on a grid.
 
     One play state per operator and actuator, (K, *shape); the inverse is
     :func:`es_physics.effects.hysteresis.pi_inverse` (with one operator: if the play stays,
     V = (V_eff - a p) / (1 - a); pushed up, V = V_eff + a r; pushed down, V = V_eff - a r).
-    The states are updated with the voltage actually applied.
+    The states are updated with the voltage actually applied. Given the actuators'
+    temperatures T [degC], the weights are a_i = weight_i exp(-beta (T - T_ref)) per actuator
+    (scaled down where they would sum to more than ``MAX_WEIGHT_SUM``); without, as given.
     """
 
     def __init__(
@@ -275,13 +286,30 @@ class HysteresisInverse:
         weights: float | Sequence[float],
         thresholds: float | Sequence[float],
         shape: tuple[int, ...],
+        decay_per_degc: float = 0.0,
+        reference_temperature: float = 46.0,
     ) -> None:
         w = np.atleast_1d(np.asarray(weights, np.float64))
         r = np.atleast_1d(np.asarray(thresholds, np.float64))
         use = w > 0.0
         self.weights, self.thresholds = w[use], r[use]
         self.shape = shape
+        self.decay_per_degc = decay_per_degc
+        self.reference_temperature = reference_temperature
         self.play = np.zeros((self.weights.size, *shape))
+
+    def weights_at(self, T: FloatArray | None) -> FloatArray:
+        """Return the weights (K,) as given, or (K, *T.shape) at temperatures ``T`` [degC]."""
+        if T is None or self.decay_per_degc == 0.0:
+            return self.weights
+        above = np.asarray(T, np.float64) - self.reference_temperature
+        factor = np.exp(-self.decay_per_degc * above)
+        a = self.weights.reshape((-1,) + (1,) * factor.ndim) * factor
+        total = a.sum(axis=0)
+        return np.asarray(
+            a * np.where(total > MAX_WEIGHT_SUM, MAX_WEIGHT_SUM / np.maximum(total, 1e-300), 1.0),
+            np.float64,
+        )
 
     @property
     def active(self) -> bool:
@@ -289,14 +317,20 @@ class HysteresisInverse:
         return self.weights.size > 0
 
     def retuned(
-        self, weights: float | Sequence[float], thresholds: float | Sequence[float]
+        self,
+        weights: float | Sequence[float],
+        thresholds: float | Sequence[float],
+        decay_per_degc: float = 0.0,
+        reference_temperature: float = 46.0,
     ) -> HysteresisInverse:
         """Return a copy with new parameters and this one's play states (this one unchanged).
 
         Operators carry their state by position; a new operator starts from the first one's
         state (or 0).
         """
-        other = HysteresisInverse(weights, thresholds, self.shape)
+        other = HysteresisInverse(
+            weights, thresholds, self.shape, decay_per_degc, reference_temperature
+        )
         for k in range(other.weights.size):
             if k < self.weights.size:
                 other.play[k] = self.play[k]
@@ -308,11 +342,11 @@ class HysteresisInverse:
         """Set every play state to ``voltage`` (bumpless start)."""
         self.play = np.broadcast_to(voltage, self.play.shape).copy()
 
-    def invert(self, v_eff: FloatArray) -> FloatArray:
-        """Return the voltage that makes the operator output ``v_eff``."""
+    def invert(self, v_eff: FloatArray, T: FloatArray | None = None) -> FloatArray:
+        """Return the voltage that makes the operator output ``v_eff`` (at temperatures T)."""
         if not self.active:
             return v_eff
-        return pi_inverse(v_eff, self.play, self.weights, self.thresholds)
+        return pi_inverse(v_eff, self.play, self.weights_at(T), self.thresholds)
 
     def apply(self, voltage: FloatArray) -> None:
         """Advance the play states with the voltage that was actually sent."""
@@ -320,12 +354,14 @@ class HysteresisInverse:
             r = self.thresholds.reshape((-1,) + (1,) * voltage.ndim)
             self.play = np.clip(self.play, voltage - r, voltage + r)
 
-    def output(self, voltage: FloatArray) -> FloatArray:
+    def output(self, voltage: FloatArray, T: FloatArray | None = None) -> FloatArray:
         """Return the operator's output for ``voltage`` once :meth:`apply` has taken it [V]."""
         if not self.active:
             return voltage
-        w = self.weights.reshape((-1,) + (1,) * voltage.ndim)
-        return np.asarray((1.0 - self.weights.sum()) * voltage + (w * self.play).sum(0), np.float64)
+        w = self.weights_at(T)
+        if w.ndim == 1:
+            w = w.reshape((-1,) + (1,) * voltage.ndim)
+        return np.asarray((1.0 - w.sum(axis=0)) * voltage + (w * self.play).sum(0), np.float64)
 
 
 class RelaxationInverse:

@@ -219,7 +219,11 @@ class Feedforward:
                 comp.temperature_lead_s, comp.temperature_lead_filter_s
             )
             self._delay = previous._delay.retuned(comp.delay_s)
-            self._hysteresis = previous._hysteresis.retuned(*comp.hysteresis_operators())
+            self._hysteresis = previous._hysteresis.retuned(
+                *comp.hysteresis_operators(),
+                comp.hysteresis_decay_per_degc,
+                comp.hysteresis_reference_temperature,
+            )
             self._relaxation = previous._relaxation.retuned(
                 comp.dispersion_fraction, comp.dispersion_corner_hz
             )
@@ -239,7 +243,12 @@ class Feedforward:
         else:
             self._lead = TemperatureLead(comp.temperature_lead_s, comp.temperature_lead_filter_s)
             self._delay = DelayPredictor(comp.delay_s)
-            self._hysteresis = HysteresisInverse(*comp.hysteresis_operators(), shape)
+            self._hysteresis = HysteresisInverse(
+                *comp.hysteresis_operators(),
+                shape,
+                comp.hysteresis_decay_per_degc,
+                comp.hysteresis_reference_temperature,
+            )
             self._relaxation = RelaxationInverse(
                 comp.dispersion_fraction, comp.dispersion_corner_hz, shape
             )
@@ -356,7 +365,7 @@ class Feedforward:
         voltage, status = result.voltage, result.status
         reshaped = self._hysteresis.active or self._relaxation.active
         if reshaped:
-            voltage, status = self._drive_and_limits(result, t)
+            voltage, status = self._drive_and_limits(result, t, T)
         if raw_status is not None:
             np.maximum(status, raw_status, out=status)
         maybe_invalid = raw_status is not None or laws.flagged or reshaped
@@ -367,7 +376,7 @@ class Feedforward:
                 model_error[invalid] = 0.0
         self._hysteresis.apply(voltage)
         if self._relaxation.active:
-            self._relaxation.apply(self._hysteresis.output(voltage), t)
+            self._relaxation.apply(self._hysteresis.output(voltage, T), t)
         if self._heating.active:
             self._heating.apply(voltage, t)
         # shared with the caller without a copy: frozen so that nobody changes the state
@@ -441,11 +450,11 @@ class Feedforward:
         return limit_voltages(voltage, reach.status, v_limit), np.asarray(model_error, np.float64)
 
     def _drive_and_limits(
-        self, result: InverseResult, t: float
+        self, result: InverseResult, t: float, T: FloatArray
     ) -> tuple[FloatArray, StatusArray]:
-        """Undo the relaxation and the hysteresis, then keep every voltage in [0, v_limit]."""
+        """Undo the relaxation and the hysteresis (at ``T`` [degC]); keep V in [0, v_limit]."""
         status = result.status
-        voltage = self._hysteresis.invert(self._relaxation.invert(result.voltage, t))
+        voltage = self._hysteresis.invert(self._relaxation.invert(result.voltage, t), T)
         v_limit = self.config.v_limit
         if voltage.size and not (voltage.min() >= 0.0 and voltage.max() <= v_limit):
             bad = ~np.isfinite(voltage)

@@ -6,8 +6,11 @@ plant takes T_0 = Tm + HYSTERESIS_ONSET (each a_i clipped to [0, 1]); the calibr
 T_0 = the data's mean temperature. Names: operator 1 is ``weight``/``threshold_v``,
 operator i > 1 ``weight_i``/``threshold_v_i`` (plant parameters, calibration results and
 ``compensation.hysteresis_weight[_i]``/``hysteresis_threshold_v[_i]``). The calibration
-chooses N <= MAX_OPERATORS by the information criterion. Feedforward: the operator's exact
-inverse, per actuator with its play states (:func:`pi_inverse`).
+chooses N <= MAX_OPERATORS by the information criterion and fits beta of
+a_i = weight_i exp(-beta (T_a - T_mean)). Feedforward: the operator's exact inverse, per
+actuator with its play states (:func:`pi_inverse`), the weights taken at each actuator's
+temperature with the fitted beta (``compensation.hysteresis_decay_per_degc``,
+``hysteresis_reference_temperature`` = T_mean).
 """
 
 from __future__ import annotations
@@ -59,15 +62,16 @@ def pi_inverse(
     Args:
         target: wanted V_eff, shape S [V].
         states: play outputs before this step, (K, *S) [V].
-        weights: a_i, (K,), non-negative, sum < 1.
+        weights: a_i, (K,) or per element (K, *S), non-negative, summing to < 1.
         thresholds: r_i, (K,) [V], non-negative.
 
     """
     K = states.shape[0]
     shape = (K,) + (1,) * np.ndim(target)
-    a = np.asarray(weights, np.float64).reshape(shape)
+    a = np.asarray(weights, np.float64)
+    a = a.reshape(shape) if a.ndim == 1 else a
     r = np.asarray(thresholds, np.float64).reshape(shape)
-    a0 = 1.0 - float(np.sum(weights))
+    a0 = 1.0 - np.sum(a, axis=0)
 
     def output(V: FloatArray) -> FloatArray:
         return np.asarray(a0 * V + np.sum(a * np.clip(states, V - r, V + r), axis=0), np.float64)
@@ -128,8 +132,24 @@ class Hysteresis(Effect):
     fit_parameters: ClassVar[tuple[str, ...]] = ("weight", "decay_per_degc")
     searched: ClassVar[tuple[str, ...]] = ("threshold_v",)
     max_order: ClassVar[int] = MAX_OPERATORS
-    compensation: ClassVar[tuple[Parameter, ...]] = _operator_parameters(
-        "hysteresis_", 0.9, 1000.0
+    compensation: ClassVar[tuple[Parameter, ...]] = (
+        *_operator_parameters("hysteresis_", 0.9, 1000.0),
+        Parameter(
+            "hysteresis_decay_per_degc",
+            "1/degC",
+            -MAX_DECAY_PER_DEGC,
+            MAX_DECAY_PER_DEGC,
+            0.0,
+            "beta of the weights' law exp(-beta (T - T_ref)) (0 = no temperature law)",
+        ),
+        Parameter(
+            "hysteresis_reference_temperature",
+            "degC",
+            -50.0,
+            150.0,
+            46.0,
+            "T_ref, where the weights hold as given",
+        ),
     )
 
     def fit_names(self, order: int = 1) -> tuple[str, ...]:
@@ -149,8 +169,9 @@ class Hysteresis(Effect):
         return tuple(operator_names(i)[1] for i in range(order))
 
     def reported(self, fit: FittedEffect) -> dict[str, float]:
-        """Return each operator's weight and threshold [V]."""
-        return {k: float(v) for k, v in fit.values.items()}
+        """Return each operator's weight and threshold [V], beta and T_mean [degC]."""
+        values = {k: float(v) for k, v in fit.values.items()}
+        return {**values, "reference_temperature": float(fit.mean_temperature)}
 
     def uncertainties(self, fit: FittedEffect) -> dict[str, float]:
         """Return the weights' uncertainties (the thresholds are scanned)."""
@@ -171,5 +192,5 @@ class Hysteresis(Effect):
     def compensation_values(
         self, reported: dict[str, float], start_time: float
     ) -> dict[str, float]:
-        """Invert the fitted operator (weights at the data's mean temperature)."""
-        return {f"hysteresis_{k}": v for k, v in reported.items() if k != "decay_per_degc"}
+        """Invert the fitted operator, its weights following the fitted temperature law."""
+        return {f"hysteresis_{k}": v for k, v in reported.items()}
