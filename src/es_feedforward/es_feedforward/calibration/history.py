@@ -33,11 +33,14 @@ IndexArray = npt.NDArray[np.intp]
 CACHE_SIZE: Final = 8
 
 
-def first_order_lowpass(x: FloatArray, period: float, tau: float) -> FloatArray:
-    """Return tau dy/dt + y = x for x (N, A) sampled every ``period`` [s], linear in between.
+def first_order_lowpass(x: FloatArray, period: float, tau: float) -> tuple[FloatArray, FloatArray]:
+    """Return tau dy/dt + y = x for x (N, A) sampled every ``period`` [s], and dy / d(log tau).
 
-    y starts settled at x[0]. Exact for a piecewise-linear input:
-    y_k = D y_(k-1) + (1 - c) x_k + (c - D) x_(k-1), D = exp(-h / tau), c = (1 - D) tau / h.
+    x varies linearly between samples; y starts settled at x[0] (for every tau, so the
+    derivative starts at 0). Exact for a piecewise-linear input:
+    y_k = D y_(k-1) + (1 - c) x_k + (c - D) x_(k-1), D = exp(-h / tau), c = (1 - D) tau / h;
+    the derivative is that recursion differentiated (the same pole, driven by the
+    coefficients' derivatives).
 
     Raises:
         ValueError: ``period`` or ``tau`` not positive and finite.
@@ -45,17 +48,23 @@ def first_order_lowpass(x: FloatArray, period: float, tau: float) -> FloatArray:
     """
     if not (math.isfinite(period) and period > 0.0 and math.isfinite(tau) and tau > 0.0):
         raise ValueError(f"low-pass needs period > 0 and tau > 0, got {period!r}, {tau!r}")
+    if x.shape[0] == 0:
+        return np.zeros_like(x), np.zeros_like(x)
     a = period / tau
     one_minus_d = -math.expm1(-a)
     d = 1.0 - one_minus_d
     c = one_minus_d / a
+    pole = np.array([1.0, -d])
     b = np.array([1.0 - c, c - d])
-    den = np.array([1.0, -d])
-    if x.shape[0] == 0:
-        return np.zeros_like(x)
-    zi = lfilter_zi(b, den)[:, None] * x[0][None, :]
-    y, _ = lfilter(b, den, x, axis=0, zi=zi)
-    return np.asarray(y, np.float64)
+    zi = lfilter_zi(b, pole)[:, None] * x[0][None, :]
+    y, _ = lfilter(b, pole, x, axis=0, zi=zi)
+    # d / d(log tau) of D, c and the taps (d a / d(log tau) = -a)
+    d_d = a * d
+    d_c = (one_minus_d - a * d) / a
+    drive = np.zeros_like(x)
+    drive[1:] = d_d * y[:-1] - d_c * x[1:] + (d_c - d_d) * x[:-1]
+    slope = lfilter([1.0], pole, drive, axis=0)
+    return np.asarray(y, np.float64), np.asarray(slope, np.float64)
 
 
 class DriveHistory:
@@ -77,7 +86,7 @@ class DriveHistory:
         return self._signals[effect.name]
 
     def lowpass(self, effect: Effect, tau: float) -> tuple[FloatArray, FloatArray]:
-        """Return y = LP_tau(signal) and dy / d(log tau) = -(y - LP_tau(y)), each (N, A).
+        """Return y = LP_tau(signal) and dy / d(log tau), each (N, A).
 
         Raises:
             ValueError: ``tau`` not positive and finite.
@@ -85,8 +94,7 @@ class DriveHistory:
         """
         key = (effect.name, float(tau))
         if key not in self._filtered:
-            y = first_order_lowpass(self.signal(effect), self.period, tau)
-            slope = first_order_lowpass(y, self.period, tau) - y
+            y, slope = first_order_lowpass(self.signal(effect), self.period, tau)
             if len(self._filtered) >= CACHE_SIZE:
                 del self._filtered[next(iter(self._filtered))]
             self._filtered[key] = (y, slope)
