@@ -22,7 +22,9 @@ effect registry (:mod:`es_physics.effects`); each effect acts in one stage (its
 - ``ADDITIVE``: any number of terms added to z, each the effect's own
   :meth:`~es_physics.effects.Effect.additive` (e.g. alpha (T_a - T_mean) + offset).
 
-Local coefficients are ``[m2, m1, k2, k1]`` (+ the ``LAW`` effect's); L and Tm are fixed
+Local coefficients are ``[m2, m1, k2, k1]`` (+ the ``LAW`` effect's, + the shared unknowns
+fitted per actuator, ``per_actuator``: an effect's :attr:`~es_physics.effects.Effect.
+local_options` of the roles ``TEMPERATURE`` and ``HEATING``); L and Tm are fixed
 (they are not separately identifiable from displacement data). The coupling Jacobian keeps only
 each actuator's own law coefficients (neighbours' cross terms are of order c and dropped), which
 still converges to the least-squares fit for the small coefficients a face sheet produces.
@@ -96,15 +98,21 @@ class CompositeModel:
     """Hyperbolic law with a set of effects switched on; see the module docstring."""
 
     def __init__(
-        self, effects: Sequence[str], base: ActuatorParams | None = None, operators: int = 1
+        self,
+        effects: Sequence[str],
+        base: ActuatorParams | None = None,
+        operators: int = 1,
+        per_actuator: Sequence[str] = (),
     ) -> None:
         """Build the model for ``effects`` (canonical names); L and Tm come from ``base``.
 
-        ``operators`` is the number of play operators of the ``PLAY`` effect.
+        ``operators`` is the number of play operators of the ``PLAY`` effect;
+        ``per_actuator`` the ``<effect>.<parameter>`` unknowns fitted one per actuator.
 
         Raises:
             UnknownEffectError: a name no registered effect has.
-            EffectError: an effect that is no calibration candidate.
+            EffectError: an effect that is no calibration candidate, or a per-actuator
+                unknown that no chosen effect offers as one.
 
         """
         chosen = [get(name) for name in effects]
@@ -126,9 +134,24 @@ class CompositeModel:
         self.spatial = with_role(Role.SPATIAL, self.effects)
         self.additive: tuple[Effect, ...] = tuple(e for e in chosen if e.role is Role.ADDITIVE)
         self.operators = operators if self.play else 0
-        self.local_names = LINEAR_LAW + (self.law.local_parameters if self.law else ())
+        offered = {
+            f"{e.name}.{p}"
+            for e in (self.lead, self.heating)
+            if e is not None
+            for p in e.local_options
+        }
+        for key in per_actuator:
+            if key not in offered:
+                raise EffectError(f"{key} cannot be fitted per actuator in this model")
+        self.per_actuator: tuple[str, ...] = tuple(per_actuator)
+        self.local_names = (
+            LINEAR_LAW + (self.law.local_parameters if self.law else ()) + self.per_actuator
+        )
         self.global_names: tuple[str, ...] = tuple(
-            f"{e.name}.{p}" for e in chosen for p in self.parameter_names(e)
+            f"{e.name}.{p}"
+            for e in chosen
+            for p in self.parameter_names(e)
+            if f"{e.name}.{p}" not in self.per_actuator
         )
 
     def parameter_names(self, effect: Effect) -> tuple[str, ...]:
@@ -141,6 +164,16 @@ class CompositeModel:
 
     def _global(self, g: FloatArray, effect: Effect, index: int = 0) -> float:
         return float(g[self.global_names.index(self.key(effect, index))])
+
+    def _value(
+        self, local: FloatArray, g: FloatArray, effect: Effect, index: int = 0
+    ) -> FloatArray | float:
+        """Return a shared unknown, or (A, 1) values when it is fitted per actuator."""
+        key = self.key(effect, index)
+        if key in self.per_actuator:
+            j = self.local_names.index(key)
+            return np.asarray(local[:, j : j + 1], np.float64)
+        return self._global(g, effect, index)
 
     def key(self, effect: Effect, index: int = 0) -> str:
         """Return the global name of the effect's ``index``-th fit parameter."""
@@ -171,14 +204,13 @@ class CompositeModel:
         names = self.global_names
         jac_g: dict[str, FloatArray] = {}
         T = data.temperature
-        tau = self._global(g, self.lead) if self.lead else 0.0
-        Ta = T + tau * data.temperature_rate if tau else T
+        Ta = T + self._value(local, g, self.lead) * data.temperature_rate if self.lead else T
         # d T_a / d parameter of the effects that move T_a, for their Jacobian columns
         dTa: dict[str, FloatArray] = {}
         if self.lead:
             dTa[self.key(self.lead)] = data.temperature_rate
         if self.heating:
-            gain_h = self._global(g, self.heating, 0)
+            gain_h = self._value(local, g, self.heating, 0)
             excess, d_excess = self._lowpass(data, self.heating, self._global(g, self.heating, 1))
             Ta = Ta + gain_h * excess
             dTa[self.key(self.heating, 0)] = excess
@@ -269,11 +301,17 @@ class CompositeModel:
             c = self._global(g, self.spatial)
             lap_F = neighbour_laplacian(F, data.grid)
             Z = F + c * lap_F
-            # shared parameters move every actuator: (I + c lap) of their columns is exact
+            own = 1.0 - c * neighbour_count(data.grid)
+            # shared parameters move every actuator: (I + c lap) of their columns is exact;
+            # per-actuator ones keep their own actuator's term (as the law's coefficients)
             for key, column in jac_g.items():
-                jac_g[key] = column + c * neighbour_laplacian(column, data.grid)
+                jac_g[key] = (
+                    column * own
+                    if key in self.per_actuator
+                    else column + c * neighbour_laplacian(column, data.grid)
+                )
             jac_g[self.key(self.spatial)] = lap_F
-            scale = scale * (1.0 - c * neighbour_count(data.grid))
+            scale = scale * own
         Ta_rel = Ta - data.mean_temperature
         for effect in self.additive:
             values = {p: self._global(g, effect, i) for i, p in enumerate(effect.fit_names())}
@@ -287,9 +325,11 @@ class CompositeModel:
         A, n = Z.shape
         if not jacobian:
             return Evaluation(np.asarray(Z, np.float64), np.zeros((A, n, 0)), np.zeros((A, n, 0)))
-        jac_l = np.empty((A, n, len(columns)))
+        jac_l = np.empty((A, n, len(columns) + len(self.per_actuator)))
         for i, col in enumerate(columns):
             np.multiply(col, scale, out=jac_l[..., i])
+        for i, key in enumerate(self.per_actuator, len(columns)):
+            jac_l[..., i] = jac_g[key]
         jac_glob = np.empty((A, n, len(names)))
         for i, name in enumerate(names):
             jac_glob[..., i] = jac_g[name]

@@ -178,6 +178,9 @@ class Effect(ABC):
     fit_parameters: ClassVar[tuple[str, ...]] = ()
     #: Per-actuator unknowns the effect adds to the law's coefficients.
     local_parameters: ClassVar[tuple[str, ...]] = ()
+    #: Shared unknowns the calibration may fit one per actuator instead, when held-out
+    #: scoring says the extra unknowns pay off (roles ``TEMPERATURE`` and ``HEATING``).
+    local_options: ClassVar[tuple[str, ...]] = ()
     #: Unknowns the calibration finds by a scan (one value for the grid).
     searched: ClassVar[tuple[str, ...]] = ()
     #: The feedforward's ``compensation.<name>`` parameters the effect owns.

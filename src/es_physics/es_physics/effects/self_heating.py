@@ -134,6 +134,7 @@ class SelfHeating(Effect):
     role: ClassVar[Role] = Role.HEATING
     simulated: ClassVar[bool] = True
     fit_parameters: ClassVar[tuple[str, ...]] = ("gain", "log_tau_s")
+    local_options: ClassVar[tuple[str, ...]] = ("gain",)
     plant: ClassVar[tuple[Parameter, ...]] = (
         Parameter("loss_w_per_hz_v2", "W/(Hz V^2)", 0.0, 1e-3, 4.7e-9, "loss coefficient p_d"),
         Parameter("mean_window_s", "s", 0.0, 1e6, 1.0, "running-mean window", low_open=True),
