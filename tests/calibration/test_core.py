@@ -7,6 +7,7 @@ import pytest
 
 from es_feedforward.calibration.align import CalibrationInputError, MeasuredData, align
 from es_feedforward.calibration.fit import levenberg_marquardt
+from es_feedforward.calibration.history import DriveHistory, DriveSamples, first_order_lowpass
 from es_feedforward.calibration.model import (
     CANDIDATES,
     CompositeModel,
@@ -35,6 +36,7 @@ def _inputs(rng: np.random.Generator, A: int = 6, n: int = 400, grid=(2, 3)) -> 
         valid=np.ones(V.shape, bool),
         grid=grid,
         mean_temperature=44.0,
+        drive=DriveSamples(DriveHistory(V.T, t[1] - t[0]), ((np.arange(n), 1.0),)),
     )
 
 
@@ -88,6 +90,10 @@ def test_jacobians_match_finite_differences(coupled: bool) -> None:
         "drift.fraction": 0.03,
         "drift.log_tau_s": np.log(6.0),
         "drift.log_nu": -0.5,
+        "self_heating.gain": 1e-4,
+        "self_heating.log_tau_s": np.log(1.5),
+        "frequency_dispersion.fraction": 0.08,
+        "frequency_dispersion.log_corner_hz": np.log(0.5),
     }
     glob = np.array([values[n] for n in model.global_names])
     ev = model.evaluate(local, glob, data)
@@ -258,3 +264,19 @@ def test_noise_floor_and_autocorrelation_time_of_white_and_smooth_residuals() ->
     assert noise_floor(white + smooth, contiguous) == pytest.approx(0.5e-9, rel=0.05)
     assert integrated_autocorrelation_time(white, contiguous) < 1.5
     assert integrated_autocorrelation_time(white + smooth, contiguous) > 10.0
+
+
+def test_drive_lowpass_is_exact_for_a_ramp_and_its_log_tau_slope_matches() -> None:
+    h, tau, slope = 0.01, 0.3, np.array([2.0, -5.0])
+    t = np.arange(200) * h
+    x = 1.0 + slope[None, :] * t[:, None]
+    y, d_log_tau = first_order_lowpass(x, h, tau)
+    # tau y' + y = x from y(0) = x(0): y = x - tau m (1 - exp(-t / tau))
+    exact = x - tau * slope[None, :] * (1.0 - np.exp(-t / tau))[:, None]
+    np.testing.assert_allclose(y, exact, rtol=1e-12, atol=1e-12)
+    step = 1e-6
+    up = first_order_lowpass(x, h, tau * np.exp(step))[0]
+    down = first_order_lowpass(x, h, tau * np.exp(-step))[0]
+    np.testing.assert_allclose(d_log_tau, (up - down) / (2 * step), rtol=1e-6, atol=1e-9)
+    with pytest.raises(ValueError, match="tau > 0"):
+        first_order_lowpass(x, h, 0.0)

@@ -96,6 +96,46 @@ def test_hysteresis_is_undone_along_a_trajectory() -> None:
     assert worst < 1e-3 * NM
 
 
+def test_hysteresis_weights_follow_the_temperature_law() -> None:
+    # a_i(T) = weight_i exp(-beta (T - T_ref)): the grid spans 41..51 degC around T_ref = 46,
+    # so the weights range from 3.5x to 0.29x the reference ones
+    weights, thresholds, beta, T_ref = (0.1, 0.05), (8.0, 25.0), 0.25, 46.0
+    law = np.exp(-beta * (TEMPERATURE - T_ref))
+
+    def worst_error(decay: float) -> float:
+        ff = feedforward(
+            hysteresis_weight=weights[0],
+            hysteresis_threshold_v=thresholds[0],
+            hysteresis_weight_2=weights[1],
+            hysteresis_threshold_v_2=thresholds[1],
+            hysteresis_decay_per_degc=decay,
+            hysteresis_reference_temperature=T_ref,
+        )
+        states = np.zeros((2, *SHAPE))
+        worst = 0.0
+        for step in range(120):
+            z_ref = smooth_setpoint() * (1 + 0.8 * np.sin(2 * np.pi * step / 60))
+            voltage = ff.command(z_ref, step * 0.01).voltage
+            v_eff = voltage.copy()
+            for k, (w, r) in enumerate(zip(weights, thresholds, strict=True)):
+                states[k] = play(states[k], voltage, r)
+                v_eff += w * law * (states[k] - voltage)
+            z = hyperbolic_forward(v_eff, TEMPERATURE, PARAMS)
+            worst = max(worst, float(np.max(np.abs(z - z_ref))))
+        return worst
+
+    assert worst_error(beta) < 1e-3 * NM
+    # weights taken as they hold at T_ref on every actuator: the cold ones are off by nm
+    assert worst_error(0.0) > 0.3 * NM
+
+
+def test_hysteresis_weights_are_capped_where_the_law_would_sum_them_to_one() -> None:
+    inverse = HysteresisInverse((0.3, 0.3), (5.0, 10.0), (3,), 0.5, 46.0)
+    a = inverse.weights_at(np.array([40.0, 46.0, 50.0]))
+    np.testing.assert_allclose(a.sum(axis=0), [0.9, 0.6, 0.6 * np.exp(-2.0)])
+    np.testing.assert_allclose(inverse.weights_at(None), (0.3, 0.3))
+
+
 def test_hysteresis_inverse_branches() -> None:
     inverse = HysteresisInverse(0.5, 10.0, (3,))
     v_eff = np.array([0.0, 20.0, 4.0])

@@ -63,6 +63,8 @@ class CompensationParams:
         hysteresis_weight_2, hysteresis_threshold_v_2, hysteresis_weight_3,
         hysteresis_threshold_v_3: the second and third operators of a Prandtl-Ishlinskii
             hysteresis (weight 0 = unused).
+        hysteresis_decay_per_degc: beta of the weights' temperature law [1/degC] (0 = none).
+        hysteresis_reference_temperature: temperature at which the weights hold [degC].
         coupling: coefficient c of the 4-neighbour Laplacian coupling (0 = off).
         thermal_expansion: expansion coefficient alpha [m/degC] (0 = off).
         expansion_reference_temperature: temperature of zero expansion [degC].
@@ -92,6 +94,8 @@ class CompensationParams:
     hysteresis_threshold_v_2: float = 0.0
     hysteresis_weight_3: float = 0.0
     hysteresis_threshold_v_3: float = 0.0
+    hysteresis_decay_per_degc: float = 0.0
+    hysteresis_reference_temperature: float = 46.0
     coupling: float = 0.0
     thermal_expansion: float = 0.0
     expansion_reference_temperature: float = 46.0
@@ -104,6 +108,7 @@ class CompensationParams:
     self_heating_gain: float = 0.0
     self_heating_tau_s: float = 1.0
     self_heating_mean_window_s: float = 1.0
+
     def __post_init__(self) -> None:
         """Give the parameters declared beyond the typed fields their defaults."""
         object.__setattr__(self, "_extra", MappingProxyType(dict(_EXTRA_DEFAULTS)))

@@ -345,7 +345,7 @@ class Feedforward:
         voltage, status = result.voltage, result.status
         reshaped = bool(self._drive_stages)
         if reshaped:
-            voltage, status = self._drive_and_limits(result, t)
+            voltage, status = self._drive_and_limits(result, t, T)
         if raw_status is not None:
             np.maximum(status, raw_status, out=status)
         maybe_invalid = raw_status is not None or laws.flagged or reshaped
@@ -424,7 +424,7 @@ class Feedforward:
         return limit_voltages(voltage, reach.status, v_limit), np.asarray(model_error, np.float64)
 
     def _drive_and_limits(
-        self, result: InverseResult, t: float
+        self, result: InverseResult, t: float, T: FloatArray
     ) -> tuple[FloatArray, StatusArray]:
         """Undo the drive's stages (last first), then keep every voltage in [0, v_limit]."""
         status = result.status

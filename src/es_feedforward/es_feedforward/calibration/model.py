@@ -7,10 +7,14 @@ effect registry (:mod:`es_physics.effects`); each effect acts in one stage (its
 :class:`~es_physics.effects.Role`), in this order:
 
 - ``TEMPERATURE``: T_a = T + tau dT/dt (the actuator leads the sensor by a first-order lag);
+- ``HEATING``: T_a += g LP_tau(P), P the effect's drive signal (the drive's loss), g and
+  log tau fitted (the low-pass runs over the whole command, see history.py);
 - ``INPUT_SHIFT``: V(t - d), applied when the inputs are built (see ``FitInputs``);
 - ``PLAY``: V_eff = V + a(T_a) sum_i weight_i (play_(r_i)(V) - V),
   a(T_a) = exp(-beta (T_a - T_mean)) with beta fitted too; the play operators are applied
   when the inputs are built;
+- ``RELAXATION``: V_eff -= r (V - LP_tau(V)), tau = 1 / (2 pi f_c), r and log f_c fitted
+  (side by side with the play: their product is left out);
 - ``LAW``: quadratic T* terms m3, k3 in M(T*) and k(T*) (two more local coefficients);
 - ``GAIN``: M_eff = M (1 - f (1 - exp(-(t / tau)^nu))), t from the start of the data;
 - ``SPATIAL``: z = z_free + c lap(z_free), 4-neighbour Laplacian, edges use only existing
@@ -18,7 +22,9 @@ effect registry (:mod:`es_physics.effects`); each effect acts in one stage (its
 - ``ADDITIVE``: any number of terms added to z, each the effect's own
   :meth:`~es_physics.effects.Effect.additive` (e.g. alpha (T_a - T_mean) + offset).
 
-Local coefficients are ``[m2, m1, k2, k1]`` (+ the ``LAW`` effect's); L and Tm are fixed
+Local coefficients are ``[m2, m1, k2, k1]`` (+ the ``LAW`` effect's, + the shared unknowns
+fitted per actuator, ``per_actuator``: an effect's :attr:`~es_physics.effects.Effect.
+local_options` of the roles ``TEMPERATURE`` and ``HEATING``); L and Tm are fixed
 (they are not separately identifiable from displacement data). The coupling Jacobian keeps only
 each actuator's own law coefficients (neighbours' cross terms are of order c and dropped), which
 still converges to the least-squares fit for the small coefficients a face sheet produces.
@@ -34,6 +40,7 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
+from es_feedforward.calibration.history import DriveSamples
 from es_physics.effects import Effect, EffectError, Role, candidates, get, with_role
 from es_physics.effects.coupling import neighbour_count, neighbour_laplacian
 from es_physics.effects.drift import DRIFT_LOG_NU_LIMIT
@@ -61,6 +68,8 @@ class FitInputs:
         valid: samples that enter the cost, shape (A, n).
         grid: (rows, cols) of the block (row-major), used by the coupling Laplacian.
         mean_temperature: mean temperature of the whole data set [degC].
+        drive: the command history read at these samples (for ``HEATING`` and
+            ``RELAXATION`` effects), or None.
 
     """
 
@@ -73,6 +82,7 @@ class FitInputs:
     valid: BoolArray
     grid: tuple[int, int]
     mean_temperature: float
+    drive: DriveSamples | None = None
 
 
 @dataclass(frozen=True)
@@ -88,15 +98,21 @@ class CompositeModel:
     """Hyperbolic law with a set of effects switched on; see the module docstring."""
 
     def __init__(
-        self, effects: Sequence[str], base: ActuatorParams | None = None, operators: int = 1
+        self,
+        effects: Sequence[str],
+        base: ActuatorParams | None = None,
+        operators: int = 1,
+        per_actuator: Sequence[str] = (),
     ) -> None:
         """Build the model for ``effects`` (canonical names); L and Tm come from ``base``.
 
-        ``operators`` is the number of play operators of the ``PLAY`` effect.
+        ``operators`` is the number of play operators of the ``PLAY`` effect;
+        ``per_actuator`` the ``<effect>.<parameter>`` unknowns fitted one per actuator.
 
         Raises:
             UnknownEffectError: a name no registered effect has.
-            EffectError: an effect that is no calibration candidate.
+            EffectError: an effect that is no calibration candidate, or a per-actuator
+                unknown that no chosen effect offers as one.
 
         """
         chosen = [get(name) for name in effects]
@@ -108,6 +124,8 @@ class CompositeModel:
         self.L = float(np.asarray(base.L).ravel()[0])
         self.Tm = float(np.asarray(base.Tm).ravel()[0])
         self.lead = with_role(Role.TEMPERATURE, self.effects)
+        self.heating = with_role(Role.HEATING, self.effects)
+        self.relaxation = with_role(Role.RELAXATION, self.effects)
         #: the effect that shifts the command in time, and the play effect (or None)
         self.shift = with_role(Role.INPUT_SHIFT, self.effects)
         self.play = with_role(Role.PLAY, self.effects)
@@ -116,9 +134,24 @@ class CompositeModel:
         self.spatial = with_role(Role.SPATIAL, self.effects)
         self.additive: tuple[Effect, ...] = tuple(e for e in chosen if e.role is Role.ADDITIVE)
         self.operators = operators if self.play else 0
-        self.local_names = LINEAR_LAW + (self.law.local_parameters if self.law else ())
+        offered = {
+            f"{e.name}.{p}"
+            for e in (self.lead, self.heating)
+            if e is not None
+            for p in e.local_options
+        }
+        for key in per_actuator:
+            if key not in offered:
+                raise EffectError(f"{key} cannot be fitted per actuator in this model")
+        self.per_actuator: tuple[str, ...] = tuple(per_actuator)
+        self.local_names = (
+            LINEAR_LAW + (self.law.local_parameters if self.law else ()) + self.per_actuator
+        )
         self.global_names: tuple[str, ...] = tuple(
-            f"{e.name}.{p}" for e in chosen for p in self.parameter_names(e)
+            f"{e.name}.{p}"
+            for e in chosen
+            for p in self.parameter_names(e)
+            if f"{e.name}.{p}" not in self.per_actuator
         )
 
     def parameter_names(self, effect: Effect) -> tuple[str, ...]:
@@ -132,9 +165,29 @@ class CompositeModel:
     def _global(self, g: FloatArray, effect: Effect, index: int = 0) -> float:
         return float(g[self.global_names.index(self.key(effect, index))])
 
+    def _value(
+        self, local: FloatArray, g: FloatArray, effect: Effect, index: int = 0
+    ) -> FloatArray | float:
+        """Return a shared unknown, or (A, 1) values when it is fitted per actuator."""
+        key = self.key(effect, index)
+        if key in self.per_actuator:
+            j = self.local_names.index(key)
+            return np.asarray(local[:, j : j + 1], np.float64)
+        return self._global(g, effect, index)
+
     def key(self, effect: Effect, index: int = 0) -> str:
         """Return the global name of the effect's ``index``-th fit parameter."""
         return f"{effect.name}.{self.parameter_names(effect)[index]}"
+
+    @staticmethod
+    def _lowpass(
+        data: FitInputs, effect: Effect, log_tau: float
+    ) -> tuple[FloatArray, FloatArray]:
+        """Return the effect's filtered drive signal at the samples and its d / d(log tau)."""
+        if data.drive is None:
+            raise ValueError(f"{effect.name} needs the command history in the inputs")
+        # a time constant beyond e^+-30 s is no physical one (and would overflow)
+        return data.drive.lowpass(effect, float(np.exp(np.clip(log_tau, -30.0, 30.0))))
 
     def evaluate(
         self, local: FloatArray, g: FloatArray, data: FitInputs, jacobian: bool = True
@@ -144,16 +197,27 @@ class CompositeModel:
         With ``jacobian=False`` only the prediction is computed (the Jacobians are empty).
 
         Raises:
-            ValueError: a play effect is on but the inputs carry no play operator.
+            ValueError: a play effect is on but the inputs carry no play operator, or a
+                heating or relaxation effect is on but they carry no command history.
 
         """
         names = self.global_names
         jac_g: dict[str, FloatArray] = {}
         T = data.temperature
-        tau = self._global(g, self.lead) if self.lead else 0.0
-        Ta = T + tau * data.temperature_rate if tau else T
+        Ta = T + self._value(local, g, self.lead) * data.temperature_rate if self.lead else T
+        # d T_a / d parameter of the effects that move T_a, for their Jacobian columns
+        dTa: dict[str, FloatArray] = {}
+        if self.lead:
+            dTa[self.key(self.lead)] = data.temperature_rate
+        if self.heating:
+            gain_h = self._value(local, g, self.heating, 0)
+            excess, d_excess = self._lowpass(data, self.heating, self._global(g, self.heating, 1))
+            Ta = Ta + gain_h * excess
+            dTa[self.key(self.heating, 0)] = excess
+            dTa[self.key(self.heating, 1)] = gain_h * d_excess
 
         V = data.voltage
+        dV: dict[str, FloatArray] = {}  # d V_eff / d parameter
         dV_dTa: FloatArray | None = None
         if self.play:
             if data.play is None:
@@ -165,9 +229,19 @@ class CompositeModel:
             gaps = data.play - V  # (K, A, n)
             mix = sum(self._global(g, self.play, i) * gaps[i] for i in range(self.operators))
             V = V + a_T * mix
-            dV_dweights = [a_T * gaps[i] for i in range(self.operators)]
-            dV_dweights.append(-dT * a_T * mix)
+            for i in range(self.operators):
+                dV[self.key(self.play, i)] = a_T * gaps[i]
+            dV[self.key(self.play, self.operators)] = -dT * a_T * mix
             dV_dTa = -beta * a_T * mix
+        if self.relaxation:
+            r = self._global(g, self.relaxation, 0)
+            log_fc = self._global(g, self.relaxation, 1)
+            # tau = 1 / (2 pi f_c): d / d(log f_c) = -d / d(log tau)
+            state, d_state = self._lowpass(data, self.relaxation, -log_fc - np.log(2.0 * np.pi))
+            high = data.voltage - state
+            V = V - r * high
+            dV[self.key(self.relaxation, 0)] = -high
+            dV[self.key(self.relaxation, 1)] = -r * d_state
 
         Ts = Ta - self.Tm
         m2, m1, k2, k1 = (local[:, i : i + 1] for i in range(4))
@@ -189,15 +263,15 @@ class CompositeModel:
             columns = [dH_dM, dH_dM * Ts, dH_dk, dH_dk * Ts]
             if curved:
                 columns += [dH_dM * Ts * Ts, dH_dk * Ts * Ts]
-            if self.lead:
+            if dTa:
                 dH_dT = dH_dM * (m1 + 2.0 * m3 * Ts) + dH_dk * (k1 + 2.0 * k3 * Ts)
                 if dV_dTa is not None:
                     dH_dT = dH_dT + dH_dV * dV_dTa
 
         scale: FloatArray | float = 1.0  # d(prediction)/dH
-        if self.play and jacobian:
-            for i, dV in enumerate(dV_dweights):
-                jac_g[self.key(self.play, i)] = dH_dV * dV
+        if jacobian:
+            for key, column in dV.items():
+                jac_g[key] = dH_dV * column
         F = H
         if self.gain:
             frac = self._global(g, self.gain, 0)
@@ -215,24 +289,29 @@ class CompositeModel:
                 jac_g[self.key(self.gain, 0)] = -(1.0 - e) * H
                 jac_g[self.key(self.gain, 1)] = frac * e * nu * s * H
                 jac_g[self.key(self.gain, 2)] = -frac * e * s * log_ratio * nu * H
-                if self.play:
-                    for i in range(len(self.parameter_names(self.play))):
-                        key = self.key(self.play, i)
-                        jac_g[key] = jac_g[key] * gain
+                for key in dV:
+                    jac_g[key] = jac_g[key] * gain
             scale = gain
-        # d F / d T_a, for the sensor lag (before the coupling spreads it to the neighbours)
-        if self.lead and jacobian:
-            jac_g[self.key(self.lead)] = scale * dH_dT * data.temperature_rate
+        # d F / d T_a, for the sensor lag and the heating (before the coupling spreads them)
+        if jacobian:
+            for key, column in dTa.items():
+                jac_g[key] = scale * dH_dT * column
         Z = F
         if self.spatial:
             c = self._global(g, self.spatial)
             lap_F = neighbour_laplacian(F, data.grid)
             Z = F + c * lap_F
-            # shared parameters move every actuator: (I + c lap) of their columns is exact
+            own = 1.0 - c * neighbour_count(data.grid)
+            # shared parameters move every actuator: (I + c lap) of their columns is exact;
+            # per-actuator ones keep their own actuator's term (as the law's coefficients)
             for key, column in jac_g.items():
-                jac_g[key] = column + c * neighbour_laplacian(column, data.grid)
+                jac_g[key] = (
+                    column * own
+                    if key in self.per_actuator
+                    else column + c * neighbour_laplacian(column, data.grid)
+                )
             jac_g[self.key(self.spatial)] = lap_F
-            scale = scale * (1.0 - c * neighbour_count(data.grid))
+            scale = scale * own
         Ta_rel = Ta - data.mean_temperature
         for effect in self.additive:
             values = {p: self._global(g, effect, i) for i, p in enumerate(effect.fit_names())}
@@ -240,15 +319,17 @@ class CompositeModel:
             Z = Z + term.value
             for i, column in enumerate(term.columns):
                 jac_g[self.key(effect, i)] = column
-            if self.lead and jacobian:
-                lead_key = self.key(self.lead)
-                jac_g[lead_key] = jac_g[lead_key] + term.d_temperature * data.temperature_rate
+            if jacobian:
+                for key, column in dTa.items():
+                    jac_g[key] = jac_g[key] + term.d_temperature * column
         A, n = Z.shape
         if not jacobian:
             return Evaluation(np.asarray(Z, np.float64), np.zeros((A, n, 0)), np.zeros((A, n, 0)))
-        jac_l = np.empty((A, n, len(columns)))
+        jac_l = np.empty((A, n, len(columns) + len(self.per_actuator)))
         for i, col in enumerate(columns):
             np.multiply(col, scale, out=jac_l[..., i])
+        for i, key in enumerate(self.per_actuator, len(columns)):
+            jac_l[..., i] = jac_g[key]
         jac_glob = np.empty((A, n, len(names)))
         for i, name in enumerate(names):
             jac_glob[..., i] = jac_g[name]

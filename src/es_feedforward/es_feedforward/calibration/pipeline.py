@@ -15,6 +15,7 @@ import numpy as np
 
 from es_feedforward.calibration import unexplained
 from es_feedforward.calibration.align import AlignedData, MeasuredData, align
+from es_feedforward.calibration.local import per_actuator_round
 from es_feedforward.calibration.model import CANDIDATES, FloatArray
 from es_feedforward.calibration.residual import ResidualStructure, analyse
 from es_feedforward.calibration.search import (
@@ -43,8 +44,10 @@ class AcceptedEffect:
     """An effect the search added, with its full-grid held-out RMS before and after.
 
     ``parameters`` and ``uncertainties`` are those of the final model (all accepted effects
-    fitted together). ``share`` is its part of the mean-square error that all accepted
-    effects removed, (before^2 - after^2) / (base^2 - final^2): the shares sum to 1.
+    fitted together); a parameter fitted per actuator is given there as the grid's median,
+    and in ``per_actuator`` / ``per_actuator_uncertainties`` as row-major lists of R*C
+    values. ``share`` is its part of the mean-square error that all accepted effects
+    removed, (before^2 - after^2) / (base^2 - final^2): the shares sum to 1.
     """
 
     name: str
@@ -53,6 +56,8 @@ class AcceptedEffect:
     rms_before_m: float
     rms_after_m: float
     share: float = 0.0
+    per_actuator: dict[str, list[float]] = field(default_factory=dict)
+    per_actuator_uncertainties: dict[str, list[float]] = field(default_factory=dict)
 
 
 @dataclass
@@ -156,6 +161,13 @@ def calibrate(measured: MeasuredData, candidates: tuple[str, ...] = CANDIDATES) 
 
     clock = time.perf_counter()
     final_screen, added, rounds = search_effects(screen, base_screen, candidates)
+    record, refined = per_actuator_round(screen, final_screen)
+    if record is not None:
+        rounds.append(record)
+    if refined is not final_screen:
+        name, before_state, _ = added[-1]
+        added[-1] = (name, before_state, refined)
+        final_screen = refined
     timings["effect search"] = time.perf_counter() - clock
 
     clock = time.perf_counter()
@@ -182,6 +194,7 @@ def calibrate(measured: MeasuredData, candidates: tuple[str, ...] = CANDIDATES) 
         effect = get(name)
         # parameters from the final model: every effect refitted with all the others
         fitted = fitted_effect(final, effect, aligned)
+        local = [p for p in effect.local_options if p in fitted.local]
         effects.append(
             AcceptedEffect(
                 name,
@@ -189,6 +202,8 @@ def calibrate(measured: MeasuredData, candidates: tuple[str, ...] = CANDIDATES) 
                 effect.uncertainties(fitted),
                 prev.heldout_rms,
                 state.heldout_rms,
+                per_actuator={p: fitted.local[p].tolist() for p in local},
+                per_actuator_uncertainties={p: fitted.local_sigma[p].tolist() for p in local},
             )
         )
     removed = base_full.heldout_rms**2 - final.heldout_rms**2

@@ -162,6 +162,8 @@ def _law_table(cal: Calibration) -> list[str]:
         "|---|---|---|---|---|---|",
     ]
     for i, name in enumerate(cal.final.model.local_names):
+        if name in cal.final.model.per_actuator:
+            continue  # an effect's parameter (section e), not the law's
         v = local[:, i]
         interval = THESIS_INTERVALS_95.get(name)
         thesis = f"{interval[0]:.4g} .. {interval[1]:.4g}" if interval else "-"
@@ -209,7 +211,7 @@ def write_report(cal: Calibration, out: Path, notes: list[str]) -> Path:
         *_gap_lines(a),
         "",
         "## b. Law fit (hyperbolic, M and k "
-        + ("quadratic" if len(cal.final.model.local_names) == 6 else "linear")
+        + ("quadratic" if cal.final.model.law is not None else "linear")
         + " in T* = T - Tm, L and Tm fixed)",
         "",
         *_law_table(cal),
@@ -276,6 +278,12 @@ def write_report(cal: Calibration, out: Path, notes: list[str]) -> Path:
             params = ", ".join(
                 f"{k} = {_fmt(v)}"
                 + (f" +- {_fmt(e.uncertainties[k])}" if k in e.uncertainties else "")
+                + (
+                    f" (grid median; per actuator {_fmt(min(e.per_actuator[k]))} .. "
+                    f"{_fmt(max(e.per_actuator[k]))})"
+                    if k in e.per_actuator
+                    else ""
+                )
                 for k, v in e.parameters.items()
             )
             text.append(

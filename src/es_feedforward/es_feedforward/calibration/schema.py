@@ -16,11 +16,16 @@ residual's autocorrelation)::
               "uncertainty": {same names: lists of R*C 1-sigma values}},
       "effects": [{"name": canonical name, "parameters": {...}, "uncertainties": {...},
                    "rms_before_m", "rms_after_m",
-                   "share": part of the mean-square error all effects removed (sum 1)}],
+                   "share": part of the mean-square error all effects removed (sum 1),
+                   "per_actuator": {parameter: row-major list of R*C values} for those
+                   fitted per actuator (their "parameters" entry is the grid's median),
+                   "per_actuator_uncertainties": {same names: 1-sigma lists}}],
       "candidates": [[{"name", "step", "rms_before_m", "rms_after_m", "delta_bic",
                        "accepted", "reason", "parameters"}], ...],  # every round
       # step "forward": adding the candidate; "backward": removing an accepted effect
-      # (rms_before_m without it, rms_after_m with it, accepted = it stays)
+      # (rms_before_m without it, rms_after_m with it, accepted = it stays);
+      # "per_actuator": an accepted effect's parameter as one value per actuator
+      # (rms_before_m with one grid value, rms_after_m with one per actuator)
       "heldout_rms_before_m", "heldout_rms_after_m",         # whole grid, held-out rows
       "heldout_max_before_m", "heldout_max_after_m",         # analysed actuators, full rate
       "noise_floor_m": white measurement noise estimated from the final residual,
@@ -57,8 +62,12 @@ def fitted_params(cal: Calibration) -> ActuatorParams:
     local = cal.final.fit.local
     shape = cal.aligned.grid
     base = ActuatorParams()
-    names = cal.final.model.local_names
-    values = {n: local[:, i].reshape(shape) for i, n in enumerate(names)}
+    model = cal.final.model
+    values = {
+        n: local[:, i].reshape(shape)
+        for i, n in enumerate(model.local_names)
+        if n not in model.per_actuator  # effects' parameters, not the law's
+    }
     return replace(base.as_arrays(shape), **values)
 
 
@@ -66,7 +75,12 @@ def law_uncertainty(cal: Calibration) -> dict[str, list[float]]:
     """Return 1-sigma uncertainties of the fitted law coefficients (row-major lists)."""
     cov = cal.final.fit.cov_local
     sig = np.sqrt(np.maximum(np.einsum("app->ap", cov), 0.0))
-    return {n: sig[:, i].tolist() for i, n in enumerate(cal.final.model.local_names)}
+    model = cal.final.model
+    return {
+        n: sig[:, i].tolist()
+        for i, n in enumerate(model.local_names)
+        if n not in model.per_actuator
+    }
 
 
 def compensation(cal: Calibration) -> tuple[CompensationParams, list[str]]:
@@ -139,6 +153,8 @@ def calibration_document(cal: Calibration) -> dict[str, Any]:
                 "rms_before_m": e.rms_before_m,
                 "rms_after_m": e.rms_after_m,
                 "share": e.share,
+                "per_actuator": e.per_actuator,
+                "per_actuator_uncertainties": e.per_actuator_uncertainties,
             }
             for e in cal.effects
         ],

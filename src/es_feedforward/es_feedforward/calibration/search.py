@@ -16,7 +16,9 @@ import numpy as np
 
 from es_feedforward.calibration.align import AlignedData, IndexArray, select_rows
 from es_feedforward.calibration.fit import FitResult, levenberg_marquardt
+from es_feedforward.calibration.history import DriveHistory, DriveSamples
 from es_feedforward.calibration.model import (
+    LINEAR_LAW,
     BoolArray,
     CompositeModel,
     FitInputs,
@@ -72,6 +74,7 @@ class Workspace:
         self.score_rows = select_rows(~aligned.train, n_score)
         self._play: dict[tuple[float, float], FloatArray] = {}
         self._static_cache: dict[tuple[int, int], dict[str, FloatArray]] = {}
+        self.history = DriveHistory(aligned.command[:, actuators], aligned.command_period)
 
     def _command_rows(self, delay_s: float) -> tuple[IndexArray, IndexArray]:
         a = self.aligned
@@ -140,8 +143,10 @@ class Workspace:
             shifts.append((whole_s + a.command_period, frac))
         voltage: FloatArray = np.zeros(static["displacement"].shape)
         valid: BoolArray = np.array(static["finite"], dtype=bool)
+        taps = []
         for shift, weight in shifts:
             ci = a.command_index(rows, shift)
+            taps.append((np.maximum(ci, 0), weight))
             u = a.command[np.ix_(np.maximum(ci, 0), self.actuators)].T
             valid &= np.isfinite(u) & (ci >= 0)[None, :]
             if not a.command_finite_all:
@@ -157,6 +162,7 @@ class Workspace:
             valid=valid,
             grid=self.grid,
             mean_temperature=a.mean_temperature,
+            drive=DriveSamples(self.history, tuple(taps)),
         )
 
     def input_pair(
@@ -245,11 +251,29 @@ def heldout_residual(state: ModelState, heldout: FitInputs) -> FloatArray:
 
 
 def extend_local(state: ModelState, model: CompositeModel) -> FloatArray:
-    """Return ``model``'s local start: ``state``'s law, with zero curvature terms if new."""
-    local = state.fit.local
-    if len(model.local_names) > local.shape[1]:
-        local = np.concatenate([local, np.zeros((local.shape[0], 2))], axis=1)
-    return local
+    """Return ``model``'s local start from ``state`` (see :func:`local_start`)."""
+    return local_start(state.model.local_names, state.fit.local, model, state)
+
+
+def local_start(
+    names: Sequence[str], local: FloatArray, model: CompositeModel, values: ModelState
+) -> FloatArray:
+    """Return ``model``'s local start (A, P) from ``local`` (A, len(names)).
+
+    A per-actuator unknown missing from ``names`` starts at ``values``' grid value of it (its
+    shared value, or the median of its per-actuator ones); any other (e.g. the curvature
+    terms) at 0.
+    """
+    have = dict(zip(names, local.T, strict=True))
+    grid: dict[str, float] = dict(zip(values.model.global_names, values.fit.glob, strict=True))
+    for j, name in enumerate(values.model.local_names):
+        grid.setdefault(name, float(np.median(values.fit.local[:, j])))
+    A = local.shape[0]
+    columns = [
+        have[n] if n in have else np.full(A, grid.get(n, 0.0) if n in model.per_actuator else 0.0)
+        for n in model.local_names
+    ]
+    return np.stack(columns, axis=1)
 
 
 def extend_global(state: ModelState, model: CompositeModel, new: dict[str, float]) -> FloatArray:
@@ -264,8 +288,18 @@ def fitted_effect(state: ModelState, effect: Effect, aligned: AlignedData) -> Fi
     sig_g = np.sqrt(np.maximum(np.diag(state.fit.cov_global), 0.0))
     values: dict[str, float] = {}
     sigma: dict[str, float] = {}
+    local: dict[str, FloatArray] = {}
+    local_sigma: dict[str, FloatArray] = {}
     for i, p in enumerate(model.parameter_names(effect)):
-        j = model.global_names.index(model.key(effect, i))
+        key = model.key(effect, i)
+        if key in model.per_actuator:
+            # one value per actuator: the grid's median stands for them in the report
+            j = model.local_names.index(key)
+            local[p] = state.fit.local[:, j]
+            local_sigma[p] = np.sqrt(np.maximum(state.fit.cov_local[:, j, j], 0.0))
+            values[p], sigma[p] = float(np.median(local[p])), float(np.median(local_sigma[p]))
+            continue
+        j = model.global_names.index(key)
         values[p], sigma[p] = float(state.fit.glob[j]), float(sig_g[j])
     # with equal command and displacement stamps and the command not yet in effect at its own
     # stamp, a shift of d is a delay of d + one command period from the command's stamp
@@ -275,8 +309,6 @@ def fitted_effect(state: ModelState, effect: Effect, aligned: AlignedData) -> Fi
     scanned = {Role.INPUT_SHIFT: (state.delay_s + offset,), Role.PLAY: state.thresholds}
     for p, value in zip(effect.searched_names(order), scanned.get(effect.role, ()), strict=True):
         values[p] = value
-    local: dict[str, FloatArray] = {}
-    local_sigma: dict[str, FloatArray] = {}
     for p in effect.local_parameters:
         j = model.local_names.index(p)
         local[p] = state.fit.local[:, j]
@@ -332,9 +364,10 @@ def refit_full(
     idx = np.arange(aligned.n_actuators, dtype=np.intp)
     ws = Workspace(aligned, idx, aligned.grid)
     train, held = ws.input_pair(screened.delay_s, screened.play_thresholds)
-    local0 = initial_law(train) if start is None else start.fit.local
-    if len(screened.model.local_names) > local0.shape[1]:
-        local0 = np.concatenate([local0, np.zeros((local0.shape[0], 2))], axis=1)
+    if start is None:
+        local0 = local_start(LINEAR_LAW, initial_law(train), screened.model, screened)
+    else:
+        local0 = local_start(start.model.local_names, start.fit.local, screened.model, screened)
     return (
         fit_state(
             screened.model,

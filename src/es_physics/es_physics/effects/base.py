@@ -45,17 +45,26 @@ class UnknownEffectError(EffectError):
 class Role(enum.Enum):
     """The stage of the calibration's composite model an effect acts in.
 
-    In model order: the actuator temperature T_a from the sensor's (``TEMPERATURE``), the
-    voltage in effect (``INPUT_SHIFT``: the command shifted in time; ``PLAY``: a play
-    operator blended with the drive), the law's own coefficients (``LAW``), a gain on the
-    law's displacement (``GAIN``), the face sheet spreading it (``SPATIAL``), and terms added
-    to the displacement (``ADDITIVE``, any number of effects). ``PLANT_ONLY`` effects exist in
-    the simulator and are no calibration candidate.
+    In model order: the actuator temperature T_a from the sensor's (``TEMPERATURE``) and its
+    excess from the drive's own loss (``HEATING``: a coefficient times a first-order low-pass
+    of :meth:`Effect.drive_signal`), the voltage in effect (``INPUT_SHIFT``: the command
+    shifted in time; ``PLAY``: a play operator blended with the drive; ``RELAXATION``: a
+    fraction of the drive's high-pass part, the drive minus a first-order low-pass of
+    :meth:`Effect.drive_signal`, taken away), the law's own coefficients (``LAW``), a gain on
+    the law's displacement (``GAIN``), the face sheet spreading it (``SPATIAL``), and terms
+    added to the displacement (``ADDITIVE``, any number of effects). ``PLANT_ONLY`` effects
+    exist in the simulator and are no calibration candidate.
+
+    ``HEATING`` and ``RELAXATION`` effects have two shared unknowns, in this order: the
+    coefficient and the log of the filter's time constant (``HEATING``: log tau [log s];
+    ``RELAXATION``: log of the corner frequency f_c [log Hz], tau = 1 / (2 pi f_c)).
     """
 
     TEMPERATURE = "temperature"
+    HEATING = "heating"
     INPUT_SHIFT = "input_shift"
     PLAY = "play"
+    RELAXATION = "relaxation"
     LAW = "law"
     GAIN = "gain"
     SPATIAL = "spatial"
@@ -173,6 +182,9 @@ class Effect(ABC):
     fit_parameters: ClassVar[tuple[str, ...]] = ()
     #: Per-actuator unknowns the effect adds to the law's coefficients.
     local_parameters: ClassVar[tuple[str, ...]] = ()
+    #: Shared unknowns the calibration may fit one per actuator instead, when held-out
+    #: scoring says the extra unknowns pay off (roles ``TEMPERATURE`` and ``HEATING``).
+    local_options: ClassVar[tuple[str, ...]] = ()
     #: Unknowns the calibration finds by a scan (one value for the grid).
     searched: ClassVar[tuple[str, ...]] = ()
     #: The feedforward's ``compensation.<name>`` parameters the effect owns.
@@ -229,6 +241,22 @@ class Effect(ABC):
         ``start_time`` is the ROS time of the data's first sample [s].
         """
         return {}
+
+    def drive_signal(self, command: FloatArray, period: float) -> FloatArray:
+        """Return the series a ``HEATING`` or ``RELAXATION`` effect's low-pass filters.
+
+        Args:
+            command: the command, time-major (N, A) [V], uniformly sampled.
+            period: its sample period [s].
+
+        Returns:
+            (N, A), in the unit the effect's coefficient multiplies.
+
+        Raises:
+            EffectError: the effect filters no drive signal.
+
+        """
+        raise EffectError(f"effect {self.name} filters no drive signal")
 
     def additive(self, g: Mapping[str, float], t: FloatArray, Ta: FloatArray) -> Additive:
         """Return the displacement term of an ``ADDITIVE`` effect and its derivatives.

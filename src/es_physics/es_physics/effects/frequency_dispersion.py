@@ -15,14 +15,20 @@ V = (V_eff - r D s) / (1 - r D) (:func:`relaxation_inverse`).
 Plant: the filter acts on the drive after any hysteresis, at the plant's internal rate.
 Feedforward: its inverse on the voltage the law needs at the end of the coming command
 interval (taken as long as the last one), where the displacement is observed
-(``compensation.dispersion_fraction``, ``compensation.dispersion_corner_hz``). No
-calibration model yet.
+(``compensation.dispersion_fraction``, ``compensation.dispersion_corner_hz``).
+
+Calibration (role ``RELAXATION``): V_eff = V - r (V - LP_(f_c)(V)) on the command in effect,
+the low-pass for a command varying linearly between its samples; unknowns r and log f_c,
+reported as ``fraction`` and ``corner_hz`` [Hz]. With a hysteresis in the same model the
+two act side by side on the command (their product, of order r times the weights, is left
+out).
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
-from typing import ClassVar
+from typing import ClassVar, Final
 
 import numpy as np
 
@@ -31,6 +37,12 @@ from es_physics.effects.stages import Compensator, PlantContext, PlantStage, Ste
 
 #: Highest relaxation fraction the compensation accepts (its inverse gains 1 / (1 - r)).
 MAX_FRACTION = 0.9
+#: Starting fraction of the calibration's fit (so the corner has a gradient).
+START_FRACTION: Final = 0.05
+#: Corner frequencies the calibration starts from [Hz].
+START_CORNERS_HZ: Final = (3.0, 15.0)
+#: Corner frequencies the calibration accepts [Hz].
+CORNER_RANGE_HZ: Final = (1e-3, 1e5)
 
 
 def relaxation_decay(corner_hz: float, dt: float) -> float:
@@ -180,8 +192,9 @@ class FrequencyDispersion(Effect):
 
     name: ClassVar[str] = "frequency_dispersion"
     summary: ClassVar[str] = "permittivity relaxes: the gain falls by r above a corner f_c"
-    role: ClassVar[Role] = Role.PLANT_ONLY
+    role: ClassVar[Role] = Role.RELAXATION
     simulated: ClassVar[bool] = True
+    fit_parameters: ClassVar[tuple[str, ...]] = ("fraction", "log_corner_hz")
     plant: ClassVar[tuple[Parameter, ...]] = (
         Parameter("fraction", "", 0.0, 1.0, 0.1, "relaxing fraction r of the gain", high_open=True),
         Parameter("corner_hz", "Hz", 0.0, 1e6, 20.0, "relaxation corner f_c", low_open=True),
@@ -193,9 +206,39 @@ class FrequencyDispersion(Effect):
         Parameter("dispersion_corner_hz", "Hz", 1e-6, 1e6, 20.0, "relaxation corner f_c"),
     )
 
+    def starts(self, duration_s: float) -> list[dict[str, float]]:
+        """Start from a small fraction at a low and a high corner."""
+        return [
+            {"fraction": START_FRACTION, "log_corner_hz": math.log(f)} for f in START_CORNERS_HZ
+        ]
+
+    def drive_signal(self, command: FloatArray, period: float) -> FloatArray:
+        """Return the command itself (N, A) [V]: its low-pass is the relaxing part's state."""
+        return np.asarray(command, np.float64)
+
     def reported(self, fit: FittedEffect) -> dict[str, float]:
-        """Return the values as given (the effect has no calibration model yet)."""
-        return {k: float(v) for k, v in fit.values.items()}
+        """Return ``fraction`` and ``corner_hz`` [Hz]."""
+        return {
+            "fraction": float(fit.values["fraction"]),
+            "corner_hz": float(np.exp(fit.values["log_corner_hz"])),
+        }
+
+    def uncertainties(self, fit: FittedEffect) -> dict[str, float]:
+        """Propagate the log-parameter's uncertainty to ``corner_hz``."""
+        return {
+            "fraction": float(fit.sigma["fraction"]),
+            "corner_hz": float(np.exp(fit.values["log_corner_hz"]))
+            * float(fit.sigma["log_corner_hz"]),
+        }
+
+    def problem(self, reported: dict[str, float]) -> str | None:
+        """Reject a fraction outside (0, MAX_FRACTION) or a corner outside CORNER_RANGE_HZ."""
+        if not 0.0 < reported["fraction"] < MAX_FRACTION:
+            return f"fraction {reported['fraction']:.3g} outside (0, {MAX_FRACTION:g})"
+        low, high = CORNER_RANGE_HZ
+        if not low <= reported["corner_hz"] <= high:
+            return f"corner_hz {reported['corner_hz']:.3g} outside [{low:g}, {high:g}]"
+        return None
 
     def compensation_values(
         self, reported: dict[str, float], start_time: float

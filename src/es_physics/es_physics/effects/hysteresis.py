@@ -6,8 +6,11 @@ plant takes T_0 = Tm + HYSTERESIS_ONSET (each a_i clipped to [0, 1]); the calibr
 T_0 = the data's mean temperature. Names: operator 1 is ``weight``/``threshold_v``,
 operator i > 1 ``weight_i``/``threshold_v_i`` (plant parameters, calibration results and
 ``compensation.hysteresis_weight[_i]``/``hysteresis_threshold_v[_i]``). The calibration
-chooses N <= MAX_OPERATORS by the information criterion. Feedforward: the operator's exact
-inverse, per actuator with its play states (:func:`pi_inverse`).
+chooses N <= MAX_OPERATORS by the information criterion and fits beta of
+a_i = weight_i exp(-beta (T_a - T_mean)). Feedforward: the operator's exact inverse, per
+actuator with its play states (:func:`pi_inverse`), the weights taken at each actuator's
+temperature with the fitted beta (``compensation.hysteresis_decay_per_degc``,
+``hysteresis_reference_temperature`` = T_mean).
 """
 
 from __future__ import annotations
@@ -61,15 +64,16 @@ def pi_inverse(
     Args:
         target: wanted V_eff, shape S [V].
         states: play outputs before this step, (K, *S) [V].
-        weights: a_i, (K,), non-negative, sum < 1.
+        weights: a_i, (K,) or per element (K, *S), non-negative, summing to < 1.
         thresholds: r_i, (K,) [V], non-negative.
 
     """
     K = states.shape[0]
     shape = (K,) + (1,) * np.ndim(target)
-    a = np.asarray(weights, np.float64).reshape(shape)
+    a = np.asarray(weights, np.float64)
+    a = a.reshape(shape) if a.ndim == 1 else a
     r = np.asarray(thresholds, np.float64).reshape(shape)
-    a0 = 1.0 - float(np.sum(weights))
+    a0 = 1.0 - np.sum(a, axis=0)
 
     def output(V: FloatArray) -> FloatArray:
         return np.asarray(a0 * V + np.sum(a * np.clip(states, V - r, V + r), axis=0), np.float64)
@@ -117,13 +121,20 @@ class HysteresisStage(PlantStage):
         return np.asarray((1.0 - total) * voltage + mix, np.float64)
 
 
+#: Largest sum of hysteresis weights the inverse uses (its slope 1 - sum stays >= 0.1).
+MAX_WEIGHT_SUM: Final = 0.9
+
+
 class HysteresisInverse(Compensator):
     """Exact inverse of V_eff = (1 - sum a_i) V + sum a_i play_(r_i)(V) on a grid.
 
     One play state per operator and actuator, (K, *shape); the inverse is :func:`pi_inverse`
     (with one operator: if the play stays, V = (V_eff - a p) / (1 - a); pushed up,
     V = V_eff + a r; pushed down, V = V_eff - a r). The states are updated with the voltage
-    actually applied.
+    actually applied. Given the actuators' temperatures T [degC], the weights are
+    a_i = weight_i exp(-beta (T - T_ref)) per actuator (scaled down where they would sum to
+    more than ``MAX_WEIGHT_SUM``); without, as given. In the feedforward's chain T is the
+    temperature the law is evaluated at for the command (:meth:`law_temperature`).
     """
 
     reshapes_drive = True
@@ -133,13 +144,31 @@ class HysteresisInverse(Compensator):
         weights: float | Sequence[float],
         thresholds: float | Sequence[float],
         shape: tuple[int, ...],
+        decay_per_degc: float = 0.0,
+        reference_temperature: float = 46.0,
     ) -> None:
         w = np.atleast_1d(np.asarray(weights, np.float64))
         r = np.atleast_1d(np.asarray(thresholds, np.float64))
         use = w > 0.0
         self.weights, self.thresholds = w[use], r[use]
         self.shape = shape
+        self.decay_per_degc = decay_per_degc
+        self.reference_temperature = reference_temperature
         self.play = np.zeros((self.weights.size, *shape))
+        self._T: FloatArray | None = None
+
+    def weights_at(self, T: FloatArray | None) -> FloatArray:
+        """Return the weights (K,) as given, or (K, *T.shape) at temperatures ``T`` [degC]."""
+        if T is None or self.decay_per_degc == 0.0:
+            return self.weights
+        above = np.asarray(T, np.float64) - self.reference_temperature
+        factor = np.exp(-self.decay_per_degc * above)
+        a = self.weights.reshape((-1,) + (1,) * factor.ndim) * factor
+        total = a.sum(axis=0)
+        return np.asarray(
+            a * np.where(total > MAX_WEIGHT_SUM, MAX_WEIGHT_SUM / np.maximum(total, 1e-300), 1.0),
+            np.float64,
+        )
 
     @property
     def active(self) -> bool:
@@ -147,14 +176,20 @@ class HysteresisInverse(Compensator):
         return self.weights.size > 0
 
     def retuned(
-        self, weights: float | Sequence[float], thresholds: float | Sequence[float]
+        self,
+        weights: float | Sequence[float],
+        thresholds: float | Sequence[float],
+        decay_per_degc: float = 0.0,
+        reference_temperature: float = 46.0,
     ) -> HysteresisInverse:
         """Return a copy with new parameters and this one's play states (this one unchanged).
 
         Operators carry their state by position; a new operator starts from the first one's
         state (or 0).
         """
-        other = HysteresisInverse(weights, thresholds, self.shape)
+        other = HysteresisInverse(
+            weights, thresholds, self.shape, decay_per_degc, reference_temperature
+        )
         for k in range(other.weights.size):
             if k < self.weights.size:
                 other.play[k] = self.play[k]
@@ -166,11 +201,11 @@ class HysteresisInverse(Compensator):
         """Set every play state to ``voltage`` [V] (bumpless start)."""
         self.play = np.broadcast_to(voltage, self.play.shape).copy()
 
-    def invert(self, v_eff: FloatArray) -> FloatArray:
-        """Return the voltage [V] that makes the operator output ``v_eff``."""
+    def invert(self, v_eff: FloatArray, T: FloatArray | None = None) -> FloatArray:
+        """Return the voltage [V] that makes the operator output ``v_eff`` (at temperatures T)."""
         if not self.active:
             return v_eff
-        return pi_inverse(v_eff, self.play, self.weights, self.thresholds)
+        return pi_inverse(v_eff, self.play, self.weights_at(T), self.thresholds)
 
     def apply(self, voltage: FloatArray) -> None:
         """Advance the play states with the voltage [V] that was actually sent."""
@@ -178,21 +213,28 @@ class HysteresisInverse(Compensator):
             r = self.thresholds.reshape((-1,) + (1,) * voltage.ndim)
             self.play = np.clip(self.play, voltage - r, voltage + r)
 
-    def output(self, voltage: FloatArray) -> FloatArray:
+    def output(self, voltage: FloatArray, T: FloatArray | None = None) -> FloatArray:
         """Return the operator's output for ``voltage`` once :meth:`apply` has taken it [V]."""
         if not self.active:
             return voltage
-        w = self.weights.reshape((-1,) + (1,) * voltage.ndim)
-        return np.asarray((1.0 - self.weights.sum()) * voltage + (w * self.play).sum(0), np.float64)
+        w = self.weights_at(T)
+        if w.ndim == 1:
+            w = w.reshape((-1,) + (1,) * voltage.ndim)
+        return np.asarray((1.0 - w.sum(axis=0)) * voltage + (w * self.play).sum(0), np.float64)
+
+    def law_temperature(self, T: FloatArray, t: float) -> FloatArray:
+        """Keep the temperatures [degC] the weights are taken at for this command."""
+        self._T = T
+        return T
 
     def invert_drive(self, voltage: FloatArray, t: float) -> FloatArray:
         """Return the drive through the operator's inverse (see :meth:`invert`)."""
-        return self.invert(voltage)
+        return self.invert(voltage, self._T)
 
     def commit(self, sent: FloatArray, drive: FloatArray, t: float) -> FloatArray:
         """Advance the play states with ``drive`` and return the operator's output."""
         self.apply(drive)
-        return self.output(drive)
+        return self.output(drive, self._T)
 
 
 def compensated_operators(
@@ -246,8 +288,24 @@ class Hysteresis(Effect):
     fit_parameters: ClassVar[tuple[str, ...]] = ("weight", "decay_per_degc")
     searched: ClassVar[tuple[str, ...]] = ("threshold_v",)
     max_order: ClassVar[int] = MAX_OPERATORS
-    compensation: ClassVar[tuple[Parameter, ...]] = _operator_parameters(
-        "hysteresis_", 0.9, 1000.0
+    compensation: ClassVar[tuple[Parameter, ...]] = (
+        *_operator_parameters("hysteresis_", 0.9, 1000.0),
+        Parameter(
+            "hysteresis_decay_per_degc",
+            "1/degC",
+            -MAX_DECAY_PER_DEGC,
+            MAX_DECAY_PER_DEGC,
+            0.0,
+            "beta of the weights' law exp(-beta (T - T_ref)) (0 = no temperature law)",
+        ),
+        Parameter(
+            "hysteresis_reference_temperature",
+            "degC",
+            -50.0,
+            150.0,
+            46.0,
+            "T_ref, where the weights hold as given",
+        ),
     )
 
     def fit_names(self, order: int = 1) -> tuple[str, ...]:
@@ -267,8 +325,9 @@ class Hysteresis(Effect):
         return tuple(operator_names(i)[1] for i in range(order))
 
     def reported(self, fit: FittedEffect) -> dict[str, float]:
-        """Return each operator's weight and threshold [V]."""
-        return {k: float(v) for k, v in fit.values.items()}
+        """Return each operator's weight and threshold [V], beta and T_mean [degC]."""
+        values = {k: float(v) for k, v in fit.values.items()}
+        return {**values, "reference_temperature": float(fit.mean_temperature)}
 
     def uncertainties(self, fit: FittedEffect) -> dict[str, float]:
         """Return the weights' uncertainties (the thresholds are scanned)."""
@@ -289,8 +348,8 @@ class Hysteresis(Effect):
     def compensation_values(
         self, reported: dict[str, float], start_time: float
     ) -> dict[str, float]:
-        """Invert the fitted operator (weights at the data's mean temperature)."""
-        return {f"hysteresis_{k}": v for k, v in reported.items() if k != "decay_per_degc"}
+        """Invert the fitted operator, its weights following the fitted temperature law."""
+        return {f"hysteresis_{k}": v for k, v in reported.items()}
 
     def plant_stage(self, settings: Mapping[str, float], context: PlantContext) -> PlantStage:
         """Return the plant's operator (operator 1 always, further ones where weighted)."""
@@ -315,9 +374,10 @@ class Hysteresis(Effect):
         weights, thresholds = compensated_operators(values)
         if not weights:
             return None
+        law = (values["hysteresis_decay_per_degc"], values["hysteresis_reference_temperature"])
         if isinstance(previous, HysteresisInverse):
-            return previous.retuned(weights, thresholds)
-        inverse = HysteresisInverse(weights, thresholds, shape)
+            return previous.retuned(weights, thresholds, *law)
+        inverse = HysteresisInverse(weights, thresholds, shape, *law)
         if last_voltage is not None:
             inverse.start_from(np.array(last_voltage))
         return inverse

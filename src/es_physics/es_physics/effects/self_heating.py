@@ -10,18 +10,46 @@ Feedforward: the actuator's excess temperature over the measured one follows, fr
 drive's own history, d(dT)/dt = (g P_drive - dT) / tau with P_drive = |V - V_mean| |dV/dt| / 2
 [V^2/s] (the plant's measure without p_d, which g absorbs) and the law evaluated at T + dT
 (``compensation.self_heating_gain``, ``compensation.self_heating_tau_s``,
-:class:`HeatingEstimate`). No calibration model yet.
+:class:`HeatingEstimate`).
+
+Calibration (role ``HEATING``): T_a = T_s + g LP_tau(P_drive), P_drive the same measure
+(:func:`loss_measure`, :meth:`SelfHeating.drive_signal`) with the running mean over
+``MEAN_WINDOW_S``; unknowns g and log tau, reported as ``gain`` [degC s/V^2] and ``tau_s``
+[s]. For a sine of amplitude A at f the steady excess is g f A^2 (the mean of P_drive).
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
-from typing import ClassVar
+from typing import ClassVar, Final
 
 import numpy as np
 
 from es_physics.effects.base import Effect, FittedEffect, FloatArray, Parameter, Role
 from es_physics.effects.stages import Compensator, Drive, PlantContext, PlantStage
+
+#: Running-mean window the calibration's drive measure uses (and sets in the compensation) [s].
+MEAN_WINDOW_S: Final = 1.0
+#: Starting thermal gain of the calibration's fit [degC s/V^2] (tens of mdegC at 100 V, 1 Hz).
+START_GAIN: Final = 1e-5
+#: Time constants the calibration starts from [s].
+START_TAUS_S: Final = (0.5, 3.0)
+#: Time constants the calibration accepts [s].
+TAU_RANGE_S: Final = (1e-3, 1e4)
+
+
+def loss_measure(
+    previous: FloatArray, drive: FloatArray, mean: FloatArray, dt: float
+) -> FloatArray:
+    """Return P_drive = |V_k - V_(k-1)| |(V_k + V_(k-1)) / 2 - V_mean| / (2 dt) [V^2/s].
+
+    The loss of the switch from ``previous`` to ``drive`` [V] spread over the interval ``dt``
+    [s] (> 0), ``mean`` the running mean of the drive before the switch [V].
+    """
+    swing = np.abs(drive - previous)
+    level = np.abs(0.5 * (drive + previous) - mean)
+    return np.asarray(0.5 * swing * level / dt, np.float64)
 
 
 class HeatingStage(PlantStage):
@@ -113,9 +141,7 @@ class HeatingEstimate(Compensator):
         if dt <= 0.0:
             return
         excess = np.asarray(self.at(t), np.float64)
-        swing = np.abs(drive - previous)
-        level = np.abs(0.5 * (drive + previous) - mean)
-        power = 0.5 * swing * level / dt
+        power = loss_measure(previous, drive, mean, dt)
         mean = drive + (mean - drive) * float(np.exp(-dt / self.mean_window_s))
         self._state = (excess, power, drive, t, mean)
         self._interval = dt
@@ -136,8 +162,10 @@ class SelfHeating(Effect):
 
     name: ClassVar[str] = "self_heating"
     summary: ClassVar[str] = "dielectric loss heats the actuator with V^2 and drive frequency"
-    role: ClassVar[Role] = Role.PLANT_ONLY
+    role: ClassVar[Role] = Role.HEATING
     simulated: ClassVar[bool] = True
+    fit_parameters: ClassVar[tuple[str, ...]] = ("gain", "log_tau_s")
+    local_options: ClassVar[tuple[str, ...]] = ("gain",)
     plant: ClassVar[tuple[Parameter, ...]] = (
         Parameter("loss_w_per_hz_v2", "W/(Hz V^2)", 0.0, 1e-3, 4.7e-9, "loss coefficient p_d"),
         Parameter("mean_window_s", "s", 0.0, 1e6, 1.0, "running-mean window", low_open=True),
@@ -148,13 +176,65 @@ class SelfHeating(Effect):
         ),
         Parameter("self_heating_tau_s", "s", 1e-6, 1e6, 1.0, "time constant of the excess"),
         Parameter(
-            "self_heating_mean_window_s", "s", 1e-6, 1e6, 1.0, "running mean of the drive"
+            "self_heating_mean_window_s", "s", 1e-6, 1e6, MEAN_WINDOW_S, "running mean of the drive"
         ),
     )
 
+    def starts(self, duration_s: float) -> list[dict[str, float]]:
+        """Start from a typical gain (so tau has a gradient) at a short and a long tau."""
+        return [{"gain": START_GAIN, "log_tau_s": math.log(tau)} for tau in START_TAUS_S]
+
+    def drive_signal(self, command: FloatArray, period: float) -> FloatArray:
+        """Return P_drive (N, A) [V^2/s] of a uniformly sampled command (N, A) [V].
+
+        Row k holds the loss of the switch to command k (row 0: none), the running mean of
+        time constant ``MEAN_WINDOW_S`` started at the first command.
+        """
+        command = np.asarray(command, np.float64)
+        out = np.zeros_like(command)
+        if command.shape[0] < 2:
+            return out
+        keep = math.exp(-period / MEAN_WINDOW_S)
+        means = np.empty_like(command)
+        mean = command[0].copy()
+        for k in range(command.shape[0]):  # a recursion over time, vectorised over actuators
+            means[k] = mean
+            mean = command[k] + (mean - command[k]) * keep
+        out[1:] = loss_measure(command[:-1], command[1:], means[1:], period)
+        return out
+
     def reported(self, fit: FittedEffect) -> dict[str, float]:
-        """Return the values as given (the effect is not fitted)."""
-        return {k: float(v) for k, v in fit.values.items()}
+        """Return ``gain`` [degC s/V^2] and ``tau_s`` [s]."""
+        return {
+            "gain": float(fit.values["gain"]),
+            "tau_s": float(np.exp(fit.values["log_tau_s"])),
+        }
+
+    def uncertainties(self, fit: FittedEffect) -> dict[str, float]:
+        """Propagate the log-parameter's uncertainty to ``tau_s``."""
+        return {
+            "gain": float(fit.sigma["gain"]),
+            "tau_s": float(np.exp(fit.values["log_tau_s"])) * float(fit.sigma["log_tau_s"]),
+        }
+
+    def problem(self, reported: dict[str, float]) -> str | None:
+        """Reject a gain <= 0 (the drive cannot cool) or a tau outside ``TAU_RANGE_S``."""
+        if not reported["gain"] > 0.0:
+            return f"gain {reported['gain']:.3g} degC s/V^2 is not positive"
+        low, high = TAU_RANGE_S
+        if not low <= reported["tau_s"] <= high:
+            return f"tau_s {reported['tau_s']:.3g} s outside [{low:g}, {high:g}]"
+        return None
+
+    def compensation_values(
+        self, reported: dict[str, float], start_time: float
+    ) -> dict[str, float]:
+        """Estimate the excess from the drive sent, with the calibration's mean window."""
+        return {
+            "self_heating_gain": reported["gain"],
+            "self_heating_tau_s": reported["tau_s"],
+            "self_heating_mean_window_s": MEAN_WINDOW_S,
+        }
 
     def plant_stage(self, settings: Mapping[str, float], context: PlantContext) -> PlantStage:
         """Return the dielectric loss of the drive."""

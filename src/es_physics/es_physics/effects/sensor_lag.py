@@ -83,6 +83,7 @@ class SensorLag(Effect):
         ),
     )
     fit_parameters: ClassVar[tuple[str, ...]] = ("tau_s",)
+    local_options: ClassVar[tuple[str, ...]] = ("tau_s",)
     compensation: ClassVar[tuple[Parameter, ...]] = (
         Parameter("temperature_lead_s", "s", 0.0, 3600.0, 0.0, "sensor lag to undo (0 = off)"),
         Parameter(

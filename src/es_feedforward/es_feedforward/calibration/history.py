@@ -1,0 +1,128 @@
+"""The whole command of a block of actuators and first-order low-passes of drive signals.
+
+Effects of the roles ``HEATING`` and ``RELAXATION`` act through a first-order low-pass of a
+signal derived from the drive (:meth:`es_physics.effects.Effect.drive_signal`) whose time
+constant is an unknown of the fit. A low-pass needs the whole history, not only the sampled
+rows, so :class:`DriveHistory` keeps the block's command and filters it at full rate
+(``scipy.signal.lfilter``, vectorised over actuators), caching the last few results;
+:class:`DriveSamples` takes the filtered series at a set of sample rows, with the same
+command taps (fractional delay) as the voltage in effect.
+
+The command is taken as uniformly sampled at its median period and as varying linearly
+between samples (first-order hold: exact for a signal generator's continuous program, and
+within a fraction of a period of a held one); around a hole in the command topic the
+filtered series is approximate, and the samples there are left out by gaps.py anyway.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Final
+
+import numpy as np
+import numpy.typing as npt
+from scipy.signal import lfilter, lfilter_zi
+
+from es_physics.effects import Effect
+
+FloatArray = npt.NDArray[np.float64]
+IndexArray = npt.NDArray[np.intp]
+
+#: Filtered series kept per history (each is the command's size).
+CACHE_SIZE: Final = 8
+
+
+def first_order_lowpass(x: FloatArray, period: float, tau: float) -> tuple[FloatArray, FloatArray]:
+    """Return tau dy/dt + y = x for x (N, A) sampled every ``period`` [s], and dy / d(log tau).
+
+    x varies linearly between samples; y starts settled at x[0] (for every tau, so the
+    derivative starts at 0). Exact for a piecewise-linear input:
+    y_k = D y_(k-1) + (1 - c) x_k + (c - D) x_(k-1), D = exp(-h / tau), c = (1 - D) tau / h;
+    the derivative is that recursion differentiated (the same pole, driven by the
+    coefficients' derivatives).
+
+    Raises:
+        ValueError: ``period`` or ``tau`` not positive and finite.
+
+    """
+    if not (math.isfinite(period) and period > 0.0 and math.isfinite(tau) and tau > 0.0):
+        raise ValueError(f"low-pass needs period > 0 and tau > 0, got {period!r}, {tau!r}")
+    if x.shape[0] == 0:
+        return np.zeros_like(x), np.zeros_like(x)
+    a = period / tau
+    one_minus_d = -math.expm1(-a)
+    d = 1.0 - one_minus_d
+    c = one_minus_d / a
+    pole = np.array([1.0, -d])
+    b = np.array([1.0 - c, c - d])
+    zi = lfilter_zi(b, pole)[:, None] * x[0][None, :]
+    y, _ = lfilter(b, pole, x, axis=0, zi=zi)
+    # d / d(log tau) of D, c and the taps (d a / d(log tau) = -a)
+    d_d = a * d
+    d_c = (one_minus_d - a * d) / a
+    drive = np.zeros_like(x)
+    drive[1:] = d_d * y[:-1] - d_c * x[1:] + (d_c - d_d) * x[:-1]
+    slope = lfilter([1.0], pole, drive, axis=0)
+    return np.asarray(y, np.float64), np.asarray(slope, np.float64)
+
+
+class DriveHistory:
+    """The command of a block of actuators (time-major (N, A) [V]) and its filtered signals."""
+
+    def __init__(self, command: FloatArray, period: float) -> None:
+        """Keep ``command`` (non-finite values read as 0) sampled every ``period`` [s]."""
+        self.command = np.nan_to_num(np.asarray(command, np.float64))
+        self.period = float(period)
+        self._signals: dict[str, FloatArray] = {}
+        self._filtered: dict[tuple[str, float], tuple[FloatArray, FloatArray]] = {}
+
+    def signal(self, effect: Effect) -> FloatArray:
+        """Return ``effect``'s drive signal (N, A) (computed once)."""
+        if effect.name not in self._signals:
+            self._signals[effect.name] = np.asarray(
+                effect.drive_signal(self.command, self.period), np.float64
+            )
+        return self._signals[effect.name]
+
+    def lowpass(self, effect: Effect, tau: float) -> tuple[FloatArray, FloatArray]:
+        """Return y = LP_tau(signal) and dy / d(log tau), each (N, A).
+
+        Raises:
+            ValueError: ``tau`` not positive and finite.
+
+        """
+        key = (effect.name, float(tau))
+        if key not in self._filtered:
+            y, slope = first_order_lowpass(self.signal(effect), self.period, tau)
+            if len(self._filtered) >= CACHE_SIZE:
+                del self._filtered[next(iter(self._filtered))]
+            self._filtered[key] = (y, slope)
+        return self._filtered[key]
+
+
+@dataclass(frozen=True)
+class DriveSamples:
+    """A :class:`DriveHistory` read at sample rows through command taps.
+
+    Attributes:
+        history: the block's command history.
+        taps: (command row of each sample (n,), weight) pairs; a sample's value is the
+            weighted sum over the taps (weights sum to 1).
+
+    """
+
+    history: DriveHistory
+    taps: tuple[tuple[IndexArray, float], ...]
+
+    def lowpass(self, effect: Effect, tau: float) -> tuple[FloatArray, FloatArray]:
+        """Return :meth:`DriveHistory.lowpass` at the samples, each (A, n).
+
+        Raises:
+            ValueError: ``tau`` not positive and finite.
+
+        """
+        y, slope = self.history.lowpass(effect, tau)
+        value = sum(w * y[rows].T for rows, w in self.taps)
+        d_value = sum(w * slope[rows].T for rows, w in self.taps)
+        return np.asarray(value, np.float64), np.asarray(d_value, np.float64)
