@@ -28,6 +28,7 @@ import numpy as np
 from scipy.sparse import csc_matrix, diags, identity
 from scipy.sparse.linalg import splu
 
+from es_feedforward.errors import FeedforwardConfigError
 from es_physics.effects import registry
 from es_physics.effects.frequency_dispersion import (
     relaxation_advance,
@@ -109,12 +110,12 @@ class CompensationParams:
         for key, value in values.items():
             name = key.removeprefix(PREFIX)
             if name not in known:
-                raise ValueError(f"unknown compensation parameter {key!r}")
+                raise FeedforwardConfigError(f"unknown compensation parameter {key!r}")
             kwargs[name] = float(value)
         params = cls(**kwargs)
         reason = params.reason_to_reject()
         if reason is not None:
-            raise ValueError(reason)
+            raise FeedforwardConfigError(reason)
         return params
 
     def reason_to_reject(self) -> str | None:

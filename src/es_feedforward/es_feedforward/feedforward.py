@@ -40,6 +40,7 @@ from es_feedforward.compensation import (
     TemperatureLead,
     drift_factor,
 )
+from es_feedforward.errors import FeedforwardConfigError, FeedforwardInputError
 from es_physics.effects.self_heating import HeatingEstimate
 from es_physics.laws import (
     CODE_CLIPPED_HIGH,
@@ -203,7 +204,7 @@ class Feedforward:
     def __init__(self, config: FeedforwardConfig, previous: Feedforward | None = None) -> None:
         reason = config.reason_to_reject()
         if reason is not None:
-            raise ValueError(reason)
+            raise FeedforwardConfigError(reason)
         self.config = config
         shape = config.shape
         comp = config.compensation
@@ -278,7 +279,9 @@ class Feedforward:
         """
         T = np.asarray(T, np.float64)
         if T.shape != self.config.shape:
-            raise ValueError(f"temperature grid is {T.shape}, expected {self.config.shape}")
+            raise FeedforwardInputError(
+                f"temperature grid is {T.shape}, expected {self.config.shape}"
+            )
         self._temperature_time = t
         low, high = PLAUSIBLE_TEMPERATURE
         if T.size and not (T.min() >= low and T.max() <= high):  # NaN fails too
@@ -317,7 +320,9 @@ class Feedforward:
         """
         z = np.asarray(z_ref, np.float64)
         if z.shape != self.config.shape:
-            raise ValueError(f"set point grid is {z.shape}, expected {self.config.shape}")
+            raise FeedforwardInputError(
+                f"set point grid is {z.shape}, expected {self.config.shape}"
+            )
         problem = self.temperature_problem(t)
         if problem is not None:
             return CommandResult(self._last_voltage, self._last_status, True, problem)

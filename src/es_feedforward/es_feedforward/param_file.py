@@ -24,6 +24,7 @@ import yaml
 
 from es_feedforward.compensation import PREFIX as COMPENSATION_PREFIX
 from es_feedforward.compensation import CompensationParams
+from es_feedforward.errors import ParameterError, ParamsFileError
 from es_feedforward.feedforward import FeedforwardConfig, Mode, ObserverGains
 from es_msgs_py.param_yaml import dump_parameters, floats_from_strings
 from es_physics.params import ActuatorParams
@@ -43,7 +44,7 @@ def _law_array(name: str, value: object, shape: tuple[int, int]) -> float | np.n
     if values.size == 1:
         return float(values[0])
     if values.size != shape[0] * shape[1]:
-        raise ValueError(
+        raise ParameterError(
             f"{LAW_PREFIX}{name} has {values.size} values, expected 1 or rows*cols = "
             f"{shape[0] * shape[1]}"
         )
@@ -65,7 +66,7 @@ def config_from_parameters(
     try:
         return _config_from_parameters(values, base)
     except (TypeError, ValueError) as err:
-        raise ValueError(str(err)) from None
+        raise ParameterError(str(err)) from None
 
 
 def _config_from_parameters(
@@ -73,16 +74,16 @@ def _config_from_parameters(
 ) -> FeedforwardConfig:
     if base is None:
         if "rows" not in values or "cols" not in values:
-            raise ValueError("rows and cols are required")
+            raise ParameterError("rows and cols are required")
         base = FeedforwardConfig(shape=(1, 1))
     rows = int(values.get("rows", base.shape[0]))  # type: ignore[call-overload]
     cols = int(values.get("cols", base.shape[1]))  # type: ignore[call-overload]
     shape = (rows, cols)
     if rows < 1 or cols < 1:
-        raise ValueError(f"rows and cols must be >= 1, got {rows} x {cols}")
+        raise ParameterError(f"rows and cols must be >= 1, got {rows} x {cols}")
     mode_name = str(values.get("mode", base.mode.value))
     if mode_name not in Mode.__members__.values():
-        raise ValueError(f"mode={mode_name!r} is not one of {[m.value for m in Mode]}")
+        raise ParameterError(f"mode={mode_name!r} is not one of {[m.value for m in Mode]}")
     law = {
         name: _law_array(name, values[LAW_PREFIX + name], shape)
         for name in LAW_FIELDS
@@ -114,7 +115,7 @@ def _config_from_parameters(
     )
     reason = config.reason_to_reject()
     if reason is not None:
-        raise ValueError(reason)
+        raise ParameterError(reason)
     return config
 
 
@@ -175,9 +176,11 @@ def read_params_file(path: str | Path, node_name: str = DEFAULT_NODE_NAME) -> Fe
     try:
         document, _ = floats_from_strings(yaml.safe_load(Path(path).read_text(encoding="utf-8")))
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as err:
-        raise ValueError(f"cannot read parameters file {path}: {err}".splitlines()[0]) from None
+        raise ParamsFileError(
+            f"cannot read parameters file {path}: {err}".splitlines()[0]
+        ) from None
     if not isinstance(document, Mapping):
-        raise ValueError(f"{path}: not a ROS 2 parameters file (no node mapping)")
+        raise ParamsFileError(f"{path}: not a ROS 2 parameters file (no node mapping)")
     values: dict[str, object] = {}
     found = False
     for key in ("/**", node_name.lstrip("/"), "/" + node_name.lstrip("/")):
@@ -186,8 +189,8 @@ def read_params_file(path: str | Path, node_name: str = DEFAULT_NODE_NAME) -> Fe
             values.update(_flatten(section["ros__parameters"]))
             found = True
     if not found:
-        raise ValueError(f"{path}: no ros__parameters for node {node_name!r} or '/**'")
+        raise ParamsFileError(f"{path}: no ros__parameters for node {node_name!r} or '/**'")
     try:
         return config_from_parameters(values)
     except ValueError as err:
-        raise ValueError(f"{path}: {err}") from None
+        raise ParamsFileError(f"{path}: {err}") from None

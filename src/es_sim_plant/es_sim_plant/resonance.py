@@ -37,6 +37,8 @@ from typing import Any, Final
 import numpy as np
 import numpy.typing as npt
 
+from es_sim_plant.errors import ScenarioError
+
 FloatArray = npt.NDArray[np.float64]
 
 #: The thesis's thickness-mode sensitivities (table 3-2, 100 V DC bias).
@@ -98,7 +100,9 @@ class ResonanceConfig:
         known = set(cls.__dataclass_fields__)
         unknown = set(values) - known
         if unknown:
-            raise ValueError(f"resonance: unknown key(s) {sorted(unknown)}; known {sorted(known)}")
+            raise ScenarioError(
+                f"resonance: unknown key(s) {sorted(unknown)}; known {sorted(known)}"
+            )
         try:
             kwargs: dict[str, Any] = {}
             for name, value in values.items():
@@ -114,7 +118,9 @@ class ResonanceConfig:
                     kwargs[name] = float(value)
             config = cls(**kwargs)
         except (TypeError, ValueError):
-            raise ValueError("resonance: values must be numbers (failed_channels a list)") from None
+            raise ScenarioError(
+                "resonance: values must be numbers (failed_channels a list)"
+            ) from None
         config.validate()
         return config
 
@@ -133,18 +139,18 @@ class ResonanceConfig:
         positive = ("f0_hz", "frequency_step_hz", "span_hz", "dwell_s")
         for name in positive:
             if not getattr(self, name) > 0.0:
-                raise ValueError(f"resonance: {name} must be > 0")
+                raise ScenarioError(f"resonance: {name} must be > 0")
         for name in ("f0_spread_hz", "a_t_spread", "a_v_spread", "noise_density"):
             if not getattr(self, name) >= 0.0:
-                raise ValueError(f"resonance: {name} must be >= 0")
+                raise ScenarioError(f"resonance: {name} must be >= 0")
         if self.a_t_hz_per_degc == 0.0 or not np.isfinite(self.a_t_hz_per_degc):
-            raise ValueError("resonance: a_t_hz_per_degc must be finite and non-zero")
+            raise ScenarioError("resonance: a_t_hz_per_degc must be finite and non-zero")
         if self.group_size < 1:
-            raise ValueError("resonance: group_size must be >= 1")
+            raise ScenarioError("resonance: group_size must be >= 1")
         if self.failure not in FAILURE_MODES:
-            raise ValueError(f"resonance: failure must be one of {list(FAILURE_MODES)}")
+            raise ScenarioError(f"resonance: failure must be one of {list(FAILURE_MODES)}")
         if any(i < 0 for i in self.failed_channels):
-            raise ValueError("resonance: failed_channels must be >= 0")
+            raise ScenarioError("resonance: failed_channels must be >= 0")
 
 
 class ResonanceSensor:
@@ -173,7 +179,7 @@ class ResonanceSensor:
         self.config = config
         n = shape[0] * shape[1]
         if any(i >= n for i in config.failed_channels):
-            raise ValueError(f"resonance: failed_channels beyond the {n} actuators")
+            raise ScenarioError(f"resonance: failed_channels beyond the {n} actuators")
         draws = rng_spread.standard_normal((3, *shape))
         #: Per-actuator truth (R, C): f0 [Hz], a_T [Hz/degC], a_V [Hz/V].
         self.f0: FloatArray = config.f0_hz + config.f0_spread_hz * draws[0]

@@ -27,6 +27,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy import sparse
 
+from es_thermal.errors import ThermalConfigError, ThermalInputError
 from es_thermal.faults import FaultConfig, SensorFaultMonitor, SensorHealth, heat_load_problem
 from es_thermal.interpolation import interpolation_matrix
 from es_thermal.kalman import KalmanTuning, ModelEstimator
@@ -75,16 +76,16 @@ class EstimatorConfig:
 
     def __post_init__(self) -> None:
         if self.rows < 1 or self.cols < 1:
-            raise ValueError(f"grid must be at least 1 x 1, got {self.rows} x {self.cols}")
+            raise ThermalConfigError(f"grid must be at least 1 x 1, got {self.rows} x {self.cols}")
         if self.kind not in ESTIMATORS:
-            raise ValueError(f"estimator {self.kind!r} is not one of {list(ESTIMATORS)}")
+            raise ThermalConfigError(f"estimator {self.kind!r} is not one of {list(ESTIMATORS)}")
         pos = np.asarray(self.positions)
         if pos.ndim != 2 or pos.shape[1] != 2 or pos.shape[0] < 1:
-            raise ValueError(f"positions must have shape (S >= 1, 2), got {pos.shape}")
+            raise ThermalConfigError(f"positions must have shape (S >= 1, 2), got {pos.shape}")
         if not np.isfinite(self.sample_period) or self.sample_period <= 0.0:
-            raise ValueError(f"sample_period must be > 0, got {self.sample_period}")
+            raise ThermalConfigError(f"sample_period must be > 0, got {self.sample_period}")
         if not np.isfinite(self.sensor_tau) or self.sensor_tau < 0.0:
-            raise ValueError(f"sensor_tau must be >= 0, got {self.sensor_tau}")
+            raise ThermalConfigError(f"sensor_tau must be >= 0, got {self.sensor_tau}")
 
     @property
     def sensor_count(self) -> int:
@@ -160,10 +161,10 @@ class TemperatureEstimator:
         """
         grid = np.asarray(heat_load, dtype=float)
         if grid.shape != self.shape:
-            raise ValueError(f"heat load has shape {grid.shape}, expected {self.shape}")
+            raise ThermalInputError(f"heat load has shape {grid.shape}, expected {self.shape}")
         problem = heat_load_problem(grid, self.config.faults)
         if problem is not None:
-            raise ValueError(problem)
+            raise ThermalInputError(problem)
         self._heat_now = grid.ravel().copy()
 
     def restart(self) -> None:
@@ -269,7 +270,7 @@ class SampleClock:
 
     def __init__(self, period: float, resync_periods: float = 2.5) -> None:
         if period <= 0.0:
-            raise ValueError(f"sample period must be > 0, got {period}")
+            raise ThermalConfigError(f"sample period must be > 0, got {period}")
         self.period = period
         self.resync_periods = resync_periods
         self._last_arrival: float | None = None

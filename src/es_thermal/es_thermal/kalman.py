@@ -27,6 +27,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy import sparse
 
+from es_thermal.errors import EstimatorStateError, ThermalConfigError, ThermalInputError
 from es_thermal.interpolation import sparse_sampling
 from es_thermal.modal import modal_solution
 from es_thermal.network import (
@@ -78,7 +79,7 @@ class KalmanTuning:
         ):
             value = getattr(self, name)
             if not np.isfinite(value) or value <= 0.0:
-                raise ValueError(f"{name}={value} must be finite and > 0")
+                raise ThermalConfigError(f"{name}={value} must be finite and > 0")
 
     def time_scaled(self, time_scale: float) -> KalmanTuning:
         """Return the tuning for a run whose slow times are multiplied by ``time_scale``.
@@ -138,7 +139,7 @@ class ModelEstimator:
         tuning: KalmanTuning,
     ) -> None:
         if sample_period <= 0.0 or sensor_tau < 0.0:
-            raise ValueError("sample_period must be > 0 and sensor_tau >= 0")
+            raise ThermalConfigError("sample_period must be > 0 and sensor_tau >= 0")
         self._grid = GridTransform.dct(rows, cols)
         self._sensors = sensor_transform(positions)
         A, B, H, layout = modal_model(
@@ -238,7 +239,7 @@ class ModelEstimator:
         """
         x = self._require_state()
         if not np.all(np.isfinite(heat_load)):
-            raise ValueError("heat load holds NaN or inf")
+            raise ThermalInputError("heat load holds NaN or inf")
         drive = np.asarray(self._B @ self._grid.forward(heat_load))
         # One sparse product advances the state, both sensitivities and the heat response.
         cols = np.column_stack([x, self._sens, self._heat_response])
@@ -300,7 +301,7 @@ class ModelEstimator:
 
     def _require_state(self) -> FloatArray:
         if self._state is None:
-            raise ValueError("the model estimator has no state yet")
+            raise EstimatorStateError("the model estimator has no state yet")
         return self._state
 
     def _sensor_diagonal(self, modal: sparse.csr_matrix) -> FloatArray:

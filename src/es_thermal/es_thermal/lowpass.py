@@ -11,6 +11,8 @@ import numpy as np
 import numpy.typing as npt
 from scipy import signal
 
+from es_thermal.errors import ThermalConfigError
+
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
 
@@ -32,12 +34,12 @@ class LowpassBank:
     ) -> None:
         nyquist = 0.5 / sample_period
         if not 0.0 < cutoff_hz < nyquist:
-            raise ValueError(
+            raise ThermalConfigError(
                 f"low-pass cut-off {cutoff_hz} Hz must lie in (0, {nyquist:g}) Hz "
                 f"(the Nyquist frequency of the {1.0 / sample_period:g} Hz sensor rate)"
             )
         if order < 1:
-            raise ValueError(f"low-pass order must be >= 1, got {order}")
+            raise ThermalConfigError(f"low-pass order must be >= 1, got {order}")
         self.channels = channels
         self.sos: FloatArray = signal.butter(
             order, cutoff_hz, btype="low", output="sos", fs=1.0 / sample_period

@@ -17,6 +17,8 @@ import numpy.typing as npt
 from scipy import linalg, sparse
 from scipy.sparse import csgraph
 
+from es_thermal.errors import ConvergenceError
+
 FloatArray = npt.NDArray[np.float64]
 IndexArray = npt.NDArray[np.intp]
 
@@ -74,7 +76,7 @@ def steady_state_covariance(
         Hk = 0.5 * (H_next + t(H_next))
         if np.all(change <= tol * np.maximum(1.0, np.max(np.abs(Hk), axis=(-2, -1)))):
             return np.asarray(Hk, float)
-    raise ValueError("Kalman gain: the Riccati iteration did not converge")
+    raise ConvergenceError("Kalman gain: the Riccati iteration did not converge")
 
 
 @dataclass(frozen=True)

@@ -13,6 +13,7 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
+from es_thermal.errors import ThermalInputError
 from es_thermal.selfsensing import ChannelHealth, SelfSensingFusion
 
 FloatArray = npt.NDArray[np.float64]
@@ -102,7 +103,9 @@ class SampleSync:
         """
         sweep = np.asarray(frequency, float).ravel()
         if sweep.size != self.fusion.count:
-            raise ValueError(f"resonance has {sweep.size} values, expected {self.fusion.count}")
+            raise ThermalInputError(
+                f"resonance has {sweep.size} values, expected {self.fusion.count}"
+            )
         self.last_sweep = arrival
         unpaired = self._unpaired
         if unpaired is not None and abs(arrival - unpaired[1]) <= self.window:

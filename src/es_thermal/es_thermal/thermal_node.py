@@ -42,11 +42,9 @@ multiplied by it, ``lowpass.cutoff_hz`` divided, the model's noise intensities m
 
 from __future__ import annotations
 
-import array
 import time
 from collections import deque
 from collections.abc import Sequence
-from dataclasses import fields
 
 import numpy as np
 from builtin_interfaces.msg import Time
@@ -59,18 +57,10 @@ from es_msgs_py import topics
 from es_msgs_py.arrays import LayoutError, grid_to_msg, msg_to_grid, msg_to_sensors
 from es_msgs_py.diagnostics import Level, make_array, make_status, readiness_status, unmatched
 from es_msgs_py.node_main import run_node, usage_text
-from es_msgs_py.params import ParameterSpec, declare_parameters
-from es_thermal.estimator import (
-    ESTIMATORS,
-    EstimatorConfig,
-    SampleClock,
-    TemperatureEstimator,
-)
-from es_thermal.faults import FaultConfig, StaleWatch
-from es_thermal.interpolation import block_centre_positions, sensor_positions
-from es_thermal.kalman import KalmanTuning
-from es_thermal.lowpass import DEFAULT_CUTOFF_HZ, DEFAULT_ORDER
-from es_thermal.network import NetworkParams
+from es_msgs_py.params import declare_parameters
+from es_thermal.estimator import SampleClock, TemperatureEstimator
+from es_thermal.faults import StaleWatch
+from es_thermal.node_params import SPECS, config_from_parameters
 from es_thermal.resonance_params import SPECS as RESONANCE_SPECS
 from es_thermal.resonance_params import fusion_from_parameters
 from es_thermal.sweep_sync import SampleSync
@@ -85,211 +75,9 @@ _REJECTION_HOLD = 5.0
 _WINDOW = 200
 
 
-def _check_positions(value: object) -> str | None:
-    if isinstance(value, bytes | bytearray) and not value:
-        return None  # the untyped empty default
-    ok = isinstance(value, list | tuple | array.array) and all(
-        isinstance(v, int | float) and not isinstance(v, bool) for v in value
-    )
-    if not ok:
-        return "sensor_positions must be a list of numbers [r0, c0, r1, c1, ...]"
-    if len(value) % 2:  # type: ignore[arg-type]
-        return "sensor_positions needs an even count [r0, c0, r1, c1, ...]"
-    return None
-
-
-_NETWORK = NetworkParams()
-_TUNING = KalmanTuning(sensor_noise=0.02)
-_FAULTS = FaultConfig()
-
-SPECS: tuple[ParameterSpec, ...] = (
-    ParameterSpec(
-        "estimator",
-        "model",
-        "Estimator: 'model' = Kalman filter on the thermal network driven by /dm/heat_load; "
-        "'lowpass' = the thesis's low-pass filter (lowpass.cutoff_hz) plus spatial "
-        "interpolation between sensors.",
-        choices=ESTIMATORS,
-        read_only=True,
-    ),
-    ParameterSpec("rows", 12, "Actuator grid rows.", 1, 256, read_only=True),
-    ParameterSpec("cols", 12, "Actuator grid columns.", 1, 256, read_only=True),
-    ParameterSpec(
-        "sensor_positions",
-        [],
-        "Sensor (row, col) positions, flat [r0, c0, r1, c1, ...], fractional allowed; "
-        "empty: see sensor_pitch.",
-        check=_check_positions,
-        read_only=True,
-        dynamic_typing=True,  # an empty default has no array type of its own
-    ),
-    ParameterSpec(
-        "sensor_pitch",
-        1,
-        "Without sensor_positions: one sensor per pitch x pitch actuators at the block "
-        "centre (1: sensor i on actuator i).",
-        1,
-        64,
-        read_only=True,
-    ),
-    ParameterSpec(
-        "sample_rate", 10.0, "Sensor sample rate the filters are built for, Hz.", 0.01, 10000.0,
-        read_only=True,
-    ),
-    ParameterSpec(
-        "publish_rate",
-        0.0,
-        "0: one estimate per accepted raw message (lockstep); > 0: newest estimate at this "
-        "rate, Hz.",
-        0.0,
-        10000.0,
-        read_only=True,
-    ),
-    ParameterSpec(
-        "diagnostics_period", 1.0, "Period of /diagnostics, wall s.", 0.01, 60.0,
-        read_only=True,
-    ),
-    ParameterSpec(
-        "time_scale",
-        1.0,
-        "Multiplier of every slow time (the simulator's shortened scenarios; 1 = physical): "
-        "thermal capacitances, sensor_lag_tau, model.adaptation_time; divides "
-        "lowpass.cutoff_hz; model noise intensities grow by 1/sqrt(time_scale).",
-        1e-4,
-        1e4,
-        read_only=True,
-    ),
-    ParameterSpec(
-        "sensor_lag_tau", 0.0, "First-order sensor lag compensated by the model, s.", 0.0, 1e4,
-        read_only=True,
-    ),
-    ParameterSpec(
-        "lowpass.cutoff_hz", DEFAULT_CUTOFF_HZ, "Low-pass cut-off, Hz.", 1e-5, 1e4,
-        read_only=True,
-    ),
-    ParameterSpec(
-        "lowpass.order", DEFAULT_ORDER, "Low-pass filter order (dimensionless).", 1, 8,
-        read_only=True,
-    ),
-    *(
-        ParameterSpec(
-            f"thermal.{f.name}",
-            float(getattr(_NETWORK, f.name)),
-            f"Thermal network: {f.name} (capacitances J/K, conductances W/K).",
-            0.0,
-            1e6,
-            read_only=True,
-        )
-        for f in fields(NetworkParams)
-    ),
-    ParameterSpec(
-        "model.sensor_noise", _TUNING.sensor_noise, "Sensor noise the filter assumes, degC rms.",
-        1e-6, 100.0, read_only=True,
-    ),
-    ParameterSpec(
-        "model.process_noise", _TUNING.process_noise,
-        "Model error per cell temperature, degC/sqrt(s).", 1e-9, 100.0, read_only=True,
-    ),
-    ParameterSpec(
-        "model.base_drift", _TUNING.base_drift,
-        "Random-walk intensity of the unmeasured base plate, degC/sqrt(s).", 1e-9, 100.0,
-        read_only=True,
-    ),
-    ParameterSpec(
-        "model.adaptation_time", _TUNING.adaptation_time,
-        "Memory of the heat-gain and time-scale error estimates, s (scaled by time_scale).",
-        1e-3, 1e7, read_only=True,
-    ),
-    ParameterSpec(
-        "fault.valid_min", _FAULTS.valid_min, "Lowest physical reading, degC.", -273.0, 1000.0,
-        read_only=True,
-    ),
-    ParameterSpec(
-        "fault.valid_max", _FAULTS.valid_max, "Highest physical reading, degC.", -273.0, 1000.0,
-        read_only=True,
-    ),
-    ParameterSpec(
-        "fault.stuck_time", _FAULTS.stuck_time,
-        "A reading unchanged (within stuck_band) this long is stuck, s of sample time.",
-        1e-3, 1e7, read_only=True,
-    ),
-    ParameterSpec(
-        "fault.stuck_band", _FAULTS.stuck_band,
-        "Peak-to-peak change that still counts as unchanged, degC.", 0.0, 10.0, read_only=True,
-    ),
-    ParameterSpec(
-        "fault.stale_timeout", _FAULTS.stale_timeout,
-        "No raw message for this long (wall s) stops the estimates (ERROR).", 1e-3, 1e4,
-        read_only=True,
-    ),
-    ParameterSpec(
-        "fault.max_heat_load", _FAULTS.max_heat_load,
-        "A /dm/heat_load with a cell above this is rejected (last heat load held), W per cell.",
-        1e-6, 1e6, read_only=True,
-    ),
-    ParameterSpec(
-        "fault.heat_load_tolerance", _FAULTS.heat_load_tolerance,
-        "Negative heat loads down to minus this pass as rounding; lower ones are rejected, W.",
-        0.0, 1e3, read_only=True,
-    ),
-)
-
-
 def _stamp(seconds: float) -> Time:
     ns = round(seconds * 1e9)
     return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
-
-
-def config_from_parameters(values: dict[str, object]) -> EstimatorConfig:
-    """Build the estimator configuration from declared parameter values.
-
-    Raises:
-        ValueError: an inconsistent combination (positions outside the grid, cut-off above
-            Nyquist, ...); the message says which.
-
-    """
-
-    def num(name: str) -> float:
-        return float(values[name])  # type: ignore[arg-type]
-
-    rows, cols = int(num("rows")), int(num("cols"))
-    flat = [float(v) for v in values["sensor_positions"]]  # type: ignore[attr-defined]
-    if not flat:
-        positions = block_centre_positions(rows, cols, int(num("sensor_pitch")))
-    else:
-        positions = sensor_positions(rows, cols, flat[0::2], flat[1::2])
-    scale = num("time_scale")
-    network = NetworkParams(
-        **{f.name: num(f"thermal.{f.name}") for f in fields(NetworkParams)}
-    ).time_scaled(scale)
-    tuning = KalmanTuning(
-        sensor_noise=num("model.sensor_noise"),
-        process_noise=num("model.process_noise"),
-        base_drift=num("model.base_drift"),
-        adaptation_time=num("model.adaptation_time"),
-    ).time_scaled(scale)
-    faults = FaultConfig(
-        valid_min=num("fault.valid_min"),
-        valid_max=num("fault.valid_max"),
-        stuck_time=num("fault.stuck_time"),
-        stuck_band=num("fault.stuck_band"),
-        stale_timeout=num("fault.stale_timeout"),
-        max_heat_load=num("fault.max_heat_load"),
-        heat_load_tolerance=num("fault.heat_load_tolerance"),
-    )
-    return EstimatorConfig(
-        rows=rows,
-        cols=cols,
-        positions=positions,
-        kind=str(values["estimator"]),
-        sample_period=1.0 / num("sample_rate"),
-        lowpass_cutoff_hz=num("lowpass.cutoff_hz") / scale,
-        lowpass_order=int(num("lowpass.order")),
-        sensor_tau=num("sensor_lag_tau") * scale,
-        network=network,
-        tuning=tuning,
-        faults=faults,
-    )
 
 
 class ThermalNode(Node):
@@ -302,7 +90,7 @@ class ThermalNode(Node):
         self.fusion = fusion_from_parameters(
             declare_parameters(self, RESONANCE_SPECS),
             self.config.rows * self.config.cols,
-            float(values["time_scale"]),  # type: ignore[arg-type]
+            values.get_float("time_scale"),
         )
         self._sync = (
             None if self.fusion is None else SampleSync(self.fusion, self.config.sample_period)
@@ -362,9 +150,9 @@ class ThermalNode(Node):
         # Readiness: the estimator is built; ready once the raw readings' publisher matched.
         self._waiting_for = unmatched([self._raw_sub])
         self._ready_timer = self.create_timer(0.05, self._check_ready, clock=self._wall)
-        period = float(values["diagnostics_period"])  # type: ignore[arg-type]
+        period = values.get_float("diagnostics_period")
         self.create_timer(period, self._publish_diagnostics, clock=self._wall)
-        rate = float(values["publish_rate"])  # type: ignore[arg-type]
+        rate = values.get_float("publish_rate")
         self._timer_mode = rate > 0.0
         if self._timer_mode:
             self.create_timer(1.0 / rate, self._publish_latest)

@@ -8,11 +8,9 @@ Public face: :class:`Effect`, :class:`Parameter`, :class:`Role`, :class:`FittedE
 from es_physics.effects.base import (
     Additive,
     Effect,
-    EffectError,
     FittedEffect,
     Parameter,
     Role,
-    UnknownEffectError,
 )
 from es_physics.effects.registry import (
     ENTRY_POINT_GROUP,
@@ -22,6 +20,7 @@ from es_physics.effects.registry import (
     registry,
     with_role,
 )
+from es_physics.errors import EffectError, UnknownEffectError
 
 __all__ = [
     "ENTRY_POINT_GROUP",

@@ -26,6 +26,7 @@ from typing import ClassVar
 import numpy as np
 
 from es_physics.effects.base import Effect, FittedEffect, FloatArray, Parameter, Role
+from es_physics.errors import EffectParameterError
 
 #: Highest relaxation fraction the compensation accepts (its inverse gains 1 / (1 - r)).
 MAX_FRACTION = 0.9
@@ -43,9 +44,9 @@ def relaxation_decay(corner_hz: float, dt: float) -> float:
 
     """
     if not (np.isfinite(corner_hz) and corner_hz > 0.0):
-        raise ValueError(f"corner frequency {corner_hz!r} Hz must be > 0")
+        raise EffectParameterError(f"corner frequency {corner_hz!r} Hz must be > 0")
     if not (np.isfinite(dt) and dt >= 0.0):
-        raise ValueError(f"step {dt!r} s must be >= 0")
+        raise EffectParameterError(f"step {dt!r} s must be >= 0")
     return float(np.exp(-2.0 * np.pi * corner_hz * dt))
 
 
@@ -78,9 +79,9 @@ def relaxation_inverse(
 
     """
     if not 0.0 <= fraction < 1.0:
-        raise ValueError(f"relaxation fraction {fraction!r} must be in [0, 1)")
+        raise EffectParameterError(f"relaxation fraction {fraction!r} must be in [0, 1)")
     if not 0.0 <= decay <= 1.0:
-        raise ValueError(f"relaxation decay {decay!r} must be in [0, 1]")
+        raise EffectParameterError(f"relaxation decay {decay!r} must be in [0, 1]")
     rd = fraction * decay
     return np.asarray((v_eff - rd * state) / (1.0 - rd), np.float64)
 

@@ -20,6 +20,7 @@ from typing import ClassVar
 import numpy as np
 
 from es_physics.effects.base import Effect, FittedEffect, FloatArray, Parameter, Role
+from es_physics.errors import EffectParameterError
 
 
 class HeatingEstimate:
@@ -40,10 +41,10 @@ class HeatingEstimate:
 
         """
         if not (np.isfinite(gain) and gain >= 0.0):
-            raise ValueError(f"self-heating gain {gain!r} must be >= 0")
+            raise EffectParameterError(f"self-heating gain {gain!r} must be >= 0")
         for what, value in (("tau", tau_s), ("mean window", mean_window_s)):
             if not (np.isfinite(value) and value > 0.0):
-                raise ValueError(f"self-heating {what} {value!r} s must be > 0")
+                raise EffectParameterError(f"self-heating {what} {value!r} s must be > 0")
         self.gain = gain
         self.tau_s = tau_s
         self.mean_window_s = mean_window_s
