@@ -26,6 +26,7 @@ from es_feedforward.compensation import PREFIX as COMPENSATION_PREFIX
 from es_feedforward.compensation import CompensationParams
 from es_feedforward.errors import ParameterError, ParamsFileError
 from es_feedforward.feedforward import FeedforwardConfig, Mode, ObserverGains
+from es_msgs_py.param_spec import ParameterValues
 from es_msgs_py.param_yaml import dump_parameters, floats_from_strings
 from es_physics.params import ActuatorParams
 
@@ -60,7 +61,8 @@ def config_from_parameters(
     ``rows`` and ``cols`` are required). Unknown names are ignored (other node parameters).
 
     Raises:
-        ValueError: a value has the wrong type, size or range; the message gives the reason.
+        es_feedforward.errors.ParameterError: a value has the wrong type, size or range (a
+            ``ValueError``); the message gives the reason.
 
     """
     try:
@@ -72,12 +74,13 @@ def config_from_parameters(
 def _config_from_parameters(
     values: Mapping[str, object], base: FeedforwardConfig | None
 ) -> FeedforwardConfig:
+    typed = ParameterValues(values)
     if base is None:
         if "rows" not in values or "cols" not in values:
             raise ParameterError("rows and cols are required")
         base = FeedforwardConfig(shape=(1, 1))
-    rows = int(values.get("rows", base.shape[0]))  # type: ignore[call-overload]
-    cols = int(values.get("cols", base.shape[1]))  # type: ignore[call-overload]
+    rows = typed.get_int("rows", base.shape[0])
+    cols = typed.get_int("cols", base.shape[1])
     shape = (rows, cols)
     if rows < 1 or cols < 1:
         raise ParameterError(f"rows and cols must be >= 1, got {rows} x {cols}")
@@ -90,28 +93,27 @@ def _config_from_parameters(
         if LAW_PREFIX + name in values
     }
     compensation = {
-        name: float(values[COMPENSATION_PREFIX + name])  # type: ignore[arg-type]
+        name: typed.get_float(COMPENSATION_PREFIX + name)
         for name in COMPENSATION_FIELDS
         if COMPENSATION_PREFIX + name in values
     }
-    observer = {
-        name: values[OBSERVER_PREFIX + name]
-        for name in OBSERVER_FIELDS
-        if OBSERVER_PREFIX + name in values
-    }
+    gains = base.observer
+    observer = ObserverGains(
+        kp=typed.get_float(OBSERVER_PREFIX + "kp", gains.kp),
+        ki=typed.get_float(OBSERVER_PREFIX + "ki", gains.ki),
+        iterations=typed.get_int(OBSERVER_PREFIX + "iterations", gains.iterations),
+    )
     config = FeedforwardConfig(
         shape=shape,
         params=replace(base.params, **law),
         mode=Mode(mode_name),
-        v_limit=float(values.get("v_limit", base.v_limit)),  # type: ignore[arg-type]
-        reference_temperature=float(
-            values.get("reference_temperature", base.reference_temperature)  # type: ignore[arg-type]
+        v_limit=typed.get_float("v_limit", base.v_limit),
+        reference_temperature=typed.get_float(
+            "reference_temperature", base.reference_temperature
         ),
-        temperature_timeout=float(
-            values.get("temperature_timeout", base.temperature_timeout)  # type: ignore[arg-type]
-        ),
+        temperature_timeout=typed.get_float("temperature_timeout", base.temperature_timeout),
         compensation=replace(base.compensation, **compensation),
-        observer=replace(base.observer, **observer),  # type: ignore[arg-type]
+        observer=observer,
     )
     reason = config.reason_to_reject()
     if reason is not None:
@@ -169,8 +171,8 @@ def read_params_file(path: str | Path, node_name: str = DEFAULT_NODE_NAME) -> Fe
     (``-4e-17``) are read as floats (:func:`es_msgs_py.param_yaml.floats_from_strings`).
 
     Raises:
-        ValueError: unreadable file, no parameters for the node, or an invalid value (one
-            readable line).
+        es_feedforward.errors.ParamsFileError: unreadable file, no parameters for the node,
+            or an invalid value (a ``ValueError``; one readable line).
 
     """
     try:
