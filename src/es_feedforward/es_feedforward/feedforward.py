@@ -202,6 +202,12 @@ class Feedforward:
     _temperature_problem: str | None
 
     def __init__(self, config: FeedforwardConfig, previous: Feedforward | None = None) -> None:
+        """Build the feedforward for ``config`` (``previous``: the core it replaces).
+
+        Raises:
+            FeedforwardConfigError: the configuration is inconsistent (the reason is the message).
+
+        """
         reason = config.reason_to_reject()
         if reason is not None:
             raise FeedforwardConfigError(reason)

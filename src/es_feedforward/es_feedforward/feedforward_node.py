@@ -77,6 +77,12 @@ class FeedforwardNode(Node):
     """The feedforward node; all computation lives in :class:`Feedforward`."""
 
     def __init__(self) -> None:
+        """Declare the parameters, build the core and the endpoints.
+
+        Raises:
+            ParameterError: a value rclpy refuses (e.g. integers for a double array).
+
+        """
         super().__init__(NODE_NAME)
         specs = parameter_specs()
         self._names = [spec.name for spec in specs]

@@ -76,7 +76,12 @@ class PublishCounter:
 
 
 def executor_kind(node: Node) -> str:
-    """Return the executor ``node`` asks for (its ``executor`` parameter, if declared)."""
+    """Return the executor ``node`` asks for (its ``executor`` parameter, if declared).
+
+    Raises:
+        ParameterValueError: the parameter names no known executor.
+
+    """
     if not node.has_parameter(EXECUTOR_PARAMETER):
         return EXECUTORS[0]
     kind = node.get_parameter(EXECUTOR_PARAMETER).value

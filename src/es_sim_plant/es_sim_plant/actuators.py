@@ -67,7 +67,12 @@ class ActuatorConfig:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any] | None) -> ActuatorConfig:
-        """Build from a scenario's ``actuators`` mapping; raise ``ValueError`` on bad entries."""
+        """Build from a scenario's ``actuators`` mapping; raise ``ValueError`` on bad entries.
+
+        Raises:
+            ScenarioError: bad keys, types or values (the message says which).
+
+        """
         data = dict(data or {})
         known = {"params", "spread", "v_limit", "substeps"}
         bad = set(data) - known

@@ -64,7 +64,12 @@ class SetpointSpec:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any] | None) -> SetpointSpec:
-        """Build from a scenario's ``setpoint`` mapping; raise ``ValueError`` on bad entries."""
+        """Build from a scenario's ``setpoint`` mapping; raise ``ValueError`` on bad entries.
+
+        Raises:
+            ScenarioError: bad keys, types or values (the message says which).
+
+        """
         data = dict(data or {})
         sine = dict(data.pop("sine", None) or {})
         shape = dict(data.pop("shape", None) or {})
@@ -101,6 +106,12 @@ class SetpointGenerator:
     """Evaluates a :class:`SetpointSpec` on one grid; :meth:`at` costs one sine and one add."""
 
     def __init__(self, spec: SetpointSpec, shape: tuple[int, int]) -> None:
+        """Evaluate ``spec`` on a grid of ``shape`` (rows, cols).
+
+        Raises:
+            ScenarioError: bad keys, types or values (the message says which).
+
+        """
         self.spec = spec
         static = np.full(shape, spec.offset)
         for name, amplitude in spec.shape.items():
@@ -133,7 +144,12 @@ class Excitation:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> Excitation:
-        """Build from a scenario's ``excitation`` mapping; raise ``ValueError`` on bad entries."""
+        """Build from a scenario's ``excitation`` mapping; raise ``ValueError`` on bad entries.
+
+        Raises:
+            ScenarioError: bad keys, types or values (the message says which).
+
+        """
         data = dict(data)
         known = {"offsets_v", "amplitudes_v", "frequencies_hz", "level_s", "phase_spread"}
         bad = set(data) - known

@@ -174,6 +174,12 @@ class ResonanceSensor:
         rng_spread: np.random.Generator,
         rng_noise: np.random.Generator,
     ) -> None:
+        """Build the sweeps for the grid from ``config`` and the two random streams.
+
+        Raises:
+            ScenarioError: bad keys, types or values (the message says which).
+
+        """
         config.validate()
         self.shape = shape
         self.config = config

@@ -47,7 +47,12 @@ class SensorConfig:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any] | None) -> SensorConfig:
-        """Build from a scenario's ``sensors`` mapping; raise ``ValueError`` on bad entries."""
+        """Build from a scenario's ``sensors`` mapping; raise ``ValueError`` on bad entries.
+
+        Raises:
+            ScenarioError: bad keys, types or values (the message says which).
+
+        """
         data = dict(data or {})
         known = {"positions", "noise_sd", "resolution", "offset_sd", "offsets"}
         bad = set(data) - known
@@ -103,6 +108,12 @@ class SensorArray:
         rng_offsets: np.random.Generator,
         rng_noise: np.random.Generator,
     ) -> None:
+        """Build the sensor array for the grid from ``config`` and the two random streams.
+
+        Raises:
+            ScenarioError: bad keys, types or values (the message says which).
+
+        """
         rows, cols = shape
         self.config = config
         self._rng = rng_noise

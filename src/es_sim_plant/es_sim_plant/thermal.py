@@ -76,7 +76,12 @@ class ThermalParams:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any] | None) -> ThermalParams:
-        """Build from a scenario's ``thermal`` mapping; raise ``ValueError`` on bad entries."""
+        """Build from a scenario's ``thermal`` mapping; raise ``ValueError`` on bad entries.
+
+        Raises:
+            ScenarioError: bad keys, types or values (the message says which).
+
+        """
         data = data or {}
         known = {f.name for f in fields(cls)}
         bad = set(data) - known
@@ -146,6 +151,12 @@ class ThermalNetwork:
         dt: float,
         initial_temperature: float,
     ) -> None:
+        """Build the network for the grid, stepping ``dt`` [s] from ``initial_temperature`` [degC].
+
+        Raises:
+            ScenarioError: bad keys, types or values (the message says which).
+
+        """
         if dt <= 0.0:
             raise ScenarioError("thermal step dt must be > 0")
         params.validate()

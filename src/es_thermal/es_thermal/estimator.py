@@ -75,6 +75,12 @@ class EstimatorConfig:
     faults: FaultConfig = field(default_factory=FaultConfig)
 
     def __post_init__(self) -> None:
+        """Check the values.
+
+        Raises:
+            ThermalConfigError: a value out of range (the message names it).
+
+        """
         if self.rows < 1 or self.cols < 1:
             raise ThermalConfigError(f"grid must be at least 1 x 1, got {self.rows} x {self.cols}")
         if self.kind not in ESTIMATORS:
@@ -269,6 +275,12 @@ class SampleClock:
     """
 
     def __init__(self, period: float, resync_periods: float = 2.5) -> None:
+        """Stamp a stream of nominal ``period`` [s]; resync after ``resync_periods`` periods off.
+
+        Raises:
+            ThermalConfigError: a value out of range (the message names it).
+
+        """
         if period <= 0.0:
             raise ThermalConfigError(f"sample period must be > 0, got {period}")
         self.period = period

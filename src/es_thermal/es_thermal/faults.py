@@ -52,6 +52,12 @@ class FaultConfig:
     heat_load_tolerance: float = 1e-6
 
     def __post_init__(self) -> None:
+        """Check the values.
+
+        Raises:
+            ThermalConfigError: a value out of range (the message names it).
+
+        """
         if not self.valid_min < self.valid_max:
             raise ThermalConfigError(
                 f"valid_min {self.valid_min} must be below valid_max {self.valid_max}"
@@ -164,6 +170,12 @@ class StaleWatch:
     """Tells whether a message stream went quiet for longer than ``timeout`` seconds."""
 
     def __init__(self, timeout: float) -> None:
+        """Start with nothing seen; ``timeout`` [s] is the longest quiet stretch.
+
+        Raises:
+            ThermalConfigError: a value out of range (the message names it).
+
+        """
         if timeout <= 0.0:
             raise ThermalConfigError(f"stale timeout must be > 0, got {timeout}")
         self.timeout = timeout

@@ -40,6 +40,10 @@ def block_centre_positions(rows: int, cols: int, pitch: int) -> FloatArray:
 
     Blocks cut by the grid edge get their sensor at the centre of the actuators they hold.
     ``pitch == 1`` puts one sensor on every actuator (the contract's S == R*C case).
+
+    Raises:
+        ThermalConfigError: a value out of range (the message names it).
+
     """
     if pitch < 1:
         raise ThermalConfigError(f"sensor pitch must be >= 1, got {pitch}")

@@ -73,6 +73,12 @@ class KalmanTuning:
     bias_limit: float = 0.6
 
     def __post_init__(self) -> None:
+        """Check the values.
+
+        Raises:
+            ThermalConfigError: a value out of range (the message names it).
+
+        """
         for name in (
             "sensor_noise", "process_noise", "base_drift", "adaptation_time", "bias_prior",
             "bias_limit",
@@ -138,6 +144,12 @@ class ModelEstimator:
         sample_period: float,
         tuning: KalmanTuning,
     ) -> None:
+        """Build the filter on the network for the sensors, ``sample_period`` [s] and ``tuning``.
+
+        Raises:
+            ThermalConfigError: a value out of range (the message names it).
+
+        """
         if sample_period <= 0.0 or sensor_tau < 0.0:
             raise ThermalConfigError("sample_period must be > 0 and sensor_tau >= 0")
         self._grid = GridTransform.dct(rows, cols)

@@ -32,6 +32,12 @@ class LowpassBank:
     def __init__(
         self, channels: int, sample_period: float, cutoff_hz: float, order: int
     ) -> None:
+        """Build the filter for ``channels`` inputs at ``sample_period`` [s] and ``cutoff_hz``.
+
+        Raises:
+            ThermalConfigError: a value out of range (the message names it).
+
+        """
         nyquist = 0.5 / sample_period
         if not 0.0 < cutoff_hz < nyquist:
             raise ThermalConfigError(

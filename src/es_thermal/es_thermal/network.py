@@ -55,6 +55,12 @@ class NetworkParams:
     actuator_lateral: float = 0.2e-3
 
     def __post_init__(self) -> None:
+        """Check the values.
+
+        Raises:
+            ThermalConfigError: a value out of range (the message names it).
+
+        """
         for f in fields(self):
             value = getattr(self, f.name)
             if not np.isfinite(value) or value < 0.0:

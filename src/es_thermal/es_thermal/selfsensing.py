@@ -155,6 +155,12 @@ class FusionConfig:
     f_max_hz: float = 1.0e7
 
     def __post_init__(self) -> None:
+        """Check the values.
+
+        Raises:
+            ThermalConfigError: a value out of range (the message names it).
+
+        """
         for name in (
             "noise_hz", "drift", "gate_degc", "acquire_gate_degc", "stale_after",
             "stuck_band_degc",
@@ -233,6 +239,12 @@ class SelfSensingFusion:
         config: FusionConfig,
         disabled: tuple[int, ...] = (),
     ) -> None:
+        """Build the fusion of ``calibration`` with ``config``; ``disabled`` channels are dropped.
+
+        Raises:
+            CalibrationError: a disabled index off the grid.
+
+        """
         self.calibration = calibration
         self.config = config
         n = calibration.f0_hz.size

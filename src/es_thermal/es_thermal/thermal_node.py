@@ -43,7 +43,6 @@ multiplied by it, ``lowpass.cutoff_hz`` divided, the model's noise intensities m
 from __future__ import annotations
 
 import time
-from collections import deque
 from collections.abc import Sequence
 
 import numpy as np
@@ -59,20 +58,13 @@ from es_msgs_py.diagnostics import Level, make_array, make_status, readiness_sta
 from es_msgs_py.node_main import run_node, usage_text
 from es_msgs_py.params import declare_parameters
 from es_thermal.estimator import SampleClock, TemperatureEstimator
-from es_thermal.faults import StaleWatch
+from es_thermal.node_health import NodeHealth
 from es_thermal.node_params import SPECS, config_from_parameters
 from es_thermal.resonance_params import SPECS as RESONANCE_SPECS
 from es_thermal.resonance_params import fusion_from_parameters
 from es_thermal.sweep_sync import SampleSync
 
 NODE_NAME = "thermal"
-#: Measured sample intervals this far off the configured ``sample_rate`` give a WARN.
-_RATE_TOLERANCE = 0.25
-#: A rejected message keeps the input diagnostic at WARN (a failed update the estimate
-#: diagnostic at ERROR) this long [wall s].
-_REJECTION_HOLD = 5.0
-#: Updates the estimate diagnostic's timing and rate figures cover.
-_WINDOW = 200
 
 
 def _stamp(seconds: float) -> Time:
@@ -104,19 +96,7 @@ class ThermalNode(Node):
             f"{time.perf_counter() - started:.2f} s"
         )
         self._wall = Clock(clock_type=ClockType.STEADY_TIME)
-        self._raw_watch = StaleWatch(self.config.faults.stale_timeout)
-        self._heat_watch = StaleWatch(self.config.faults.stale_timeout)
-        self._rejected = {"raw": 0, "heat_load": 0, "resonance": 0, "command": 0}
-        self._last_rejection = ""
-        self._last_rejection_wall = -np.inf
-        self._published = 0
-        self._failures = 0  # updates that raised (since start)
-        self._last_failure = ""
-        self._last_failure_wall = -np.inf
-        # Recent update costs and sample intervals, for the estimate diagnostic.
-        self._update_seconds: deque[float] = deque(maxlen=_WINDOW)
-        self._intervals: deque[float] = deque(maxlen=_WINDOW)
-        self._last_arrival: float | None = None
+        self.health = NodeHealth(self.config, selfsensing=self.fusion is not None)
         self._sample_clock = SampleClock(self.config.sample_period)
         self._levels: dict[str, Level] = {}
         # deep publisher history: a recorder that lags for a moment still gets every estimate
@@ -166,9 +146,7 @@ class ThermalNode(Node):
         return float(self._wall.now().nanoseconds) * 1e-9
 
     def _reject(self, what: str, reason: str) -> None:
-        self._rejected[what] += 1
-        self._last_rejection_wall = self._wall_now()
-        self._last_rejection = f"{what}: {reason}"
+        self.health.rejected(what, reason, self._wall_now())
         self.get_logger().warning(
             f"rejected /dm/{'temperature/raw' if what == 'raw' else what} message: "
             f"{reason}",
@@ -178,9 +156,7 @@ class ThermalNode(Node):
 
     def _fail(self, what: str, err: Exception) -> None:
         """Count and report an exception from the core; the estimate restarts afresh."""
-        self._failures += 1
-        self._last_failure_wall = self._wall_now()
-        self._last_failure = f"{what}: {type(err).__name__}: {err}"
+        self.health.failed(what, err, self._wall_now())
         self.get_logger().error(
             f"{what} failed, estimate restarts from the next readings: "
             f"{type(err).__name__}: {err}",
@@ -200,7 +176,7 @@ class ThermalNode(Node):
         except Exception as err:  # the node must outlive any failure of the core
             self._fail("heat load", err)
             return
-        self._heat_watch.feed(self._wall_now())
+        self.health.heat_watch.feed(self._wall_now())
 
     def _on_resonance(self, msg: Float64MultiArray, info: dict[str, int]) -> None:
         assert self._sync is not None
@@ -228,11 +204,9 @@ class ThermalNode(Node):
         except LayoutError as err:
             self._reject("raw", str(err))
             return
-        self._raw_watch.feed(self._wall_now())
+        self.health.raw_watch.feed(self._wall_now())
         now = self._now()
-        if self._last_arrival is not None and now > self._last_arrival:
-            self._intervals.append(now - self._last_arrival)
-        self._last_arrival = now
+        self.health.arrived(now)
         started = time.perf_counter()
         try:
             stamp = self._sample_clock.stamp(now)
@@ -244,7 +218,7 @@ class ThermalNode(Node):
             self._fail("update", err)
             return
         self._fused = temperatures
-        self._update_seconds.append(time.perf_counter() - started)
+        self.health.updated(time.perf_counter() - started)
         if temperatures is not None and not self._timer_mode:
             self._publish(temperatures)
         self._publish_if_level_changed()
@@ -253,111 +227,14 @@ class ThermalNode(Node):
 
     def _publish(self, temperatures: np.ndarray) -> None:
         self._pub.publish(grid_to_msg(temperatures))
-        self._published += 1
+        self.health.published += 1
 
     def _publish_latest(self) -> None:
-        if self._fused is None or self._raw_watch.is_stale(self._wall_now()):
+        if self._fused is None or self.health.raw_watch.is_stale(self._wall_now()):
             return
         self._publish(self._fused)
 
     # --- diagnostics ------------------------------------------------------------------------
-
-    def _sensor_status(self) -> tuple[Level, str, dict[str, object]]:
-        latest = self.core.latest
-        if not self._raw_watch.seen or latest is None:
-            return Level.WARN, "waiting for /dm/temperature/raw", {}
-        if self._raw_watch.is_stale(self._wall_now()):
-            return (
-                Level.ERROR,
-                f"no /dm/temperature/raw for more than {self._raw_watch.timeout:g} s: "
-                "no estimate published",
-                {},
-            )
-        health = latest.health
-        kv: dict[str, object] = {**health.counts(), "sensors": self.config.sensor_count}
-        excluded = health.excluded_indices()
-        if excluded.size:
-            kv["first_excluded"] = ", ".join(str(i) for i in excluded)
-        if health.valid_count == 0:
-            return Level.ERROR, "no valid sensor: no estimate published", kv
-        if excluded.size:
-            bad = self.config.sensor_count - health.valid_count
-            return Level.WARN, f"{bad} sensor(s) excluded, estimating from the others", kv
-        return Level.OK, "all sensors valid", kv
-
-    def _input_status(self) -> tuple[Level, str, dict[str, object]]:
-        kv: dict[str, object] = {
-            f"rejected_{k}": v
-            for k, v in self._rejected.items()
-            if self.fusion is not None or k in ("raw", "heat_load")
-        }
-        if self._last_rejection:
-            kv["last_rejection"] = self._last_rejection
-        if self._wall_now() - self._last_rejection_wall < _REJECTION_HOLD:
-            return Level.WARN, "message(s) of wrong layout, size or value rejected", kv
-        if self.config.kind == "model":
-            if not self._heat_watch.seen:
-                return Level.OK, "no /dm/heat_load received: zero heat load assumed", kv
-            if self._heat_watch.is_stale(self._wall_now()):
-                return Level.WARN, "/dm/heat_load stale: last heat load held", kv
-        return Level.OK, "inputs ok", kv
-
-    def _estimate_status(self) -> tuple[Level, str, dict[str, object]]:
-        kv: dict[str, object] = {
-            "estimator": self.config.kind,
-            "published": self._published,
-            "failed_updates": self._failures,
-        }
-        if self._last_failure:
-            kv["last_failure"] = self._last_failure
-        if self._update_seconds:
-            kv["update_ms_mean"] = 1e3 * float(np.mean(self._update_seconds))
-            kv["update_ms_median"] = 1e3 * float(np.median(self._update_seconds))
-            kv["update_ms_max"] = 1e3 * float(np.max(self._update_seconds))
-        model = self.core.model
-        if model is not None and model.initialised:
-            kv["base_plate_degc"] = model.base_temperature
-            kv.update({f"model_error_{k}": v for k, v in model.biases.items()})
-        if self._fused is not None:
-            kv["min_degc"] = float(np.min(self._fused))
-            kv["max_degc"] = float(np.max(self._fused))
-        level, message = Level.OK, "estimating"
-        if self._wall_now() - self._last_failure_wall < _REJECTION_HOLD:
-            return Level.ERROR, "an update failed: estimate restarted from the readings", kv
-        if self._intervals:
-            interval = float(np.median(self._intervals))
-            kv["sample_interval_s"] = interval
-            expected = self.config.sample_period
-            if abs(interval - expected) > _RATE_TOLERANCE * expected:
-                level = Level.WARN
-                message = (
-                    f"samples arrive every {interval:.4g} s, filters are built for "
-                    f"{expected:.4g} s (set sample_rate)"
-                )
-        return level, message, kv
-
-    def _selfsensing_status(self) -> tuple[Level, str, dict[str, object]]:
-        assert self._sync is not None and self.fusion is not None
-        sync = self._sync
-        if sync.last_sweep is None or sync.health is None:
-            return Level.WARN, "waiting for /dm/resonance: model estimate alone", {}
-        kv: dict[str, object] = {
-            **sync.health.counts(),
-            **sync.health.worst(),
-            **{f"sweeps_{k}": v for k, v in sync.paired.items()},
-        }
-        quiet = self._now() - sync.last_sweep
-        if quiet > self.fusion.config.stale_after:
-            return Level.WARN, f"no /dm/resonance for {quiet:.3g} s: model estimate alone", kv
-        health = sync.health
-        dropped = int(np.count_nonzero(health.implausible | health.stale | health.stuck))
-        if dropped:
-            return (
-                Level.WARN,
-                f"{dropped} resonance channel(s) dropped (implausible, stuck or stale)",
-                kv,
-            )
-        return Level.OK, "resonance readings fused", kv
 
     def _check_ready(self) -> None:
         """Follow the raw input's matching until ready; say so on /diagnostics at once."""
@@ -369,22 +246,26 @@ class ThermalNode(Node):
             self._ready_timer.cancel()
 
     def _statuses(self) -> list[DiagnosticStatus]:
-        out = [readiness_status(self.get_name(), self._waiting_for)]
-        aspects = [
-            ("sensors", self._sensor_status),
-            ("input", self._input_status),
-            ("estimate", self._estimate_status),
+        health, wall = self.health, self._wall_now()
+        rows = [
+            ("sensors", health.sensor_status(self.core.latest, wall)),
+            ("input", health.input_status(wall)),
+            ("estimate", health.estimate_status(self.core.model, self._fused, wall)),
         ]
-        if self.fusion is not None:
-            aspects.append(("self-sensing", self._selfsensing_status))
-        for aspect, build in aspects:
-            level, message, kv = build()
+        if self._sync is not None:
+            rows.append(("self-sensing", health.selfsensing_status(self._sync, self._now())))
+        out = [readiness_status(self.get_name(), self._waiting_for)]
+        for aspect, (level, message, kv) in rows:
             self._levels[aspect] = level
             out.append(make_status(f"{self.get_name()}: {aspect}", level, message, kv))
         return out
 
     def _publish_if_level_changed(self) -> None:
-        current = {"sensors": self._sensor_status()[0], "input": self._input_status()[0]}
+        wall = self._wall_now()
+        current = {
+            "sensors": self.health.sensor_status(self.core.latest, wall)[0],
+            "input": self.health.input_status(wall)[0],
+        }
         if any(self._levels.get(k) != v for k, v in current.items()):
             self._publish_diagnostics()
 
