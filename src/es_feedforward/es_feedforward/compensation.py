@@ -102,7 +102,8 @@ class CompensationParams:
         """Build from ``{name: value}`` with or without the ``compensation.`` prefix.
 
         Raises:
-            ValueError: an unknown name or a value outside its range (see :data:`RANGES`).
+            FeedforwardConfigError: an unknown name or a value outside its range
+                (see :data:`RANGES`).
 
         """
         known = {f.name for f in fields(cls)}

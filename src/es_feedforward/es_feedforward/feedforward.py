@@ -280,7 +280,7 @@ class Feedforward:
             ``None`` when accepted, else why it is invalid (the feedforward then holds).
 
         Raises:
-            ValueError: ``T`` does not have the grid's shape.
+            FeedforwardInputError: ``T`` does not have the grid's shape.
 
         """
         T = np.asarray(T, np.float64)
@@ -321,7 +321,7 @@ class Feedforward:
         """Return the command for set points ``z_ref`` [m] (grid) at time ``t`` [s].
 
         Raises:
-            ValueError: ``z_ref`` does not have the grid's shape.
+            FeedforwardInputError: ``z_ref`` does not have the grid's shape.
 
         """
         z = np.asarray(z_ref, np.float64)

@@ -67,7 +67,7 @@ class ActuatorConfig:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any] | None) -> ActuatorConfig:
-        """Build from a scenario's ``actuators`` mapping; raise ``ValueError`` on bad entries.
+        """Build from a scenario's ``actuators`` mapping; raise ``ScenarioError`` on bad entries.
 
         Raises:
             ScenarioError: bad keys, types or values (the message says which).
@@ -99,7 +99,7 @@ class ActuatorConfig:
         return config
 
     def validate(self) -> None:
-        """Raise ``ValueError`` on a non-positive limit or substep count or negative spread."""
+        """Raise ``ScenarioError`` on a non-positive limit or substep count or negative spread."""
         if not self.v_limit > 0.0:
             raise ScenarioError("actuators.v_limit must be > 0")
         if self.substeps < 1:

@@ -53,7 +53,7 @@ class Plant:
         scenario: what to simulate (time already scaled; see :mod:`es_sim_plant.scenario`).
 
     Raises:
-        ValueError: the scenario does not fit together (e.g. sensor positions off the grid).
+        ScenarioError: the scenario does not fit together (e.g. sensor positions off the grid).
 
     """
 
@@ -224,7 +224,7 @@ class Plant:
             ``all_substeps``, else (1, R, C) holding z(t_k+1).
 
         Raises:
-            ValueError: wrong shape or non-finite values.
+            CommandError: wrong shape or non-finite values.
 
         """
         cmd = np.asarray(command, np.float64)
@@ -333,7 +333,7 @@ def simulate(
         record_substeps: also return the displacement at every internal step.
 
     Raises:
-        ValueError: no command source, or a command of wrong shape or with NaN.
+        SimulationInputError: no command source, or a command of wrong shape or with NaN.
 
     """
     count = plant.steps - plant.k if steps is None else int(steps)

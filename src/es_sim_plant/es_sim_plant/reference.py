@@ -64,7 +64,7 @@ class SetpointSpec:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any] | None) -> SetpointSpec:
-        """Build from a scenario's ``setpoint`` mapping; raise ``ValueError`` on bad entries.
+        """Build from a scenario's ``setpoint`` mapping; raise ``ScenarioError`` on bad entries.
 
         Raises:
             ScenarioError: bad keys, types or values (the message says which).
@@ -144,7 +144,7 @@ class Excitation:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> Excitation:
-        """Build from a scenario's ``excitation`` mapping; raise ``ValueError`` on bad entries.
+        """Build from a scenario's ``excitation`` mapping; raise ``ScenarioError`` on bad entries.
 
         Raises:
             ScenarioError: bad keys, types or values (the message says which).

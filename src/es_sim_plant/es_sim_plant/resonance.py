@@ -93,7 +93,7 @@ class ResonanceConfig:
         """Build from a scenario's ``resonance`` mapping.
 
         Raises:
-            ValueError: unknown keys, wrong types or out-of-range values.
+            ScenarioError: unknown keys, wrong types or out-of-range values.
 
         """
         values = dict(data or {})
@@ -135,7 +135,7 @@ class ResonanceConfig:
         return self.noise_density / float(np.sqrt(self.sweep_time))
 
     def validate(self) -> None:
-        """Raise ``ValueError`` with a readable reason when a value is out of range."""
+        """Raise ``ScenarioError`` with a readable reason when a value is out of range."""
         positive = ("f0_hz", "frequency_step_hz", "span_hz", "dwell_s")
         for name in positive:
             if not getattr(self, name) > 0.0:
@@ -163,7 +163,7 @@ class ResonanceSensor:
         rng_noise: generator of the reading noise.
 
     Raises:
-        ValueError: a failed channel is off the grid.
+        ScenarioError: a failed channel is off the grid.
 
     """
 

@@ -106,7 +106,7 @@ class Scenario:
         return self.base.at(0.0)
 
     def validate(self) -> None:
-        """Raise ``ValueError`` with a readable reason when a value is out of range."""
+        """Raise ``ScenarioError`` with a readable reason when a value is out of range."""
         if self.rows < 1 or self.cols < 1:
             raise ScenarioError("grid rows and cols must be >= 1")
         if not self.control_rate > 0.0 or not self.sensor_rate > 0.0:
@@ -133,7 +133,7 @@ class Scenario:
         """Build from a parsed YAML mapping; ``time_scale`` overrides the file's value.
 
         Raises:
-            ValueError: unknown keys, wrong types or out-of-range values (readable reason).
+            ScenarioError: unknown keys, wrong types or out-of-range values (readable reason).
 
         """
         if not isinstance(data, dict):
@@ -212,7 +212,7 @@ class Scenario:
         """Return a copy with the given values replaced (``None`` keeps the scenario's).
 
         ``duration`` is simulation time (already scaled); ``effects`` switches effects on or
-        off by canonical name. Raises ``ValueError`` on out-of-range results.
+        off by canonical name. Raises ``ScenarioError`` on out-of-range results.
         """
         changes: dict[str, Any] = {
             k: v
@@ -261,7 +261,7 @@ def resolve_scenario(name_or_path: str) -> Path:
     """Return the file of a scenario given as a path or as a shipped scenario's name.
 
     Raises:
-        ValueError: neither an existing file nor a known name.
+        ScenarioError: neither an existing file nor a known name.
 
     """
     path = Path(name_or_path).expanduser()
@@ -282,7 +282,7 @@ def load_scenario(name_or_path: str, time_scale: float | None = None) -> Scenari
     """Load a scenario by shipped name or YAML path; ``time_scale`` overrides the file's.
 
     Raises:
-        ValueError: missing file, YAML syntax error or invalid content (one readable line).
+        ScenarioError: missing file, YAML syntax error or invalid content (one readable line).
 
     """
     path = resolve_scenario(name_or_path)

@@ -143,7 +143,7 @@ def run_case(sc: Scenario, case: str, fit: ResonanceFit | None = None) -> CaseRe
     """Run one case in closed loop offline and score it.
 
     Raises:
-        ValueError: ``ntc_selfsensing`` without a fit, or an unknown case.
+        SimulationInputError: ``ntc_selfsensing`` without a fit, or an unknown case.
 
     """
     if case not in CASES:

@@ -47,7 +47,7 @@ class SensorConfig:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any] | None) -> SensorConfig:
-        """Build from a scenario's ``sensors`` mapping; raise ``ValueError`` on bad entries.
+        """Build from a scenario's ``sensors`` mapping; raise ``ScenarioError`` on bad entries.
 
         Raises:
             ScenarioError: bad keys, types or values (the message says which).
@@ -86,7 +86,7 @@ def flat_positions(values: list[float]) -> tuple[tuple[float, float], ...]:
     """Return (row, col) pairs from a flat [r0, c0, r1, c1, ...] list (node parameter form).
 
     Raises:
-        ValueError: odd length.
+        ScenarioError: odd length.
 
     """
     if len(values) % 2:

@@ -76,7 +76,7 @@ class ThermalParams:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any] | None) -> ThermalParams:
-        """Build from a scenario's ``thermal`` mapping; raise ``ValueError`` on bad entries.
+        """Build from a scenario's ``thermal`` mapping; raise ``ScenarioError`` on bad entries.
 
         Raises:
             ScenarioError: bad keys, types or values (the message says which).
@@ -95,7 +95,7 @@ class ThermalParams:
         return params
 
     def validate(self) -> None:
-        """Raise ``ValueError`` unless capacitances and series conductances are > 0."""
+        """Raise ``ScenarioError`` unless capacitances and series conductances are > 0."""
         for name in ("face_capacitance", "actuator_capacitance", "face_to_actuator"):
             if not getattr(self, name) > 0.0:
                 raise ScenarioError(f"thermal.{name} must be > 0")
@@ -298,7 +298,7 @@ class Illumination:
     background: float = 0.1
 
     def validate(self) -> None:
-        """Raise ``ValueError`` on an unknown pattern or out-of-range parameter."""
+        """Raise ``ScenarioError`` on an unknown pattern or out-of-range parameter."""
         if self.pattern not in PATTERNS:
             raise ScenarioError(f"illumination.pattern {self.pattern!r} is not one of {PATTERNS}")
         if self.total_power_w < 0.0:
@@ -361,7 +361,7 @@ class ExposureSchedule:
     count: int = 0
 
     def validate(self) -> None:
-        """Raise ``ValueError`` on negative times or a non-positive exposure."""
+        """Raise ``ScenarioError`` on negative times or a non-positive exposure."""
         if self.exposure_s <= 0.0 or self.swap_s < 0.0 or self.start_s < 0.0 or self.count < 0:
             raise ScenarioError(
                 "exposure schedule: exposure_s > 0, swap_s >= 0, start_s >= 0, count >= 0"
@@ -405,7 +405,7 @@ class BaseProfile:
     interpolation: str = "linear"
 
     def validate(self) -> None:
-        """Raise ``ValueError`` on unsorted or mismatched points or unknown interpolation."""
+        """Raise ``ScenarioError`` on unsorted or mismatched points or unknown interpolation."""
         if len(self.times) != len(self.temperatures) or not self.times:
             raise ScenarioError(
                 "base_temperature: times and temperatures need the same length >= 1"

@@ -10,9 +10,9 @@ estimate when no sensor is valid. Estimators:
   heat load (:mod:`es_thermal.kalman`).
 
 A heat-load grid that is not credible (:func:`es_thermal.faults.heat_load_problem`: NaN/inf,
-negative, above ``faults.max_heat_load`` per cell) is rejected with a ValueError and the last
-accepted heat load is held, as if the message had not come: one corrupt message must not
-drive the model's state away from the readings.
+negative, above ``faults.max_heat_load`` per cell) is rejected with a ThermalInputError (a
+ValueError) and the last accepted heat load is held, as if the message had not come: one
+corrupt message must not drive the model's state away from the readings.
 
 Time is given by the caller in seconds. The filters are discretised for a fixed sample
 period; a gap of several periods between messages advances them that many periods.
@@ -160,7 +160,7 @@ class TemperatureEstimator:
         sample (the heat load of a sample time comes before that time's readings).
 
         Raises:
-            ValueError: wrong shape, or a value that is not finite, negative beyond
+            ThermalInputError: wrong shape, or a value that is not finite, negative beyond
                 ``faults.heat_load_tolerance`` or above ``faults.max_heat_load``; the last
                 accepted heat load is kept.
 
@@ -187,7 +187,7 @@ class TemperatureEstimator:
         Returns an :class:`Estimate`; its ``temperatures`` is None when no reading is valid.
 
         Raises:
-            ValueError: ``readings`` has the wrong shape (nothing is updated).
+            ThermalInputError: ``readings`` has the wrong shape (nothing is updated).
 
         """
         health = self.monitor.check(readings, now)

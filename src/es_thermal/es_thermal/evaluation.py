@@ -80,7 +80,7 @@ def score(
     shift (0 .. ``max_lag`` s, whole samples) of the truth that minimises the RMS difference.
 
     Raises:
-        ValueError: no sample has an estimate.
+        ThermalInputError: no sample has an estimate.
 
     """
     est = estimates[skip:]

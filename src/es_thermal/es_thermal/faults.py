@@ -116,7 +116,7 @@ class SensorFaultMonitor:
         """Classify ``readings`` (S,) received at ``now`` [s] and update the stuck tracking.
 
         Raises:
-            ValueError: ``readings`` does not hold exactly ``count`` values.
+            ThermalInputError: ``readings`` does not hold exactly ``count`` values.
 
         """
         values = np.asarray(readings, dtype=float)

@@ -65,7 +65,7 @@ def sensor_positions(
     Empty ``sensor_rows`` and ``sensor_cols`` mean one sensor on every actuator.
 
     Raises:
-        ValueError: the two lists differ in length, hold a non-finite value or a position
+        ThermalConfigError: the two lists differ in length, hold a non-finite value or a position
             outside the grid ([0, R-1] x [0, C-1]).
 
     """
@@ -121,7 +121,7 @@ def interpolation_matrix(
     nearest-sensor everywhere.
 
     Raises:
-        ValueError: no sensor is valid.
+        ThermalInputError: no sensor is valid.
 
     """
     count = positions.shape[0]

@@ -246,7 +246,7 @@ class ModelEstimator:
         """Advance the model ``steps`` sample periods with the heat load (N,) held.
 
         Raises:
-            ValueError: the heat load holds NaN or inf (the state is left as it was).
+            ThermalInputError: the heat load holds NaN or inf (the state is left as it was).
 
         """
         x = self._require_state()

@@ -53,7 +53,7 @@ def steady_state_covariance(
     argument may carry the same leading batch dimensions (independent problems).
 
     Raises:
-        ValueError: no convergence (the pair (A, H) is not detectable).
+        ConvergenceError: no convergence (the pair (A, H) is not detectable).
 
     """
     n = A.shape[-1]
@@ -129,7 +129,7 @@ def modal_solution(
     dense solution.
 
     Raises:
-        ValueError: the Riccati iteration did not converge.
+        ConvergenceError: the Riccati iteration did not converge.
 
     """
     A, B, H = sparse.csr_matrix(A), sparse.csr_matrix(B), sparse.csr_matrix(H)

@@ -273,7 +273,7 @@ class SelfSensingFusion:
         """Take the command in force (N,) or (R, C) [V] for the voltage term.
 
         Raises:
-            ValueError: wrong size or a non-finite value (the previous command is kept).
+            ThermalInputError: wrong size or a non-finite value (the previous command is kept).
 
         """
         volts = np.asarray(voltage, float).ravel()
@@ -319,7 +319,7 @@ class SelfSensingFusion:
             The fused estimate, same shape as ``model``.
 
         Raises:
-            ValueError: ``frequency`` or ``model`` of the wrong size (nothing is updated).
+            ThermalInputError: ``frequency`` or ``model`` of the wrong size (nothing is updated).
 
         """
         estimate = np.asarray(model, float)

@@ -86,7 +86,7 @@ class SampleSync:
         None: not known (commands then never count as still coming).
 
         Raises:
-            ValueError: wrong size or a non-finite value (the command is ignored).
+            ThermalInputError: wrong size or a non-finite value (the command is ignored).
 
         """
         self.fusion.set_command(voltage)
@@ -98,7 +98,7 @@ class SampleSync:
         """Take one sweep (R, C) or (N,) [Hz] published at ``source_ns``, arriving at ``arrival``.
 
         Raises:
-            ValueError: a sweep of the wrong size (nothing is updated).
+            ThermalInputError: a sweep of the wrong size (nothing is updated).
 
         """
         sweep = np.asarray(frequency, float).ravel()
@@ -121,7 +121,7 @@ class SampleSync:
         ``stamp`` is the sample time [s], ``arrival`` the time the readings came [s].
 
         Raises:
-            ValueError: a model estimate of the wrong size.
+            ThermalInputError: a model estimate of the wrong size.
 
         """
         flat = np.asarray(model, float)

@@ -40,7 +40,7 @@ def relaxation_decay(corner_hz: float, dt: float) -> float:
         dt: step length [s] (>= 0).
 
     Raises:
-        ValueError: f_c not positive or dt negative (or either not finite).
+        EffectParameterError: f_c not positive or dt negative (or either not finite).
 
     """
     if not (np.isfinite(corner_hz) and corner_hz > 0.0):
@@ -74,7 +74,7 @@ def relaxation_inverse(
     V = (V_eff - r D s) / (1 - r D), D = ``decay`` in [0, 1].
 
     Raises:
-        ValueError: ``fraction`` not in [0, 1) (the inverse does not exist) or ``decay``
+        EffectParameterError: ``fraction`` not in [0, 1) (the inverse does not exist) or ``decay``
             not in [0, 1].
 
     """

@@ -37,7 +37,7 @@ class HeatingEstimate:
         """Set g [degC s/V^2], tau [s] (> 0) and the running-mean window [s] (> 0).
 
         Raises:
-            ValueError: tau or the window not positive, or g negative (or not finite).
+            EffectParameterError: tau or the window not positive, or g negative (or not finite).
 
         """
         if not (np.isfinite(gain) and gain >= 0.0):
@@ -63,7 +63,7 @@ class HeatingEstimate:
         """Return a copy with new parameters and this one's state (this one is unchanged).
 
         Raises:
-            ValueError: as the constructor.
+            EffectParameterError: as the constructor.
 
         """
         other = HeatingEstimate(gain, tau_s, mean_window_s)
