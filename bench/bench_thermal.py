@@ -207,7 +207,7 @@ def node_cost(rows: int, cols: int, *, updates: int = 200) -> dict[str, float]:
     the node hands them over; median, min and max over ``updates``.
     """
     from es_bringup.bringup import scenario_parameters
-    from es_thermal.thermal_node import SPECS, config_from_parameters
+    from es_thermal.node_params import SPECS, config_from_parameters
 
     values: dict[str, object] = {spec.name: spec.default for spec in SPECS}
     values.update(scenario_parameters("dm_exposure", {"rows": rows, "cols": cols})[0])

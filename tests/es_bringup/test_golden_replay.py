@@ -43,8 +43,8 @@ from es_msgs_py.bag import TopicSeries, read_bag
 from es_sim_plant.plant import Plant, simulate
 from es_sim_plant.scenario import Scenario
 from es_thermal.estimator import TemperatureEstimator
-from es_thermal.thermal_node import SPECS as THERMAL_SPECS
-from es_thermal.thermal_node import config_from_parameters as thermal_config
+from es_thermal.node_params import SPECS as THERMAL_SPECS
+from es_thermal.node_params import config_from_parameters as thermal_config
 
 GOLDEN = Path(__file__).resolve().parents[1] / "golden"
 RTOL = 1e-9

@@ -227,7 +227,7 @@ def test_a_failing_update_is_reported_and_the_node_keeps_running(
     try:
         node._on_heat_load(grid_to_msg(np.zeros((2, 2))))
         node._on_raw(sensors_to_msg(np.full(4, 40.0)))
-        assert node._published == 1
+        assert node.health.published == 1
 
         def fail_update(*_: object) -> None:
             raise np.linalg.LinAlgError("Singular matrix")
@@ -240,14 +240,16 @@ def test_a_failing_update_is_reported_and_the_node_keeps_running(
             patch.setattr(node.core, "set_heat_load", fail_heat_load)
             node._on_heat_load(grid_to_msg(np.zeros((2, 2))))
             node._on_raw(sensors_to_msg(np.full(4, 40.0)))
-        assert node._published == 1  # nothing published for the failed update
-        level, message, values = node._estimate_status()
+        assert node.health.published == 1  # nothing published for the failed update
+        level, message, values = node.health.estimate_status(
+            node.core.model, None, node._wall_now()
+        )
         assert level == Level.ERROR and "failed" in message
         assert values["failed_updates"] == 2
         assert "LinAlgError: Singular matrix" in str(values["last_failure"])
         # The estimate restarts from the next readings (a filter would still be near 40).
         node._on_raw(sensors_to_msg(np.full(4, 45.0)))
-        assert node._published == 2
+        assert node.health.published == 2
         latest = node.core.latest
         assert latest is not None and latest.temperatures is not None
         np.testing.assert_allclose(latest.temperatures, 45.0)

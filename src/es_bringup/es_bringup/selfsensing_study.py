@@ -28,6 +28,7 @@ import numpy.typing as npt
 
 from es_bringup.metrics import AlignedRun, run_metrics
 from es_feedforward.feedforward import Feedforward, FeedforwardConfig
+from es_sim_plant.errors import SimulationInputError
 from es_sim_plant.plant import Observation, Plant, simulate
 from es_sim_plant.resonance import ResonanceConfig
 from es_sim_plant.scenario import Scenario, load_scenario
@@ -142,13 +143,13 @@ def run_case(sc: Scenario, case: str, fit: ResonanceFit | None = None) -> CaseRe
     """Run one case in closed loop offline and score it.
 
     Raises:
-        ValueError: ``ntc_selfsensing`` without a fit, or an unknown case.
+        SimulationInputError: ``ntc_selfsensing`` without a fit, or an unknown case.
 
     """
     if case not in CASES:
-        raise ValueError(f"unknown case {case!r}; one of {list(CASES)}")
+        raise SimulationInputError(f"unknown case {case!r}; one of {list(CASES)}")
     if case == "ntc_selfsensing" and fit is None:
-        raise ValueError("ntc_selfsensing needs a resonance calibration")
+        raise SimulationInputError("ntc_selfsensing needs a resonance calibration")
     plant = Plant(sc)
     positions = (
         actuator_positions(sc.rows, sc.cols)

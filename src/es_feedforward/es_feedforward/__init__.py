@@ -1,1 +1,54 @@
-"""Electrostrictive actuator models, temperature-compensated feedforward and calibration."""
+"""Electrostrictive actuator models, temperature-compensated feedforward and calibration.
+
+Pure, without rclpy: :mod:`.feedforward` (the modes), :mod:`.compensation`,
+:mod:`.param_file` (configuration <-> parameters and YAML files), :mod:`.node_params` (the
+node's declared parameters), :mod:`.calibration` and its CLI :mod:`.calibrate`, and
+:mod:`.errors` (every exception class of the package). The ROS node is
+:mod:`.feedforward_node`. Importing the package is cheap: its modules are loaded on first
+use (``es_feedforward.param_file``).
+"""
+
+from __future__ import annotations
+
+import importlib
+from types import ModuleType
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # type checkers see the modules; at run time they load on first access
+    from es_feedforward import (
+        calibrate,
+        calibration,
+        compensation,
+        errors,
+        feedforward,
+        feedforward_node,
+        node_params,
+        param_file,
+    )
+
+#: The public modules of the package.
+__all__ = [
+    "calibrate",
+    "calibration",
+    "compensation",
+    "errors",
+    "feedforward",
+    "feedforward_node",
+    "node_params",
+    "param_file",
+]
+
+
+# Hidden from type checkers, which then flag a misspelt module instead of accepting any name.
+if not TYPE_CHECKING:
+
+    def __getattr__(name: str) -> ModuleType:
+        """Import a public module on first access (e.g. ``es_feedforward.errors``).
+
+        Raises:
+            AttributeError: ``name`` is not a public module of the package.
+
+        """
+        if name in __all__ and name != "__version__":
+            return importlib.import_module(f"{__name__}.{name}")
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -20,6 +20,7 @@ from dataclasses import dataclass, fields
 from types import MappingProxyType
 from typing import Final
 
+from es_feedforward.errors import FeedforwardConfigError
 from es_physics.effects import registry
 from es_physics.effects.coupling import CouplingInverse, laplacian
 from es_physics.effects.delay import DelayPredictor
@@ -185,7 +186,8 @@ class CompensationParams:
         """Build from ``{name: value}`` with or without the ``compensation.`` prefix.
 
         Raises:
-            ValueError: an unknown name or a value outside its range (see :data:`RANGES`).
+            FeedforwardConfigError: an unknown name or a value outside its range
+                (see :data:`RANGES`).
 
         """
         known = {f.name for f in fields(cls)}
@@ -194,12 +196,12 @@ class CompensationParams:
         for key, value in values.items():
             name = key.removeprefix(PREFIX)
             if name not in RANGES:
-                raise ValueError(f"unknown compensation parameter {key!r}")
+                raise FeedforwardConfigError(f"unknown compensation parameter {key!r}")
             (kwargs if name in known else extra)[name] = float(value)
         params = cls.with_extra(extra, **kwargs)
         reason = params.reason_to_reject()
         if reason is not None:
-            raise ValueError(reason)
+            raise FeedforwardConfigError(reason)
         return params
 
     def reason_to_reject(self) -> str | None:

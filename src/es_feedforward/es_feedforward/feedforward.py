@@ -33,6 +33,7 @@ import numpy as np
 import numpy.typing as npt
 
 from es_feedforward.compensation import CompensationParams
+from es_feedforward.errors import FeedforwardConfigError, FeedforwardInputError
 from es_physics.effects import Compensator, in_model_order
 from es_physics.laws import (
     CODE_CLIPPED_HIGH,
@@ -192,9 +193,15 @@ class Feedforward:
     _temperature_problem: str | None
 
     def __init__(self, config: FeedforwardConfig, previous: Feedforward | None = None) -> None:
+        """Build the feedforward for ``config`` (``previous``: the core it replaces).
+
+        Raises:
+            FeedforwardConfigError: the configuration is inconsistent (the reason is the message).
+
+        """
         reason = config.reason_to_reject()
         if reason is not None:
-            raise ValueError(reason)
+            raise FeedforwardConfigError(reason)
         self.config = config
         shape = config.shape
         comp = config.compensation
@@ -257,12 +264,14 @@ class Feedforward:
             ``None`` when accepted, else why it is invalid (the feedforward then holds).
 
         Raises:
-            ValueError: ``T`` does not have the grid's shape.
+            FeedforwardInputError: ``T`` does not have the grid's shape.
 
         """
         T = np.asarray(T, np.float64)
         if T.shape != self.config.shape:
-            raise ValueError(f"temperature grid is {T.shape}, expected {self.config.shape}")
+            raise FeedforwardInputError(
+                f"temperature grid is {T.shape}, expected {self.config.shape}"
+            )
         self._temperature_time = t
         low, high = PLAUSIBLE_TEMPERATURE
         if T.size and not (T.min() >= low and T.max() <= high):  # NaN fails too
@@ -298,12 +307,14 @@ class Feedforward:
         """Return the command for set points ``z_ref`` [m] (grid) at time ``t`` [s].
 
         Raises:
-            ValueError: ``z_ref`` does not have the grid's shape.
+            FeedforwardInputError: ``z_ref`` does not have the grid's shape.
 
         """
         z = np.asarray(z_ref, np.float64)
         if z.shape != self.config.shape:
-            raise ValueError(f"set point grid is {z.shape}, expected {self.config.shape}")
+            raise FeedforwardInputError(
+                f"set point grid is {z.shape}, expected {self.config.shape}"
+            )
         problem = self.temperature_problem(t)
         if problem is not None:
             return CommandResult(self._last_voltage, self._last_status, True, problem)

@@ -25,6 +25,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from std_msgs.msg import Float64MultiArray
 
+from es_feedforward.errors import ParameterError
 from es_feedforward.feedforward import (
     CommandResult,
     Feedforward,
@@ -43,7 +44,7 @@ from es_msgs_py.diagnostics import (
     unmatched,
 )
 from es_msgs_py.node_main import run_node, usage_text
-from es_msgs_py.params import declare_parameters
+from es_msgs_py.params import ParameterValues, declare_parameters
 from es_msgs_py.topics import (
     COMMAND,
     DIAGNOSTICS,
@@ -76,13 +77,19 @@ class FeedforwardNode(Node):
     """The feedforward node; all computation lives in :class:`Feedforward`."""
 
     def __init__(self) -> None:
+        """Declare the parameters, build the core and the endpoints.
+
+        Raises:
+            ParameterError: a value rclpy refuses (e.g. integers for a double array).
+
+        """
         super().__init__(NODE_NAME)
         specs = parameter_specs()
         self._names = [spec.name for spec in specs]
         try:
             self._values = declare_parameters(self, specs)
         except ParameterException as err:  # e.g. an integer array given for a double array
-            raise ValueError(f"invalid parameter: {err}") from None
+            raise ParameterError(f"invalid parameter: {err}") from None
         config = config_from_parameters(self._values)
         self._core = Feedforward(config)
         self._pending: Feedforward | None = None
@@ -120,7 +127,7 @@ class FeedforwardNode(Node):
         self._last_result: CommandResult | None = None
         self._published_levels: tuple[int, ...] = ()
         self.create_timer(
-            float(self._values["diagnostics_period"]),  # type: ignore[arg-type]
+            self._values.get_float("diagnostics_period"),
             self._publish_diagnostics,
             clock=Clock(clock_type=ClockType.STEADY_TIME),
         )
@@ -228,7 +235,8 @@ class FeedforwardNode(Node):
 
     def _swap_configuration(self, params: list[Parameter]) -> None:
         """Swap the validated core in (same executor thread: never inside a set point)."""
-        self._values.update({p.name: p.value for p in params if p.name in self._names})
+        changed = {p.name: p.value for p in params if p.name in self._names}
+        self._values = ParameterValues({**self._values, **changed})
         if self._pending is not None:
             self._core = self._pending
             self._pending = None

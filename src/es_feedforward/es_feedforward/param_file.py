@@ -24,7 +24,9 @@ import yaml
 
 from es_feedforward.compensation import PREFIX as COMPENSATION_PREFIX
 from es_feedforward.compensation import RANGES as COMPENSATION_RANGES
+from es_feedforward.errors import ParameterError, ParamsFileError
 from es_feedforward.feedforward import FeedforwardConfig, Mode, ObserverGains
+from es_msgs_py.param_spec import ParameterValues
 from es_msgs_py.param_yaml import dump_parameters, floats_from_strings
 from es_physics.params import ActuatorParams
 
@@ -42,7 +44,7 @@ def _law_array(name: str, value: object, shape: tuple[int, int]) -> float | np.n
     if values.size == 1:
         return float(values[0])
     if values.size != shape[0] * shape[1]:
-        raise ValueError(
+        raise ParameterError(
             f"{LAW_PREFIX}{name} has {values.size} values, expected 1 or rows*cols = "
             f"{shape[0] * shape[1]}"
         )
@@ -58,62 +60,63 @@ def config_from_parameters(
     ``rows`` and ``cols`` are required). Unknown names are ignored (other node parameters).
 
     Raises:
-        ValueError: a value has the wrong type, size or range; the message gives the reason.
+        es_feedforward.errors.ParameterError: a value has the wrong type, size or range (a
+            ``ValueError``); the message gives the reason.
 
     """
     try:
         return _config_from_parameters(values, base)
     except (TypeError, ValueError) as err:
-        raise ValueError(str(err)) from None
+        raise ParameterError(str(err)) from None
 
 
 def _config_from_parameters(
     values: Mapping[str, object], base: FeedforwardConfig | None
 ) -> FeedforwardConfig:
+    typed = ParameterValues(values)
     if base is None:
         if "rows" not in values or "cols" not in values:
-            raise ValueError("rows and cols are required")
+            raise ParameterError("rows and cols are required")
         base = FeedforwardConfig(shape=(1, 1))
-    rows = int(values.get("rows", base.shape[0]))  # type: ignore[call-overload]
-    cols = int(values.get("cols", base.shape[1]))  # type: ignore[call-overload]
+    rows = typed.get_int("rows", base.shape[0])
+    cols = typed.get_int("cols", base.shape[1])
     shape = (rows, cols)
     if rows < 1 or cols < 1:
-        raise ValueError(f"rows and cols must be >= 1, got {rows} x {cols}")
+        raise ParameterError(f"rows and cols must be >= 1, got {rows} x {cols}")
     mode_name = str(values.get("mode", base.mode.value))
     if mode_name not in Mode.__members__.values():
-        raise ValueError(f"mode={mode_name!r} is not one of {[m.value for m in Mode]}")
+        raise ParameterError(f"mode={mode_name!r} is not one of {[m.value for m in Mode]}")
     law = {
         name: _law_array(name, values[LAW_PREFIX + name], shape)
         for name in LAW_FIELDS
         if LAW_PREFIX + name in values
     }
     compensation = {
-        name: float(values[COMPENSATION_PREFIX + name])  # type: ignore[arg-type]
+        name: typed.get_float(COMPENSATION_PREFIX + name)
         for name in COMPENSATION_RANGES
         if COMPENSATION_PREFIX + name in values
     }
-    observer = {
-        name: values[OBSERVER_PREFIX + name]
-        for name in OBSERVER_FIELDS
-        if OBSERVER_PREFIX + name in values
-    }
+    gains = base.observer
+    observer = ObserverGains(
+        kp=typed.get_float(OBSERVER_PREFIX + "kp", gains.kp),
+        ki=typed.get_float(OBSERVER_PREFIX + "ki", gains.ki),
+        iterations=typed.get_int(OBSERVER_PREFIX + "iterations", gains.iterations),
+    )
     config = FeedforwardConfig(
         shape=shape,
         params=replace(base.params, **law),
         mode=Mode(mode_name),
-        v_limit=float(values.get("v_limit", base.v_limit)),  # type: ignore[arg-type]
-        reference_temperature=float(
-            values.get("reference_temperature", base.reference_temperature)  # type: ignore[arg-type]
+        v_limit=typed.get_float("v_limit", base.v_limit),
+        reference_temperature=typed.get_float(
+            "reference_temperature", base.reference_temperature
         ),
-        temperature_timeout=float(
-            values.get("temperature_timeout", base.temperature_timeout)  # type: ignore[arg-type]
-        ),
+        temperature_timeout=typed.get_float("temperature_timeout", base.temperature_timeout),
         compensation=base.compensation.replaced(compensation),
-        observer=replace(base.observer, **observer),  # type: ignore[arg-type]
+        observer=observer,
     )
     reason = config.reason_to_reject()
     if reason is not None:
-        raise ValueError(reason)
+        raise ParameterError(reason)
     return config
 
 
@@ -167,16 +170,18 @@ def read_params_file(path: str | Path, node_name: str = DEFAULT_NODE_NAME) -> Fe
     (``-4e-17``) are read as floats (:func:`es_msgs_py.param_yaml.floats_from_strings`).
 
     Raises:
-        ValueError: unreadable file, no parameters for the node, or an invalid value (one
-            readable line).
+        es_feedforward.errors.ParamsFileError: unreadable file, no parameters for the node,
+            or an invalid value (a ``ValueError``; one readable line).
 
     """
     try:
         document, _ = floats_from_strings(yaml.safe_load(Path(path).read_text(encoding="utf-8")))
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as err:
-        raise ValueError(f"cannot read parameters file {path}: {err}".splitlines()[0]) from None
+        raise ParamsFileError(
+            f"cannot read parameters file {path}: {err}".splitlines()[0]
+        ) from None
     if not isinstance(document, Mapping):
-        raise ValueError(f"{path}: not a ROS 2 parameters file (no node mapping)")
+        raise ParamsFileError(f"{path}: not a ROS 2 parameters file (no node mapping)")
     values: dict[str, object] = {}
     found = False
     for key in ("/**", node_name.lstrip("/"), "/" + node_name.lstrip("/")):
@@ -185,8 +190,8 @@ def read_params_file(path: str | Path, node_name: str = DEFAULT_NODE_NAME) -> Fe
             values.update(_flatten(section["ros__parameters"]))
             found = True
     if not found:
-        raise ValueError(f"{path}: no ros__parameters for node {node_name!r} or '/**'")
+        raise ParamsFileError(f"{path}: no ros__parameters for node {node_name!r} or '/**'")
     try:
         return config_from_parameters(values)
     except ValueError as err:
-        raise ValueError(f"{path}: {err}") from None
+        raise ParamsFileError(f"{path}: {err}") from None

@@ -6,6 +6,7 @@ so that data from a real test stand can replace the simulator at any point.
 Importing the package is cheap and needs no rclpy: its modules are loaded on first use
 (``es_msgs_py.bag`` or ``from es_msgs_py import bag``). Pure, without rclpy: :mod:`.bag`
 (bag I/O, needs rosbags and numpy), :mod:`.topic_names` (the contract's topic names),
+:mod:`.param_spec` (what a node parameter accepts, typed parameter values),
 :mod:`.labimport` (lab recordings into contract bags) and :mod:`.errors` (every exception
 class of the package). The others need rclpy or the ROS message packages: :mod:`.arrays` (message
 classes), :mod:`.topics`, :mod:`.params`, :mod:`.diagnostics`, :mod:`.node_main`,
@@ -26,6 +27,7 @@ if TYPE_CHECKING:  # type checkers see the modules; at run time they load on fir
         errors,
         labimport,
         node_main,
+        param_spec,
         params,
         record,
         topic_names,
@@ -43,6 +45,7 @@ __all__ = [
     "errors",
     "labimport",
     "node_main",
+    "param_spec",
     "params",
     "record",
     "topic_names",

@@ -29,7 +29,8 @@ from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedE
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 
-from es_msgs_py.params import ParameterSpec
+from es_msgs_py.errors import ParameterValueError
+from es_msgs_py.param_spec import ParameterSpec
 
 #: Name of the read-only parameter through which a node chooses its executor.
 EXECUTOR_PARAMETER: Final = "executor"
@@ -75,12 +76,17 @@ class PublishCounter:
 
 
 def executor_kind(node: Node) -> str:
-    """Return the executor ``node`` asks for (its ``executor`` parameter, if declared)."""
+    """Return the executor ``node`` asks for (its ``executor`` parameter, if declared).
+
+    Raises:
+        ParameterValueError: the parameter names no known executor.
+
+    """
     if not node.has_parameter(EXECUTOR_PARAMETER):
         return EXECUTORS[0]
     kind = node.get_parameter(EXECUTOR_PARAMETER).value
     if kind not in EXECUTORS:
-        raise ValueError(f"{EXECUTOR_PARAMETER}={kind!r} is not one of {list(EXECUTORS)}")
+        raise ParameterValueError(f"{EXECUTOR_PARAMETER}={kind!r} is not one of {list(EXECUTORS)}")
     return str(kind)
 
 
@@ -136,7 +142,7 @@ def usage_text(program: str, summary: str, specs: Sequence[ParameterSpec] = ()) 
     if specs:
         lines += ["", "parameters (name, default: description):"]
         for spec in specs:
-            text = spec.descriptor().description
+            text = spec.full_description()
             lines.append(f"  {spec.name} ({spec.default!r}): {text}")
     return "\n".join(lines) + "\n"
 

@@ -1,14 +1,15 @@
 """Declare ROS parameters with descriptors, ranges and validation on set.
 
 rclpy itself rejects a value outside a declared ``FloatingPointRange``/``IntegerRange`` when
-it is set at run time; :class:`ParameterSpec` adds choices and custom checks and gives the
-same readable reason for all of them.
+it is set at run time; :class:`ParameterSpec` (:mod:`es_msgs_py.param_spec`, pure) adds
+choices and custom checks and gives the same readable reason for all of them.
+:func:`declare_parameters` returns the initial values as a typed
+:class:`~es_msgs_py.param_spec.ParameterValues`.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Sequence
 
 from rcl_interfaces.msg import (
     FloatingPointRange,
@@ -20,72 +21,45 @@ from rclpy.exceptions import ParameterException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-Scalar = bool | int | float | str
-Check = Callable[[object], str | None]
+from es_msgs_py.errors import ParameterValueError
+from es_msgs_py.param_spec import Check, ParameterSpec, ParameterValues, Scalar
+
+__all__ = [
+    "Check",
+    "ParameterSpec",
+    "ParameterValues",
+    "Scalar",
+    "declare_parameters",
+    "descriptor",
+]
 
 
-@dataclass(frozen=True)
-class ParameterSpec:
-    """One declared parameter: default, description and what values it accepts.
-
-    ``low``/``high`` give an inclusive numeric range, ``choices`` a set of allowed strings,
-    ``check`` any further test returning a reason string when the value is rejected.
-    """
-
-    name: str
-    default: Scalar | list[float] | list[int] | list[str]
-    description: str
-    low: float | None = None
-    high: float | None = None
-    choices: Sequence[str] = ()
-    check: Check | None = None
-    read_only: bool = False
-    dynamic_typing: bool = False
-    extra: dict[str, str] = field(default_factory=dict)
-
-    def descriptor(self) -> ParameterDescriptor:
-        """Return the ``ParameterDescriptor`` announced for this parameter."""
-        text = self.description
-        if self.choices:
-            text += f" One of: {', '.join(self.choices)}."
-        desc = ParameterDescriptor(
-            description=text, read_only=self.read_only, dynamic_typing=self.dynamic_typing
-        )
-        if self.low is not None and self.high is not None:
-            if isinstance(self.default, bool) or not isinstance(self.default, int | float):
-                pass
-            elif isinstance(self.default, int):
-                desc.integer_range = [
-                    IntegerRange(from_value=int(self.low), to_value=int(self.high), step=0)
-                ]
-            else:
-                desc.floating_point_range = [
-                    FloatingPointRange(
-                        from_value=float(self.low), to_value=float(self.high), step=0.0
-                    )
-                ]
-        return desc
-
-    def reason_to_reject(self, value: object) -> str | None:
-        """Return why ``value`` is not acceptable, or ``None`` when it is."""
-        if self.choices and value not in self.choices:
-            return f"{self.name}={value!r} is not one of {list(self.choices)}"
-        numeric = isinstance(value, int | float) and not isinstance(value, bool)
-        in_range = (
-            not numeric or self.low is None or self.high is None or self.low <= value <= self.high  # type: ignore[operator]
-        )
-        if not in_range:
-            return f"{self.name}={value!r} is outside [{self.low}, {self.high}]"
-        if self.check is not None:
-            return self.check(value)
-        return None
+def descriptor(spec: ParameterSpec) -> ParameterDescriptor:
+    """Return the ``ParameterDescriptor`` announced for ``spec`` (description, range, flags)."""
+    desc = ParameterDescriptor(
+        description=spec.full_description(),
+        read_only=spec.read_only,
+        dynamic_typing=spec.dynamic_typing,
+    )
+    if spec.low is not None and spec.high is not None:
+        if isinstance(spec.default, bool) or not isinstance(spec.default, int | float):
+            pass
+        elif isinstance(spec.default, int):
+            desc.integer_range = [
+                IntegerRange(from_value=int(spec.low), to_value=int(spec.high), step=0)
+            ]
+        else:
+            desc.floating_point_range = [
+                FloatingPointRange(from_value=float(spec.low), to_value=float(spec.high), step=0.0)
+            ]
+    return desc
 
 
-def declare_parameters(node: Node, specs: Sequence[ParameterSpec]) -> dict[str, object]:
+def declare_parameters(node: Node, specs: Sequence[ParameterSpec]) -> ParameterValues:
     """Declare ``specs`` on ``node``, validate the initial values and guard later sets.
 
     Returns:
-        The initial value of every parameter by name.
+        The initial value of every parameter by name, with typed getters.
 
     Raises:
         ValueError: an initial value (from the command line or a parameters file) is not
@@ -96,13 +70,13 @@ def declare_parameters(node: Node, specs: Sequence[ParameterSpec]) -> dict[str, 
     values: dict[str, object] = {}
     for spec in specs:
         try:
-            param = node.declare_parameter(spec.name, spec.default, spec.descriptor())
+            param = node.declare_parameter(spec.name, spec.default, descriptor(spec))
         except ParameterException as err:  # rclpy's own range check of an initial value
-            raise ValueError(f"invalid parameter {spec.name}: {err}") from None
+            raise ParameterValueError(f"invalid parameter {spec.name}: {err}") from None
         values[spec.name] = param.value
         reason = spec.reason_to_reject(param.value)
         if reason is not None:
-            raise ValueError(f"invalid parameter: {reason}")
+            raise ParameterValueError(f"invalid parameter: {reason}")
 
     def on_set(params: list[Parameter]) -> SetParametersResult:
         for param in params:
@@ -113,4 +87,4 @@ def declare_parameters(node: Node, specs: Sequence[ParameterSpec]) -> dict[str, 
         return SetParametersResult(successful=True)
 
     node.add_on_set_parameters_callback(on_set)
-    return values
+    return ParameterValues(values)

@@ -1,7 +1,47 @@
 """Electrostrictive actuator physics shared by plant, feedforward and calibration.
 
-No ROS here: parameters and their temperature laws (:mod:`es_physics.params`), the
-displacement models and their inverses (:mod:`es_physics.laws`).
+No ROS here: parameters and their temperature laws (:mod:`.params`), the displacement models
+and their inverses (:mod:`.laws`), the effects beyond the basic law with their registry
+(:mod:`.effects`) and every exception class of the package (:mod:`.errors`). Importing the
+package is cheap: its modules are loaded on first use (``es_physics.laws``).
 """
 
+from __future__ import annotations
+
+import importlib
+from types import ModuleType
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # type checkers see the modules; at run time they load on first access
+    from es_physics import (
+        effects,
+        errors,
+        laws,
+        params,
+    )
+
 __version__ = "0.1.0"
+
+#: The public modules of the package.
+__all__ = [
+    "__version__",
+    "effects",
+    "errors",
+    "laws",
+    "params",
+]
+
+
+# Hidden from type checkers, which then flag a misspelt module instead of accepting any name.
+if not TYPE_CHECKING:
+
+    def __getattr__(name: str) -> ModuleType:
+        """Import a public module on first access (e.g. ``es_physics.errors``).
+
+        Raises:
+            AttributeError: ``name`` is not a public module of the package.
+
+        """
+        if name in __all__ and name != "__version__":
+            return importlib.import_module(f"{__name__}.{name}")
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -30,6 +30,7 @@ from es_physics.effects import Drive, PlantContext, StepState
 from es_physics.laws import DEFAULT_V_LIMIT, hyperbolic_forward
 from es_physics.params import ActuatorParams
 from es_sim_plant.effects import Effects
+from es_sim_plant.errors import ScenarioError
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -56,20 +57,25 @@ class ActuatorConfig:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any] | None) -> ActuatorConfig:
-        """Build from a scenario's ``actuators`` mapping; raise ``ValueError`` on bad entries."""
+        """Build from a scenario's ``actuators`` mapping; raise ``ScenarioError`` on bad entries.
+
+        Raises:
+            ScenarioError: bad keys, types or values (the message says which).
+
+        """
         data = dict(data or {})
         known = {"params", "spread", "v_limit", "substeps"}
         bad = set(data) - known
         if bad:
-            raise ValueError(f"actuators: unknown key(s) {sorted(bad)}; known {sorted(known)}")
+            raise ScenarioError(f"actuators: unknown key(s) {sorted(bad)}; known {sorted(known)}")
         raw_params = data.get("params") or {}
         raw_spread = data.get("spread", cls().spread) or {}
         for what, mapping in (("params", raw_params), ("spread", raw_spread)):
             if not isinstance(mapping, dict):
-                raise ValueError(f"actuators.{what} must be a mapping")
+                raise ScenarioError(f"actuators.{what} must be a mapping")
             unknown = set(mapping) - set(SPREADABLE)
             if unknown:
-                raise ValueError(f"actuators.{what}: unknown name(s) {sorted(unknown)}")
+                raise ScenarioError(f"actuators.{what}: unknown name(s) {sorted(unknown)}")
         try:
             config = cls(
                 params=ActuatorParams(**{k: float(v) for k, v in raw_params.items()}),
@@ -78,18 +84,18 @@ class ActuatorConfig:
                 substeps=int(data.get("substeps", cls.substeps)),
             )
         except (TypeError, ValueError):
-            raise ValueError("actuators: values must be numbers") from None
+            raise ScenarioError("actuators: values must be numbers") from None
         config.validate()
         return config
 
     def validate(self) -> None:
-        """Raise ``ValueError`` on a non-positive limit or substep count or negative spread."""
+        """Raise ``ScenarioError`` on a non-positive limit or substep count or negative spread."""
         if not self.v_limit > 0.0:
-            raise ValueError("actuators.v_limit must be > 0")
+            raise ScenarioError("actuators.v_limit must be > 0")
         if self.substeps < 1:
-            raise ValueError("actuators.substeps must be >= 1")
+            raise ScenarioError("actuators.substeps must be >= 1")
         if any(not 0.0 <= s < 0.5 for s in self.spread.values()):
-            raise ValueError("actuators.spread values must be in [0, 0.5)")
+            raise ScenarioError("actuators.spread values must be in [0, 0.5)")
 
 
 def spread_params(

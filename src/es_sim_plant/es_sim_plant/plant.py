@@ -23,6 +23,7 @@ import numpy.typing as npt
 
 from es_physics.params import ActuatorParams
 from es_sim_plant.actuators import ActuatorGrid
+from es_sim_plant.errors import CommandError, SimulationInputError
 from es_sim_plant.reference import ExcitationGenerator, SetpointGenerator
 from es_sim_plant.resonance import ResonanceSensor
 from es_sim_plant.scenario import Scenario
@@ -51,7 +52,7 @@ class Plant:
         scenario: what to simulate (time already scaled; see :mod:`es_sim_plant.scenario`).
 
     Raises:
-        ValueError: the scenario does not fit together (e.g. sensor positions off the grid).
+        ScenarioError: the scenario does not fit together (e.g. sensor positions off the grid).
 
     """
 
@@ -221,12 +222,12 @@ class Plant:
             ``all_substeps``, else (1, R, C) holding z(t_k+1).
 
         Raises:
-            ValueError: wrong shape or non-finite values.
+            CommandError: wrong shape or non-finite values.
 
         """
         cmd = np.asarray(command, np.float64)
         if cmd.shape != self.shape or not np.isfinite(cmd).all():
-            raise ValueError(f"invalid command: {self.check_command(cmd)}")
+            raise CommandError(f"invalid command: {self.check_command(cmd)}")
         t0 = self.time
         self.actuators.apply(cmd)
         heat = self.heat_load()
@@ -328,7 +329,7 @@ def simulate(
         record_substeps: also return the displacement at every internal step.
 
     Raises:
-        ValueError: no command source, or a command of wrong shape or with NaN.
+        SimulationInputError: no command source, or a command of wrong shape or with NaN.
 
     """
     count = plant.steps - plant.k if steps is None else int(steps)
@@ -339,10 +340,12 @@ def simulate(
         if raw.ndim == 1:
             raw = raw[:, None, None]
         if raw.shape[0] < count:
-            raise ValueError(f"commands has {raw.shape[0]} steps, {count} needed")
+            raise SimulationInputError(f"commands has {raw.shape[0]} steps, {count} needed")
         cmd_array = np.broadcast_to(raw[:count], (count, *shape))
     elif controller is None and plant.excitation is None:
-        raise ValueError("simulate needs a controller, a command array or a scenario excitation")
+        raise SimulationInputError(
+            "simulate needs a controller, a command array or a scenario excitation"
+        )
     n = plant.actuators.substeps
     out = {
         name: np.empty((count, *shape))

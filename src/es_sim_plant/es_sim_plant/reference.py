@@ -23,6 +23,7 @@ from typing import Any, Final
 import numpy as np
 import numpy.typing as npt
 
+from es_sim_plant.errors import ScenarioError
 from es_sim_plant.thermal import normalised_coordinates
 
 FloatArray = npt.NDArray[np.float64]
@@ -63,22 +64,29 @@ class SetpointSpec:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any] | None) -> SetpointSpec:
-        """Build from a scenario's ``setpoint`` mapping; raise ``ValueError`` on bad entries."""
+        """Build from a scenario's ``setpoint`` mapping; raise ``ScenarioError`` on bad entries.
+
+        Raises:
+            ScenarioError: bad keys, types or values (the message says which).
+
+        """
         data = dict(data or {})
         sine = dict(data.pop("sine", None) or {})
         shape = dict(data.pop("shape", None) or {})
         offset = data.pop("offset", 0.0)
         if data:
-            raise ValueError(f"setpoint: unknown key(s) {sorted(data)}; known offset, shape, sine")
+            raise ScenarioError(
+                f"setpoint: unknown key(s) {sorted(data)}; known offset, shape, sine"
+            )
         unknown_terms = set(shape) - set(SHAPE_TERMS)
         if unknown_terms:
-            raise ValueError(
+            raise ScenarioError(
                 f"setpoint.shape: unknown term(s) {sorted(unknown_terms)}; "
                 f"known {list(SHAPE_TERMS)}"
             )
         bad = set(sine) - {"amplitude", "frequency", "phase_deg"}
         if bad:
-            raise ValueError(f"setpoint.sine: unknown key(s) {sorted(bad)}")
+            raise ScenarioError(f"setpoint.sine: unknown key(s) {sorted(bad)}")
         try:
             spec = cls(
                 offset=float(offset),
@@ -88,9 +96,9 @@ class SetpointSpec:
                 sine_phase_deg=float(sine.get("phase_deg", 0.0)),
             )
         except (TypeError, ValueError):
-            raise ValueError("setpoint: values must be numbers") from None
+            raise ScenarioError("setpoint: values must be numbers") from None
         if spec.sine_frequency < 0.0 or spec.sine_amplitude < 0.0:
-            raise ValueError("setpoint.sine: amplitude and frequency must be >= 0")
+            raise ScenarioError("setpoint.sine: amplitude and frequency must be >= 0")
         return spec
 
 
@@ -98,6 +106,12 @@ class SetpointGenerator:
     """Evaluates a :class:`SetpointSpec` on one grid; :meth:`at` costs one sine and one add."""
 
     def __init__(self, spec: SetpointSpec, shape: tuple[int, int]) -> None:
+        """Evaluate ``spec`` on a grid of ``shape`` (rows, cols).
+
+        Raises:
+            ScenarioError: bad keys, types or values (the message says which).
+
+        """
         self.spec = spec
         static = np.full(shape, spec.offset)
         for name, amplitude in spec.shape.items():
@@ -105,7 +119,7 @@ class SetpointGenerator:
         #: The static part of the set point (R, C) [m].
         self.static = static
         if float(np.min(static)) - spec.sine_amplitude < 0.0:
-            raise ValueError(
+            raise ScenarioError(
                 "setpoint reaches below 0 m (an electrostrictive actuator only expands): "
                 f"static minimum {np.min(static):.3g} m, sine amplitude {spec.sine_amplitude:.3g} m"
             )
@@ -130,12 +144,17 @@ class Excitation:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> Excitation:
-        """Build from a scenario's ``excitation`` mapping; raise ``ValueError`` on bad entries."""
+        """Build from a scenario's ``excitation`` mapping; raise ``ScenarioError`` on bad entries.
+
+        Raises:
+            ScenarioError: bad keys, types or values (the message says which).
+
+        """
         data = dict(data)
         known = {"offsets_v", "amplitudes_v", "frequencies_hz", "level_s", "phase_spread"}
         bad = set(data) - known
         if bad:
-            raise ValueError(f"excitation: unknown key(s) {sorted(bad)}; known {sorted(known)}")
+            raise ScenarioError(f"excitation: unknown key(s) {sorted(bad)}; known {sorted(known)}")
         default = cls()
         try:
             exc = cls(
@@ -150,9 +169,13 @@ class Excitation:
                 phase_spread=bool(data.get("phase_spread", default.phase_spread)),
             )
         except (TypeError, ValueError):
-            raise ValueError("excitation: lists of numbers and a number level_s expected") from None
+            raise ScenarioError(
+                "excitation: lists of numbers and a number level_s expected"
+            ) from None
         if not (exc.offsets_v and exc.amplitudes_v and exc.frequencies_hz) or exc.level_s <= 0:
-            raise ValueError("excitation: non-empty offsets, amplitudes, frequencies; level_s > 0")
+            raise ScenarioError(
+                "excitation: non-empty offsets, amplitudes, frequencies; level_s > 0"
+            )
         return exc
 
 

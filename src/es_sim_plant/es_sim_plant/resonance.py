@@ -37,6 +37,8 @@ from typing import Any, Final
 import numpy as np
 import numpy.typing as npt
 
+from es_sim_plant.errors import ScenarioError
+
 FloatArray = npt.NDArray[np.float64]
 
 #: The thesis's thickness-mode sensitivities (table 3-2, 100 V DC bias).
@@ -91,14 +93,16 @@ class ResonanceConfig:
         """Build from a scenario's ``resonance`` mapping.
 
         Raises:
-            ValueError: unknown keys, wrong types or out-of-range values.
+            ScenarioError: unknown keys, wrong types or out-of-range values.
 
         """
         values = dict(data or {})
         known = set(cls.__dataclass_fields__)
         unknown = set(values) - known
         if unknown:
-            raise ValueError(f"resonance: unknown key(s) {sorted(unknown)}; known {sorted(known)}")
+            raise ScenarioError(
+                f"resonance: unknown key(s) {sorted(unknown)}; known {sorted(known)}"
+            )
         try:
             kwargs: dict[str, Any] = {}
             for name, value in values.items():
@@ -114,7 +118,9 @@ class ResonanceConfig:
                     kwargs[name] = float(value)
             config = cls(**kwargs)
         except (TypeError, ValueError):
-            raise ValueError("resonance: values must be numbers (failed_channels a list)") from None
+            raise ScenarioError(
+                "resonance: values must be numbers (failed_channels a list)"
+            ) from None
         config.validate()
         return config
 
@@ -129,22 +135,22 @@ class ResonanceConfig:
         return self.noise_density / float(np.sqrt(self.sweep_time))
 
     def validate(self) -> None:
-        """Raise ``ValueError`` with a readable reason when a value is out of range."""
+        """Raise ``ScenarioError`` with a readable reason when a value is out of range."""
         positive = ("f0_hz", "frequency_step_hz", "span_hz", "dwell_s")
         for name in positive:
             if not getattr(self, name) > 0.0:
-                raise ValueError(f"resonance: {name} must be > 0")
+                raise ScenarioError(f"resonance: {name} must be > 0")
         for name in ("f0_spread_hz", "a_t_spread", "a_v_spread", "noise_density"):
             if not getattr(self, name) >= 0.0:
-                raise ValueError(f"resonance: {name} must be >= 0")
+                raise ScenarioError(f"resonance: {name} must be >= 0")
         if self.a_t_hz_per_degc == 0.0 or not np.isfinite(self.a_t_hz_per_degc):
-            raise ValueError("resonance: a_t_hz_per_degc must be finite and non-zero")
+            raise ScenarioError("resonance: a_t_hz_per_degc must be finite and non-zero")
         if self.group_size < 1:
-            raise ValueError("resonance: group_size must be >= 1")
+            raise ScenarioError("resonance: group_size must be >= 1")
         if self.failure not in FAILURE_MODES:
-            raise ValueError(f"resonance: failure must be one of {list(FAILURE_MODES)}")
+            raise ScenarioError(f"resonance: failure must be one of {list(FAILURE_MODES)}")
         if any(i < 0 for i in self.failed_channels):
-            raise ValueError("resonance: failed_channels must be >= 0")
+            raise ScenarioError("resonance: failed_channels must be >= 0")
 
 
 class ResonanceSensor:
@@ -157,7 +163,7 @@ class ResonanceSensor:
         rng_noise: generator of the reading noise.
 
     Raises:
-        ValueError: a failed channel is off the grid.
+        ScenarioError: a failed channel is off the grid.
 
     """
 
@@ -168,12 +174,18 @@ class ResonanceSensor:
         rng_spread: np.random.Generator,
         rng_noise: np.random.Generator,
     ) -> None:
+        """Build the sweeps for the grid from ``config`` and the two random streams.
+
+        Raises:
+            ScenarioError: bad keys, types or values (the message says which).
+
+        """
         config.validate()
         self.shape = shape
         self.config = config
         n = shape[0] * shape[1]
         if any(i >= n for i in config.failed_channels):
-            raise ValueError(f"resonance: failed_channels beyond the {n} actuators")
+            raise ScenarioError(f"resonance: failed_channels beyond the {n} actuators")
         draws = rng_spread.standard_normal((3, *shape))
         #: Per-actuator truth (R, C): f0 [Hz], a_T [Hz/degC], a_V [Hz/V].
         self.f0: FloatArray = config.f0_hz + config.f0_spread_hz * draws[0]

@@ -53,6 +53,7 @@ import yaml
 
 from es_sim_plant.actuators import ActuatorConfig
 from es_sim_plant.effects import Effects
+from es_sim_plant.errors import ScenarioError
 from es_sim_plant.reference import Excitation, SetpointSpec
 from es_sim_plant.resonance import ResonanceConfig
 from es_sim_plant.sensors import SensorConfig
@@ -105,19 +106,19 @@ class Scenario:
         return self.base.at(0.0)
 
     def validate(self) -> None:
-        """Raise ``ValueError`` with a readable reason when a value is out of range."""
+        """Raise ``ScenarioError`` with a readable reason when a value is out of range."""
         if self.rows < 1 or self.cols < 1:
-            raise ValueError("grid rows and cols must be >= 1")
+            raise ScenarioError("grid rows and cols must be >= 1")
         if not self.control_rate > 0.0 or not self.sensor_rate > 0.0:
-            raise ValueError("control_rate and sensor_rate must be > 0")
+            raise ScenarioError("control_rate and sensor_rate must be > 0")
         if self.sensor_rate > self.control_rate:
-            raise ValueError("sensor_rate must not exceed control_rate")
+            raise ScenarioError("sensor_rate must not exceed control_rate")
         if not self.duration > 0.0:
-            raise ValueError("duration must be > 0")
+            raise ScenarioError("duration must be > 0")
         if not self.time_scale > 0.0:
-            raise ValueError("time_scale must be > 0")
+            raise ScenarioError("time_scale must be > 0")
         if self.displacement_noise < 0.0:
-            raise ValueError("displacement_noise must be >= 0")
+            raise ScenarioError("displacement_noise must be >= 0")
         self.thermal.validate()
         self.base.validate()
         self.schedule.validate()
@@ -132,20 +133,20 @@ class Scenario:
         """Build from a parsed YAML mapping; ``time_scale`` overrides the file's value.
 
         Raises:
-            ValueError: unknown keys, wrong types or out-of-range values (readable reason).
+            ScenarioError: unknown keys, wrong types or out-of-range values (readable reason).
 
         """
         if not isinstance(data, dict):
-            raise ValueError("a scenario must be a YAML mapping")
+            raise ScenarioError("a scenario must be a YAML mapping")
         unknown = set(data) - _TOP_KEYS
         if unknown:
-            raise ValueError(f"unknown scenario key(s) {sorted(unknown)}")
+            raise ScenarioError(f"unknown scenario key(s) {sorted(unknown)}")
         if "name" not in data:
-            raise ValueError("a scenario needs a 'name'")
+            raise ScenarioError("a scenario needs a 'name'")
         try:
             scale = float(time_scale if time_scale is not None else data.get("time_scale", 1.0))
             if not scale > 0.0:
-                raise ValueError("time_scale must be > 0")
+                raise ScenarioError("time_scale must be > 0")
             grid = data.get("grid") or {}
             base_raw = data.get("base_temperature") or {}
             points = base_raw.get("points", [[0.0, 42.0]])
@@ -192,7 +193,7 @@ class Scenario:
                 resonance=ResonanceConfig.from_dict(data.get("resonance")),
             )
         except (TypeError, KeyError, IndexError, AttributeError) as err:
-            raise ValueError(f"malformed scenario ({type(err).__name__}: {err})") from None
+            raise ScenarioError(f"malformed scenario ({type(err).__name__}: {err})") from None
         scenario.validate()
         return scenario
 
@@ -211,7 +212,7 @@ class Scenario:
         """Return a copy with the given values replaced (``None`` keeps the scenario's).
 
         ``duration`` is simulation time (already scaled); ``effects`` switches effects on or
-        off by canonical name. Raises ``ValueError`` on out-of-range results.
+        off by canonical name. Raises ``ScenarioError`` on out-of-range results.
         """
         changes: dict[str, Any] = {
             k: v
@@ -260,19 +261,19 @@ def resolve_scenario(name_or_path: str) -> Path:
     """Return the file of a scenario given as a path or as a shipped scenario's name.
 
     Raises:
-        ValueError: neither an existing file nor a known name.
+        ScenarioError: neither an existing file nor a known name.
 
     """
     path = Path(name_or_path).expanduser()
     if path.suffix in (".yaml", ".yml") or path.is_file():
         if path.is_file():
             return path
-        raise ValueError(f"scenario file {str(path)!r} does not exist")
+        raise ScenarioError(f"scenario file {str(path)!r} does not exist")
     for directory in scenario_dirs():
         candidate = directory / f"{name_or_path}.yaml"
         if candidate.is_file():
             return candidate
-    raise ValueError(
+    raise ScenarioError(
         f"unknown scenario {name_or_path!r}; shipped: {', '.join(available_scenarios()) or 'none'}"
     )
 
@@ -281,7 +282,7 @@ def load_scenario(name_or_path: str, time_scale: float | None = None) -> Scenari
     """Load a scenario by shipped name or YAML path; ``time_scale`` overrides the file's.
 
     Raises:
-        ValueError: missing file, YAML syntax error or invalid content (one readable line).
+        ScenarioError: missing file, YAML syntax error or invalid content (one readable line).
 
     """
     path = resolve_scenario(name_or_path)
@@ -289,8 +290,8 @@ def load_scenario(name_or_path: str, time_scale: float | None = None) -> Scenari
         data = yaml.safe_load(path.read_text())
     except (OSError, yaml.YAMLError) as err:
         first = str(err).splitlines()[0] if str(err) else type(err).__name__
-        raise ValueError(f"cannot read scenario {str(path)!r}: {first}") from None
+        raise ScenarioError(f"cannot read scenario {str(path)!r}: {first}") from None
     try:
         return Scenario.from_dict(data, time_scale=time_scale)
     except ValueError as err:
-        raise ValueError(f"scenario {str(path)!r}: {err}") from None
+        raise ScenarioError(f"scenario {str(path)!r}: {err}") from None

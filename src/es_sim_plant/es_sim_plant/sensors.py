@@ -20,6 +20,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from es_sim_plant.errors import ScenarioError
+
 FloatArray = npt.NDArray[np.float64]
 
 
@@ -45,19 +47,24 @@ class SensorConfig:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any] | None) -> SensorConfig:
-        """Build from a scenario's ``sensors`` mapping; raise ``ValueError`` on bad entries."""
+        """Build from a scenario's ``sensors`` mapping; raise ``ScenarioError`` on bad entries.
+
+        Raises:
+            ScenarioError: bad keys, types or values (the message says which).
+
+        """
         data = dict(data or {})
         known = {"positions", "noise_sd", "resolution", "offset_sd", "offsets"}
         bad = set(data) - known
         if bad:
-            raise ValueError(f"sensors: unknown key(s) {sorted(bad)}; known {sorted(known)}")
+            raise ScenarioError(f"sensors: unknown key(s) {sorted(bad)}; known {sorted(known)}")
         try:
             positions: list[list[float]] | None = data.get("positions")
             pos = (
                 None if positions is None else tuple((float(p[0]), float(p[1])) for p in positions)
             )
             if positions is not None and any(len(p) != 2 for p in positions):
-                raise ValueError
+                raise ScenarioError
             offsets = data.get("offsets")
             config = cls(
                 positions=pos,
@@ -67,11 +74,11 @@ class SensorConfig:
                 offsets=None if offsets is None else tuple(float(o) for o in offsets),
             )
         except (TypeError, ValueError, IndexError):
-            raise ValueError(
+            raise ScenarioError(
                 "sensors: positions must be [[row, col], ...], other values numbers"
             ) from None
         if config.noise_sd < 0.0 or config.resolution < 0.0 or config.offset_sd < 0.0:
-            raise ValueError("sensors: noise_sd, resolution and offset_sd must be >= 0")
+            raise ScenarioError("sensors: noise_sd, resolution and offset_sd must be >= 0")
         return config
 
 
@@ -79,11 +86,11 @@ def flat_positions(values: list[float]) -> tuple[tuple[float, float], ...]:
     """Return (row, col) pairs from a flat [r0, c0, r1, c1, ...] list (node parameter form).
 
     Raises:
-        ValueError: odd length.
+        ScenarioError: odd length.
 
     """
     if len(values) % 2:
-        raise ValueError("sensor positions need an even count [r0, c0, r1, c1, ...]")
+        raise ScenarioError("sensor positions need an even count [r0, c0, r1, c1, ...]")
     return tuple((float(values[i]), float(values[i + 1])) for i in range(0, len(values), 2))
 
 
@@ -101,6 +108,12 @@ class SensorArray:
         rng_offsets: np.random.Generator,
         rng_noise: np.random.Generator,
     ) -> None:
+        """Build the sensor array for the grid from ``config`` and the two random streams.
+
+        Raises:
+            ScenarioError: bad keys, types or values (the message says which).
+
+        """
         rows, cols = shape
         self.config = config
         self._rng = rng_noise
@@ -111,7 +124,7 @@ class SensorArray:
         else:
             pos = np.asarray(config.positions, np.float64).reshape(-1, 2)
             if pos.size == 0:
-                raise ValueError("sensors: at least one sensor position is needed")
+                raise ScenarioError("sensors: at least one sensor position is needed")
             r, c = pos[:, 0], pos[:, 1]
             if (
                 np.any(~np.isfinite(pos))
@@ -120,7 +133,7 @@ class SensorArray:
                 or np.any(c < 0)
                 or np.any(c > cols - 1)
             ):
-                raise ValueError(
+                raise ScenarioError(
                     f"sensor positions must lie within [0, {rows - 1}] x [0, {cols - 1}]"
                 )
             r0 = np.minimum(np.floor(r).astype(np.intp), max(rows - 2, 0))
@@ -137,7 +150,7 @@ class SensorArray:
             self.count = len(pos)
         if config.offsets is not None:
             if len(config.offsets) != self.count:
-                raise ValueError(
+                raise ScenarioError(
                     f"sensors.offsets has {len(config.offsets)} values for {self.count} sensors"
                 )
             self.offsets = np.asarray(config.offsets, np.float64)

@@ -46,6 +46,8 @@ import numpy as np
 import numpy.typing as npt
 import scipy.linalg
 
+from es_sim_plant.errors import ScenarioError
+
 FloatArray = npt.NDArray[np.float64]
 
 PATTERNS: Final = ("uniform", "dipole", "quadrupole", "off_axis_spot", "annular")
@@ -74,29 +76,36 @@ class ThermalParams:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any] | None) -> ThermalParams:
-        """Build from a scenario's ``thermal`` mapping; raise ``ValueError`` on bad entries."""
+        """Build from a scenario's ``thermal`` mapping; raise ``ScenarioError`` on bad entries.
+
+        Raises:
+            ScenarioError: bad keys, types or values (the message says which).
+
+        """
         data = data or {}
         known = {f.name for f in fields(cls)}
         bad = set(data) - known
         if bad:
-            raise ValueError(f"thermal: unknown key(s) {sorted(bad)}; known {sorted(known)}")
+            raise ScenarioError(f"thermal: unknown key(s) {sorted(bad)}; known {sorted(known)}")
         try:
             params = cls(**{k: float(v) for k, v in data.items()})
         except (TypeError, ValueError):
-            raise ValueError("thermal: every value must be a number") from None
+            raise ScenarioError("thermal: every value must be a number") from None
         params.validate()
         return params
 
     def validate(self) -> None:
-        """Raise ``ValueError`` unless capacitances and series conductances are > 0."""
+        """Raise ``ScenarioError`` unless capacitances and series conductances are > 0."""
         for name in ("face_capacitance", "actuator_capacitance", "face_to_actuator"):
             if not getattr(self, name) > 0.0:
-                raise ValueError(f"thermal.{name} must be > 0")
+                raise ScenarioError(f"thermal.{name} must be > 0")
         if not self.actuator_to_base > 0.0:
-            raise ValueError("thermal.actuator_to_base must be > 0 (the base plate sinks the heat)")
+            raise ScenarioError(
+                "thermal.actuator_to_base must be > 0 (the base plate sinks the heat)"
+            )
         for name in ("face_lateral", "actuator_lateral"):
             if not getattr(self, name) >= 0.0:
-                raise ValueError(f"thermal.{name} must be >= 0")
+                raise ScenarioError(f"thermal.{name} must be >= 0")
 
     def time_scaled(self, time_scale: float) -> ThermalParams:
         """Return a copy whose capacitances (hence every time constant) scale by ``time_scale``."""
@@ -142,8 +151,14 @@ class ThermalNetwork:
         dt: float,
         initial_temperature: float,
     ) -> None:
+        """Build the network for the grid, stepping ``dt`` [s] from ``initial_temperature`` [degC].
+
+        Raises:
+            ScenarioError: bad keys, types or values (the message says which).
+
+        """
         if dt <= 0.0:
-            raise ValueError("thermal step dt must be > 0")
+            raise ScenarioError("thermal step dt must be > 0")
         params.validate()
         self.shape = shape
         self.params = params
@@ -283,15 +298,15 @@ class Illumination:
     background: float = 0.1
 
     def validate(self) -> None:
-        """Raise ``ValueError`` on an unknown pattern or out-of-range parameter."""
+        """Raise ``ScenarioError`` on an unknown pattern or out-of-range parameter."""
         if self.pattern not in PATTERNS:
-            raise ValueError(f"illumination.pattern {self.pattern!r} is not one of {PATTERNS}")
+            raise ScenarioError(f"illumination.pattern {self.pattern!r} is not one of {PATTERNS}")
         if self.total_power_w < 0.0:
-            raise ValueError("illumination.total_power_w must be >= 0")
+            raise ScenarioError("illumination.total_power_w must be >= 0")
         if self.sigma <= 0.0:
-            raise ValueError("illumination.sigma must be > 0")
+            raise ScenarioError("illumination.sigma must be > 0")
         if not 0.0 <= self.background <= 1.0:
-            raise ValueError("illumination.background must be in [0, 1]")
+            raise ScenarioError("illumination.background must be in [0, 1]")
 
     def power_map(self, shape: tuple[int, int]) -> FloatArray:
         """Return the absorbed power per cell [W] while exposing, shape ``shape``."""
@@ -346,9 +361,9 @@ class ExposureSchedule:
     count: int = 0
 
     def validate(self) -> None:
-        """Raise ``ValueError`` on negative times or a non-positive exposure."""
+        """Raise ``ScenarioError`` on negative times or a non-positive exposure."""
         if self.exposure_s <= 0.0 or self.swap_s < 0.0 or self.start_s < 0.0 or self.count < 0:
-            raise ValueError(
+            raise ScenarioError(
                 "exposure schedule: exposure_s > 0, swap_s >= 0, start_s >= 0, count >= 0"
             )
 
@@ -390,15 +405,17 @@ class BaseProfile:
     interpolation: str = "linear"
 
     def validate(self) -> None:
-        """Raise ``ValueError`` on unsorted or mismatched points or unknown interpolation."""
+        """Raise ``ScenarioError`` on unsorted or mismatched points or unknown interpolation."""
         if len(self.times) != len(self.temperatures) or not self.times:
-            raise ValueError("base_temperature: times and temperatures need the same length >= 1")
+            raise ScenarioError(
+                "base_temperature: times and temperatures need the same length >= 1"
+            )
         if any(b < a for a, b in zip(self.times, self.times[1:], strict=False)):
-            raise ValueError("base_temperature: times must be non-decreasing")
+            raise ScenarioError("base_temperature: times must be non-decreasing")
         if self.interpolation not in ("linear", "step"):
-            raise ValueError("base_temperature.interpolation must be 'linear' or 'step'")
+            raise ScenarioError("base_temperature.interpolation must be 'linear' or 'step'")
         if not all(np.isfinite(self.temperatures)):
-            raise ValueError("base_temperature: temperatures must be finite")
+            raise ScenarioError("base_temperature: temperatures must be finite")
 
     def time_scaled(self, time_scale: float) -> BaseProfile:
         """Return a copy with every time multiplied by ``time_scale``."""

@@ -10,9 +10,9 @@ estimate when no sensor is valid. Estimators:
   heat load (:mod:`es_thermal.kalman`).
 
 A heat-load grid that is not credible (:func:`es_thermal.faults.heat_load_problem`: NaN/inf,
-negative, above ``faults.max_heat_load`` per cell) is rejected with a ValueError and the last
-accepted heat load is held, as if the message had not come: one corrupt message must not
-drive the model's state away from the readings.
+negative, above ``faults.max_heat_load`` per cell) is rejected with a ThermalInputError (a
+ValueError) and the last accepted heat load is held, as if the message had not come: one
+corrupt message must not drive the model's state away from the readings.
 
 Time is given by the caller in seconds. The filters are discretised for a fixed sample
 period; a gap of several periods between messages advances them that many periods.
@@ -27,6 +27,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy import sparse
 
+from es_thermal.errors import ThermalConfigError, ThermalInputError
 from es_thermal.faults import FaultConfig, SensorFaultMonitor, SensorHealth, heat_load_problem
 from es_thermal.interpolation import interpolation_matrix
 from es_thermal.kalman import KalmanTuning, ModelEstimator
@@ -74,17 +75,23 @@ class EstimatorConfig:
     faults: FaultConfig = field(default_factory=FaultConfig)
 
     def __post_init__(self) -> None:
+        """Check the values.
+
+        Raises:
+            ThermalConfigError: a value out of range (the message names it).
+
+        """
         if self.rows < 1 or self.cols < 1:
-            raise ValueError(f"grid must be at least 1 x 1, got {self.rows} x {self.cols}")
+            raise ThermalConfigError(f"grid must be at least 1 x 1, got {self.rows} x {self.cols}")
         if self.kind not in ESTIMATORS:
-            raise ValueError(f"estimator {self.kind!r} is not one of {list(ESTIMATORS)}")
+            raise ThermalConfigError(f"estimator {self.kind!r} is not one of {list(ESTIMATORS)}")
         pos = np.asarray(self.positions)
         if pos.ndim != 2 or pos.shape[1] != 2 or pos.shape[0] < 1:
-            raise ValueError(f"positions must have shape (S >= 1, 2), got {pos.shape}")
+            raise ThermalConfigError(f"positions must have shape (S >= 1, 2), got {pos.shape}")
         if not np.isfinite(self.sample_period) or self.sample_period <= 0.0:
-            raise ValueError(f"sample_period must be > 0, got {self.sample_period}")
+            raise ThermalConfigError(f"sample_period must be > 0, got {self.sample_period}")
         if not np.isfinite(self.sensor_tau) or self.sensor_tau < 0.0:
-            raise ValueError(f"sensor_tau must be >= 0, got {self.sensor_tau}")
+            raise ThermalConfigError(f"sensor_tau must be >= 0, got {self.sensor_tau}")
 
     @property
     def sensor_count(self) -> int:
@@ -153,17 +160,17 @@ class TemperatureEstimator:
         sample (the heat load of a sample time comes before that time's readings).
 
         Raises:
-            ValueError: wrong shape, or a value that is not finite, negative beyond
+            ThermalInputError: wrong shape, or a value that is not finite, negative beyond
                 ``faults.heat_load_tolerance`` or above ``faults.max_heat_load``; the last
                 accepted heat load is kept.
 
         """
         grid = np.asarray(heat_load, dtype=float)
         if grid.shape != self.shape:
-            raise ValueError(f"heat load has shape {grid.shape}, expected {self.shape}")
+            raise ThermalInputError(f"heat load has shape {grid.shape}, expected {self.shape}")
         problem = heat_load_problem(grid, self.config.faults)
         if problem is not None:
-            raise ValueError(problem)
+            raise ThermalInputError(problem)
         self._heat_now = grid.ravel().copy()
 
     def restart(self) -> None:
@@ -180,7 +187,7 @@ class TemperatureEstimator:
         Returns an :class:`Estimate`; its ``temperatures`` is None when no reading is valid.
 
         Raises:
-            ValueError: ``readings`` has the wrong shape (nothing is updated).
+            ThermalInputError: ``readings`` has the wrong shape (nothing is updated).
 
         """
         health = self.monitor.check(readings, now)
@@ -268,8 +275,14 @@ class SampleClock:
     """
 
     def __init__(self, period: float, resync_periods: float = 2.5) -> None:
+        """Stamp a stream of nominal ``period`` [s]; resync after ``resync_periods`` periods off.
+
+        Raises:
+            ThermalConfigError: a value out of range (the message names it).
+
+        """
         if period <= 0.0:
-            raise ValueError(f"sample period must be > 0, got {period}")
+            raise ThermalConfigError(f"sample period must be > 0, got {period}")
         self.period = period
         self.resync_periods = resync_periods
         self._last_arrival: float | None = None

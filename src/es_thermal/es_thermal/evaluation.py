@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from es_thermal.errors import ThermalInputError
 from es_thermal.estimator import EstimatorConfig, TemperatureEstimator
 
 FloatArray = npt.NDArray[np.float64]
@@ -79,7 +80,7 @@ def score(
     shift (0 .. ``max_lag`` s, whole samples) of the truth that minimises the RMS difference.
 
     Raises:
-        ValueError: no sample has an estimate.
+        ThermalInputError: no sample has an estimate.
 
     """
     est = estimates[skip:]
@@ -87,7 +88,7 @@ def score(
     used = ~np.isnan(est).any(axis=(1, 2))
     err = (est - true)[used]
     if err.size == 0:
-        raise ValueError("no estimate to score")
+        raise ThermalInputError("no estimate to score")
     shifts = range(min(round(max_lag / sample_period), len(est) // 2) + 1)
     # RMS difference between the estimate at t and the truth at t - shift.
     rms_at = [

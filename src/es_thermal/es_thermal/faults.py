@@ -16,6 +16,8 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from es_thermal.errors import ThermalConfigError, ThermalInputError
+
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
 IntArray = npt.NDArray[np.int64]
@@ -50,14 +52,24 @@ class FaultConfig:
     heat_load_tolerance: float = 1e-6
 
     def __post_init__(self) -> None:
+        """Check the values.
+
+        Raises:
+            ThermalConfigError: a value out of range (the message names it).
+
+        """
         if not self.valid_min < self.valid_max:
-            raise ValueError(f"valid_min {self.valid_min} must be below valid_max {self.valid_max}")
+            raise ThermalConfigError(
+                f"valid_min {self.valid_min} must be below valid_max {self.valid_max}"
+            )
         if self.stuck_time <= 0.0 or self.stuck_band < 0.0 or self.stale_timeout <= 0.0:
-            raise ValueError("stuck_time and stale_timeout must be > 0, stuck_band >= 0")
+            raise ThermalConfigError("stuck_time and stale_timeout must be > 0, stuck_band >= 0")
         if not (np.isfinite(self.max_heat_load) and self.max_heat_load > 0.0):
-            raise ValueError(f"max_heat_load must be finite and > 0, got {self.max_heat_load}")
+            raise ThermalConfigError(
+                f"max_heat_load must be finite and > 0, got {self.max_heat_load}"
+            )
         if not (np.isfinite(self.heat_load_tolerance) and self.heat_load_tolerance >= 0.0):
-            raise ValueError(
+            raise ThermalConfigError(
                 f"heat_load_tolerance must be finite and >= 0, got {self.heat_load_tolerance}"
             )
 
@@ -104,12 +116,14 @@ class SensorFaultMonitor:
         """Classify ``readings`` (S,) received at ``now`` [s] and update the stuck tracking.
 
         Raises:
-            ValueError: ``readings`` does not hold exactly ``count`` values.
+            ThermalInputError: ``readings`` does not hold exactly ``count`` values.
 
         """
         values = np.asarray(readings, dtype=float)
         if values.shape != (self.count,):
-            raise ValueError(f"expected {self.count} sensor readings, got shape {values.shape}")
+            raise ThermalInputError(
+                f"expected {self.count} sensor readings, got shape {values.shape}"
+            )
         cfg = self.config
         finite = np.isfinite(values)
         with np.errstate(invalid="ignore"):  # NaN and inf readings compare and subtract
@@ -156,8 +170,14 @@ class StaleWatch:
     """Tells whether a message stream went quiet for longer than ``timeout`` seconds."""
 
     def __init__(self, timeout: float) -> None:
+        """Start with nothing seen; ``timeout`` [s] is the longest quiet stretch.
+
+        Raises:
+            ThermalConfigError: a value out of range (the message names it).
+
+        """
         if timeout <= 0.0:
-            raise ValueError(f"stale timeout must be > 0, got {timeout}")
+            raise ThermalConfigError(f"stale timeout must be > 0, got {timeout}")
         self.timeout = timeout
         self._last: float | None = None
 

@@ -23,6 +23,8 @@ import numpy.typing as npt
 from scipy import sparse
 from scipy.spatial import Delaunay, QhullError, cKDTree
 
+from es_thermal.errors import ThermalConfigError, ThermalInputError
+
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
 
@@ -38,9 +40,13 @@ def block_centre_positions(rows: int, cols: int, pitch: int) -> FloatArray:
 
     Blocks cut by the grid edge get their sensor at the centre of the actuators they hold.
     ``pitch == 1`` puts one sensor on every actuator (the contract's S == R*C case).
+
+    Raises:
+        ThermalConfigError: a value out of range (the message names it).
+
     """
     if pitch < 1:
-        raise ValueError(f"sensor pitch must be >= 1, got {pitch}")
+        raise ThermalConfigError(f"sensor pitch must be >= 1, got {pitch}")
 
     def centres(n: int) -> FloatArray:
         starts = np.arange(0, n, pitch, dtype=float)
@@ -59,23 +65,23 @@ def sensor_positions(
     Empty ``sensor_rows`` and ``sensor_cols`` mean one sensor on every actuator.
 
     Raises:
-        ValueError: the two lists differ in length, hold a non-finite value or a position
+        ThermalConfigError: the two lists differ in length, hold a non-finite value or a position
             outside the grid ([0, R-1] x [0, C-1]).
 
     """
     if len(sensor_rows) != len(sensor_cols):
-        raise ValueError(
+        raise ThermalConfigError(
             f"sensor_rows has {len(sensor_rows)} entries, sensor_cols {len(sensor_cols)}"
         )
     if len(sensor_rows) == 0:
         return actuator_positions(rows, cols)
     pos = np.column_stack([np.asarray(sensor_rows, float), np.asarray(sensor_cols, float)])
     if not np.all(np.isfinite(pos)):
-        raise ValueError("sensor positions must be finite")
+        raise ThermalConfigError("sensor positions must be finite")
     outside = (pos[:, 0] < 0) | (pos[:, 0] > rows - 1) | (pos[:, 1] < 0) | (pos[:, 1] > cols - 1)
     if np.any(outside):
         first = int(np.flatnonzero(outside)[0])
-        raise ValueError(
+        raise ThermalConfigError(
             f"sensor {first} at ({pos[first, 0]}, {pos[first, 1]}) lies outside the "
             f"{rows} x {cols} grid [0, {rows - 1}] x [0, {cols - 1}]"
         )
@@ -115,14 +121,14 @@ def interpolation_matrix(
     nearest-sensor everywhere.
 
     Raises:
-        ValueError: no sensor is valid.
+        ThermalInputError: no sensor is valid.
 
     """
     count = positions.shape[0]
     use = np.ones(count, bool) if valid is None else np.asarray(valid, bool)
     chosen = np.flatnonzero(use)
     if chosen.size == 0:
-        raise ValueError("no valid sensor to interpolate from")
+        raise ThermalInputError("no valid sensor to interpolate from")
     targets = actuator_positions(rows, cols)
     pts = positions[chosen]
     simplex = np.full(targets.shape[0], -1)

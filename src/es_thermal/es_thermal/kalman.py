@@ -27,6 +27,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy import sparse
 
+from es_thermal.errors import EstimatorStateError, ThermalConfigError, ThermalInputError
 from es_thermal.interpolation import sparse_sampling
 from es_thermal.modal import modal_solution
 from es_thermal.network import (
@@ -72,13 +73,19 @@ class KalmanTuning:
     bias_limit: float = 0.6
 
     def __post_init__(self) -> None:
+        """Check the values.
+
+        Raises:
+            ThermalConfigError: a value out of range (the message names it).
+
+        """
         for name in (
             "sensor_noise", "process_noise", "base_drift", "adaptation_time", "bias_prior",
             "bias_limit",
         ):
             value = getattr(self, name)
             if not np.isfinite(value) or value <= 0.0:
-                raise ValueError(f"{name}={value} must be finite and > 0")
+                raise ThermalConfigError(f"{name}={value} must be finite and > 0")
 
     def time_scaled(self, time_scale: float) -> KalmanTuning:
         """Return the tuning for a run whose slow times are multiplied by ``time_scale``.
@@ -137,8 +144,14 @@ class ModelEstimator:
         sample_period: float,
         tuning: KalmanTuning,
     ) -> None:
+        """Build the filter on the network for the sensors, ``sample_period`` [s] and ``tuning``.
+
+        Raises:
+            ThermalConfigError: a value out of range (the message names it).
+
+        """
         if sample_period <= 0.0 or sensor_tau < 0.0:
-            raise ValueError("sample_period must be > 0 and sensor_tau >= 0")
+            raise ThermalConfigError("sample_period must be > 0 and sensor_tau >= 0")
         self._grid = GridTransform.dct(rows, cols)
         self._sensors = sensor_transform(positions)
         A, B, H, layout = modal_model(
@@ -233,12 +246,12 @@ class ModelEstimator:
         """Advance the model ``steps`` sample periods with the heat load (N,) held.
 
         Raises:
-            ValueError: the heat load holds NaN or inf (the state is left as it was).
+            ThermalInputError: the heat load holds NaN or inf (the state is left as it was).
 
         """
         x = self._require_state()
         if not np.all(np.isfinite(heat_load)):
-            raise ValueError("heat load holds NaN or inf")
+            raise ThermalInputError("heat load holds NaN or inf")
         drive = np.asarray(self._B @ self._grid.forward(heat_load))
         # One sparse product advances the state, both sensitivities and the heat response.
         cols = np.column_stack([x, self._sens, self._heat_response])
@@ -300,7 +313,7 @@ class ModelEstimator:
 
     def _require_state(self) -> FloatArray:
         if self._state is None:
-            raise ValueError("the model estimator has no state yet")
+            raise EstimatorStateError("the model estimator has no state yet")
         return self._state
 
     def _sensor_diagonal(self, modal: sparse.csr_matrix) -> FloatArray:

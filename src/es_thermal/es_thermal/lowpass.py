@@ -11,6 +11,8 @@ import numpy as np
 import numpy.typing as npt
 from scipy import signal
 
+from es_thermal.errors import ThermalConfigError
+
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
 
@@ -30,14 +32,20 @@ class LowpassBank:
     def __init__(
         self, channels: int, sample_period: float, cutoff_hz: float, order: int
     ) -> None:
+        """Build the filter for ``channels`` inputs at ``sample_period`` [s] and ``cutoff_hz``.
+
+        Raises:
+            ThermalConfigError: a value out of range (the message names it).
+
+        """
         nyquist = 0.5 / sample_period
         if not 0.0 < cutoff_hz < nyquist:
-            raise ValueError(
+            raise ThermalConfigError(
                 f"low-pass cut-off {cutoff_hz} Hz must lie in (0, {nyquist:g}) Hz "
                 f"(the Nyquist frequency of the {1.0 / sample_period:g} Hz sensor rate)"
             )
         if order < 1:
-            raise ValueError(f"low-pass order must be >= 1, got {order}")
+            raise ThermalConfigError(f"low-pass order must be >= 1, got {order}")
         self.channels = channels
         self.sos: FloatArray = signal.butter(
             order, cutoff_hz, btype="low", output="sos", fs=1.0 / sample_period

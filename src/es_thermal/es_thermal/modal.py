@@ -17,6 +17,8 @@ import numpy.typing as npt
 from scipy import linalg, sparse
 from scipy.sparse import csgraph
 
+from es_thermal.errors import ConvergenceError
+
 FloatArray = npt.NDArray[np.float64]
 IndexArray = npt.NDArray[np.intp]
 
@@ -51,7 +53,7 @@ def steady_state_covariance(
     argument may carry the same leading batch dimensions (independent problems).
 
     Raises:
-        ValueError: no convergence (the pair (A, H) is not detectable).
+        ConvergenceError: no convergence (the pair (A, H) is not detectable).
 
     """
     n = A.shape[-1]
@@ -74,7 +76,7 @@ def steady_state_covariance(
         Hk = 0.5 * (H_next + t(H_next))
         if np.all(change <= tol * np.maximum(1.0, np.max(np.abs(Hk), axis=(-2, -1)))):
             return np.asarray(Hk, float)
-    raise ValueError("Kalman gain: the Riccati iteration did not converge")
+    raise ConvergenceError("Kalman gain: the Riccati iteration did not converge")
 
 
 @dataclass(frozen=True)
@@ -127,7 +129,7 @@ def modal_solution(
     dense solution.
 
     Raises:
-        ValueError: the Riccati iteration did not converge.
+        ConvergenceError: the Riccati iteration did not converge.
 
     """
     A, B, H = sparse.csr_matrix(A), sparse.csr_matrix(B), sparse.csr_matrix(H)

@@ -24,6 +24,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy import fft, sparse
 
+from es_thermal.errors import ThermalConfigError
 from es_thermal.interpolation import sampling_matrix
 
 FloatArray = npt.NDArray[np.float64]
@@ -54,13 +55,21 @@ class NetworkParams:
     actuator_lateral: float = 0.2e-3
 
     def __post_init__(self) -> None:
+        """Check the values.
+
+        Raises:
+            ThermalConfigError: a value out of range (the message names it).
+
+        """
         for f in fields(self):
             value = getattr(self, f.name)
             if not np.isfinite(value) or value < 0.0:
-                raise ValueError(f"thermal parameter {f.name}={value} must be finite and >= 0")
+                raise ThermalConfigError(
+                    f"thermal parameter {f.name}={value} must be finite and >= 0"
+                )
         for name in ("face_capacitance", "actuator_capacitance", "face_to_actuator"):
             if getattr(self, name) <= 0.0:
-                raise ValueError(f"thermal parameter {name} must be > 0")
+                raise ThermalConfigError(f"thermal parameter {name} must be > 0")
 
     def scaled(self, factor: float) -> NetworkParams:
         """Return every parameter multiplied by ``factor`` (a model deliberately off)."""

@@ -26,6 +26,7 @@ import numpy.typing as npt
 import yaml
 
 from es_msgs_py import bag as bagio
+from es_thermal.errors import ResonanceCalibrationError
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -40,10 +41,6 @@ A_T_FACTOR: Final = 2.0
 #: Fewest distinct stage temperatures a fit needs [degC of span].
 MIN_TEMPERATURE_SPAN: Final = 1.0
 NODE_NAME: Final = "thermal"
-
-
-class ResonanceCalibrationError(ValueError):
-    """Input that cannot give a calibration (missing topic, wrong layout, too little data)."""
 
 
 @dataclass(frozen=True)

@@ -9,8 +9,9 @@ have length 1 (same for all actuators) or R*C (row-major map).
 from __future__ import annotations
 
 import array
+from collections.abc import Mapping
 
-from es_msgs_py.params import ParameterSpec
+from es_msgs_py.param_spec import ParameterSpec, ParameterValues
 from es_thermal.selfsensing import (
     FusionConfig,
     ResonanceCalibration,
@@ -86,7 +87,7 @@ SPECS: tuple[ParameterSpec, ...] = (
 
 
 def fusion_from_parameters(
-    values: dict[str, object], count: int, time_scale: float
+    values: Mapping[str, object], count: int, time_scale: float
 ) -> SelfSensingFusion | None:
     """Build the fusion from declared parameter values; ``None`` when ``resonance.f0_hz`` is empty.
 
@@ -95,10 +96,8 @@ def fusion_from_parameters(
             grid (:class:`es_thermal.selfsensing.CalibrationError`); the message says which.
 
     """
-
-    def numbers(name: str) -> list[float]:
-        return [float(v) for v in values[name]]  # type: ignore[attr-defined]
-
+    typed = ParameterValues(values)
+    numbers = typed.get_floats
     f0 = numbers("resonance.f0_hz")
     if not f0:
         return None
@@ -107,18 +106,18 @@ def fusion_from_parameters(
         f0_hz=f0,
         a_t_hz_per_degc=numbers("resonance.a_t_hz_per_degc"),
         a_v_hz_per_v=numbers("resonance.a_v_hz_per_v"),
-        reference_temperature=float(values["resonance.reference_temperature"]),  # type: ignore[arg-type]
+        reference_temperature=typed.get_float("resonance.reference_temperature"),
         f0_sd_hz=numbers("resonance.f0_sd_hz"),
         a_t_sd=numbers("resonance.a_t_sd"),
         a_v_sd=numbers("resonance.a_v_sd"),
     )
     config = FusionConfig(
-        noise_hz=float(values["resonance.noise_hz"]),  # type: ignore[arg-type]
-        drift=float(values["resonance.drift"]),  # type: ignore[arg-type]
-        gate_degc=float(values["resonance.gate_degc"]),  # type: ignore[arg-type]
-        acquire_gate_degc=float(values["resonance.acquire_gate_degc"]),  # type: ignore[arg-type]
-        stale_after=float(values["resonance.stale_after"]),  # type: ignore[arg-type]
-        stuck_band_degc=float(values["resonance.stuck_band_degc"]),  # type: ignore[arg-type]
+        noise_hz=typed.get_float("resonance.noise_hz"),
+        drift=typed.get_float("resonance.drift"),
+        gate_degc=typed.get_float("resonance.gate_degc"),
+        acquire_gate_degc=typed.get_float("resonance.acquire_gate_degc"),
+        stale_after=typed.get_float("resonance.stale_after"),
+        stuck_band_degc=typed.get_float("resonance.stuck_band_degc"),
     ).time_scaled(time_scale)
     disabled = tuple(int(v) for v in numbers("resonance.disabled_channels"))
     return SelfSensingFusion(calibration, config, disabled)

@@ -34,15 +34,13 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
+from es_thermal.errors import CalibrationError, ThermalConfigError, ThermalInputError
+
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
 
 #: Worst channels named in a health summary.
 WORST_LISTED: Final = 5
-
-
-class CalibrationError(ValueError):
-    """Resonance calibration arrays that do not fit the grid or are not usable."""
 
 
 @dataclass(frozen=True)
@@ -157,15 +155,21 @@ class FusionConfig:
     f_max_hz: float = 1.0e7
 
     def __post_init__(self) -> None:
+        """Check the values.
+
+        Raises:
+            ThermalConfigError: a value out of range (the message names it).
+
+        """
         for name in (
             "noise_hz", "drift", "gate_degc", "acquire_gate_degc", "stale_after",
             "stuck_band_degc",
         ):  # fmt: skip
             value = getattr(self, name)
             if not np.isfinite(value) or value <= 0.0:
-                raise ValueError(f"self-sensing {name}={value} must be finite and > 0")
+                raise ThermalConfigError(f"self-sensing {name}={value} must be finite and > 0")
         if not self.f_min_hz < self.f_max_hz:
-            raise ValueError("self-sensing f_min_hz must be below f_max_hz")
+            raise ThermalConfigError("self-sensing f_min_hz must be below f_max_hz")
 
     def time_scaled(self, time_scale: float) -> FusionConfig:
         """Return the configuration for a run whose slow times are multiplied by ``time_scale``.
@@ -235,6 +239,12 @@ class SelfSensingFusion:
         config: FusionConfig,
         disabled: tuple[int, ...] = (),
     ) -> None:
+        """Build the fusion of ``calibration`` with ``config``; ``disabled`` channels are dropped.
+
+        Raises:
+            CalibrationError: a disabled index off the grid.
+
+        """
         self.calibration = calibration
         self.config = config
         n = calibration.f0_hz.size
@@ -263,14 +273,14 @@ class SelfSensingFusion:
         """Take the command in force (N,) or (R, C) [V] for the voltage term.
 
         Raises:
-            ValueError: wrong size or a non-finite value (the previous command is kept).
+            ThermalInputError: wrong size or a non-finite value (the previous command is kept).
 
         """
         volts = np.asarray(voltage, float).ravel()
         if volts.size != self.count:
-            raise ValueError(f"command has {volts.size} values, expected {self.count}")
+            raise ThermalInputError(f"command has {volts.size} values, expected {self.count}")
         if not np.all(np.isfinite(volts)):
-            raise ValueError("command holds NaN or inf")
+            raise ThermalInputError("command holds NaN or inf")
         self._voltage = volts
 
     def restart(self) -> None:
@@ -309,16 +319,16 @@ class SelfSensingFusion:
             The fused estimate, same shape as ``model``.
 
         Raises:
-            ValueError: ``frequency`` or ``model`` of the wrong size (nothing is updated).
+            ThermalInputError: ``frequency`` or ``model`` of the wrong size (nothing is updated).
 
         """
         estimate = np.asarray(model, float)
         flat = estimate.ravel()
         if flat.size != self.count:
-            raise ValueError(f"model estimate has {flat.size} values, expected {self.count}")
+            raise ThermalInputError(f"model estimate has {flat.size} values, expected {self.count}")
         readings = None if frequency is None else np.asarray(frequency, float).ravel()
         if readings is not None and readings.size != self.count:
-            raise ValueError(f"resonance has {readings.size} values, expected {self.count}")
+            raise ThermalInputError(f"resonance has {readings.size} values, expected {self.count}")
         if readings is not None:
             readings = np.where(self._enabled, readings, np.nan)
         cfg = self.config

@@ -13,6 +13,7 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
+from es_thermal.errors import ThermalInputError
 from es_thermal.selfsensing import ChannelHealth, SelfSensingFusion
 
 FloatArray = npt.NDArray[np.float64]
@@ -85,7 +86,7 @@ class SampleSync:
         None: not known (commands then never count as still coming).
 
         Raises:
-            ValueError: wrong size or a non-finite value (the command is ignored).
+            ThermalInputError: wrong size or a non-finite value (the command is ignored).
 
         """
         self.fusion.set_command(voltage)
@@ -97,12 +98,14 @@ class SampleSync:
         """Take one sweep (R, C) or (N,) [Hz] published at ``source_ns``, arriving at ``arrival``.
 
         Raises:
-            ValueError: a sweep of the wrong size (nothing is updated).
+            ThermalInputError: a sweep of the wrong size (nothing is updated).
 
         """
         sweep = np.asarray(frequency, float).ravel()
         if sweep.size != self.fusion.count:
-            raise ValueError(f"resonance has {sweep.size} values, expected {self.fusion.count}")
+            raise ThermalInputError(
+                f"resonance has {sweep.size} values, expected {self.fusion.count}"
+            )
         self.last_sweep = arrival
         unpaired = self._unpaired
         if unpaired is not None and abs(arrival - unpaired[1]) <= self.window:
@@ -118,7 +121,7 @@ class SampleSync:
         ``stamp`` is the sample time [s], ``arrival`` the time the readings came [s].
 
         Raises:
-            ValueError: a model estimate of the wrong size.
+            ThermalInputError: a model estimate of the wrong size.
 
         """
         flat = np.asarray(model, float)

@@ -9,11 +9,9 @@ Public face: :class:`Effect`, :class:`Parameter`, :class:`Role`, :class:`FittedE
 from es_physics.effects.base import (
     Additive,
     Effect,
-    EffectError,
     FittedEffect,
     Parameter,
     Role,
-    UnknownEffectError,
 )
 from es_physics.effects.registry import (
     ENTRY_POINT_GROUP,
@@ -31,6 +29,7 @@ from es_physics.effects.stages import (
     PlantStage,
     StepState,
 )
+from es_physics.errors import EffectError, UnknownEffectError
 
 __all__ = [
     "ENTRY_POINT_GROUP",

@@ -30,16 +30,9 @@ import numpy as np
 import numpy.typing as npt
 
 from es_physics.effects.stages import Compensator, PlantContext, PlantStage
+from es_physics.errors import EffectError
 
 FloatArray = npt.NDArray[np.float64]
-
-
-class EffectError(ValueError):
-    """An effect definition or an effect setting is invalid."""
-
-
-class UnknownEffectError(EffectError):
-    """A name that no registered effect has."""
 
 
 class Role(enum.Enum):

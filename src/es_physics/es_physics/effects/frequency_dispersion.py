@@ -34,6 +34,7 @@ import numpy as np
 
 from es_physics.effects.base import Effect, FittedEffect, FloatArray, Parameter, Role
 from es_physics.effects.stages import Compensator, PlantContext, PlantStage, StepState
+from es_physics.errors import EffectParameterError
 
 #: Highest relaxation fraction the compensation accepts (its inverse gains 1 / (1 - r)).
 MAX_FRACTION = 0.9
@@ -53,13 +54,13 @@ def relaxation_decay(corner_hz: float, dt: float) -> float:
         dt: step length [s] (>= 0).
 
     Raises:
-        ValueError: f_c not positive or dt negative (or either not finite).
+        EffectParameterError: f_c not positive or dt negative (or either not finite).
 
     """
     if not (np.isfinite(corner_hz) and corner_hz > 0.0):
-        raise ValueError(f"corner frequency {corner_hz!r} Hz must be > 0")
+        raise EffectParameterError(f"corner frequency {corner_hz!r} Hz must be > 0")
     if not (np.isfinite(dt) and dt >= 0.0):
-        raise ValueError(f"step {dt!r} s must be >= 0")
+        raise EffectParameterError(f"step {dt!r} s must be >= 0")
     return float(np.exp(-2.0 * np.pi * corner_hz * dt))
 
 
@@ -87,14 +88,14 @@ def relaxation_inverse(
     V = (V_eff - r D s) / (1 - r D), D = ``decay`` in [0, 1].
 
     Raises:
-        ValueError: ``fraction`` not in [0, 1) (the inverse does not exist) or ``decay``
+        EffectParameterError: ``fraction`` not in [0, 1) (the inverse does not exist) or ``decay``
             not in [0, 1].
 
     """
     if not 0.0 <= fraction < 1.0:
-        raise ValueError(f"relaxation fraction {fraction!r} must be in [0, 1)")
+        raise EffectParameterError(f"relaxation fraction {fraction!r} must be in [0, 1)")
     if not 0.0 <= decay <= 1.0:
-        raise ValueError(f"relaxation decay {decay!r} must be in [0, 1]")
+        raise EffectParameterError(f"relaxation decay {decay!r} must be in [0, 1]")
     rd = fraction * decay
     return np.asarray((v_eff - rd * state) / (1.0 - rd), np.float64)
 

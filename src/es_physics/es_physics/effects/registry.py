@@ -15,7 +15,7 @@ from functools import cache
 from importlib.metadata import entry_points
 from typing import Final
 
-from es_physics.effects.base import Effect, EffectError, Role, UnknownEffectError
+from es_physics.effects.base import Effect, Role
 from es_physics.effects.coupling import Coupling
 from es_physics.effects.delay import Delay
 from es_physics.effects.drift import Drift
@@ -25,6 +25,7 @@ from es_physics.effects.self_heating import SelfHeating
 from es_physics.effects.sensor_lag import SensorLag
 from es_physics.effects.temperature_curvature import TemperatureCurvature
 from es_physics.effects.thermal_expansion import ThermalExpansion
+from es_physics.errors import EffectError, UnknownEffectError
 
 #: Entry-point group through which other packages add effects.
 ENTRY_POINT_GROUP: Final = "es_dm.effects"

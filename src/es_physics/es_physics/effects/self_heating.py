@@ -28,6 +28,7 @@ import numpy as np
 
 from es_physics.effects.base import Effect, FittedEffect, FloatArray, Parameter, Role
 from es_physics.effects.stages import Compensator, Drive, PlantContext, PlantStage
+from es_physics.errors import EffectParameterError
 
 #: Running-mean window the calibration's drive measure uses (and sets in the compensation) [s].
 MEAN_WINDOW_S: Final = 1.0
@@ -85,14 +86,14 @@ class HeatingEstimate(Compensator):
         """Set g [degC s/V^2], tau [s] (> 0) and the running-mean window [s] (> 0).
 
         Raises:
-            ValueError: tau or the window not positive, or g negative (or not finite).
+            EffectParameterError: tau or the window not positive, or g negative (or not finite).
 
         """
         if not (np.isfinite(gain) and gain >= 0.0):
-            raise ValueError(f"self-heating gain {gain!r} must be >= 0")
+            raise EffectParameterError(f"self-heating gain {gain!r} must be >= 0")
         for what, value in (("tau", tau_s), ("mean window", mean_window_s)):
             if not (np.isfinite(value) and value > 0.0):
-                raise ValueError(f"self-heating {what} {value!r} s must be > 0")
+                raise EffectParameterError(f"self-heating {what} {value!r} s must be > 0")
         self.gain = gain
         self.tau_s = tau_s
         self.mean_window_s = mean_window_s
@@ -111,7 +112,7 @@ class HeatingEstimate(Compensator):
         """Return a copy with new parameters and this one's state (this one is unchanged).
 
         Raises:
-            ValueError: as the constructor.
+            EffectParameterError: as the constructor.
 
         """
         other = HeatingEstimate(gain, tau_s, mean_window_s)
