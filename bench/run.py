@@ -65,12 +65,13 @@ import numpy as np
 BENCH_DIR = Path(__file__).resolve().parent
 sys.path.insert(0, str(BENCH_DIR))  # the sibling bench_*.py modules
 
-from bench_multihost import section_multihost  # noqa: E402 - after the path above
+from bench_flow import section_flow  # noqa: E402 - after the path above
+from bench_multihost import section_multihost  # noqa: E402
 from bench_scale import section_lockstep_scale, section_scale  # noqa: E402
 
 SECTIONS = ("kernels", "convert", "feedforward", "lockstep", "recorder", "calibrate", "thermal",
             "calibration_loop", "import", "scale", "lockstep_scale", "multihost", "selfsensing",
-            "identify", "teardown", "feedforward_load")
+            "identify", "teardown", "feedforward_load", "flow")
 #: Sections run when ``--only`` is not given (the identification sweep has its own command).
 DEFAULT_SECTIONS = tuple(name for name in SECTIONS if name != "identify")
 
@@ -1214,6 +1215,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "selfsensing": lambda: section_selfsensing(results),
         "identify": lambda: section_identify(args.quick, results, args.output / "identify"),
         "teardown": lambda: section_teardown(settings, results),
+        "flow": lambda: section_flow(settings, results, log_dir),
     }
     for name in args.only:
         start = time.monotonic()

@@ -25,11 +25,20 @@ from dataclasses import dataclass
 from typing import NoReturn
 
 from rclpy.clock import Clock, ClockType
+from rclpy.duration import Duration
 from rclpy.event_handler import QoSMessageLostInfo, SubscriptionEventCallbacks
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
 from rclpy.subscription import Subscription
 from rclpy.validate_full_topic_name import validate_full_topic_name
+from rosbags.interfaces import (
+    Qos,
+    QosDurability,
+    QosHistory,
+    QosLiveliness,
+    QosReliability,
+    QosTime,
+)
 
 from es_msgs_py import topics
 from es_msgs_py.bag import STORAGES, BagError, BagWriter
@@ -90,6 +99,26 @@ class TopicCount:
     def missed_text(self) -> str:
         """Return the missed count, or ``unknown`` (never a silent 0)."""
         return "unknown" if self.missed is None else str(self.missed)
+
+
+def _bag_time(duration: Duration) -> QosTime:
+    sec, nsec = divmod(int(duration.nanoseconds), 1_000_000_000)
+    return QosTime(sec=sec, nsec=nsec)
+
+
+def offered_qos(profile: QoSProfile) -> Qos:
+    """Return ``profile`` (a publisher's QoS) as a bag's ``offered_qos_profiles`` entry."""
+    return Qos(
+        QosHistory(int(profile.history)),
+        int(profile.depth),
+        QosReliability(int(profile.reliability)),
+        QosDurability(int(profile.durability)),
+        _bag_time(profile.deadline),
+        _bag_time(profile.lifespan),
+        QosLiveliness(int(profile.liveliness)),
+        _bag_time(profile.liveliness_lease_duration),
+        avoid_ros_namespace_conventions=bool(profile.avoid_ros_namespace_conventions),
+    )
 
 
 class _OneLineParser(argparse.ArgumentParser):
@@ -167,7 +196,15 @@ class Recorder(Node):
             f"recording {', '.join(options.topics)} to {options.output} ({options.storage})"
         )
 
-    def _subscribe(self, topic: str, type_name: str) -> None:
+    def _subscribe(
+        self, topic: str, type_name: str, offered: Sequence[QoSProfile] = ()
+    ) -> None:
+        """Record ``topic``; the bag says it was offered ``offered`` (default: the contract's).
+
+        Raises:
+            BagError: the bag cannot register the topic (unknown type, another type).
+
+        """
         contract = topics.qos_for(topic)
         qos = QoSProfile(
             history=contract.history,
@@ -175,7 +212,9 @@ class Recorder(Node):
             reliability=contract.reliability,
             durability=contract.durability,
         )
-        self._bag.add_topic(topic, type_name)
+        # what the publishers offer, as rosbag2 writes it (a contract topic: the contract's
+        # QoS, which every es_dm endpoint uses; a discovered one: its publishers' own)
+        self._bag.add_topic(topic, type_name, [offered_qos(q) for q in offered or (contract,)])
         count = self._counts[topic] = TopicCount(type_name)
 
         counts_sequence = topic in SINGLE_PUBLISHER_TOPICS
@@ -234,8 +273,9 @@ class Recorder(Node):
             if not types:
                 continue
             self._pending.remove(topic)
+            offered = [info.qos_profile for info in self.get_publishers_info_by_topic(topic)]
             try:
-                self._subscribe(topic, types[0])
+                self._subscribe(topic, types[0], offered)
             except (BagError, ValueError) as err:
                 self.get_logger().error(f"cannot record {topic}: {err}")
 
