@@ -8,9 +8,11 @@ The feedforward node (``--shape``, default 64 x 64 = 4096 actuators) and a recor
 /dm/setpoint and /dm/command run as processes; a client in this process publishes set points
 at ``--rate`` for ``--seconds``, first on an idle machine, then beside two CPU hogs
 (bench/load.py). Flow control (docs/architecture.md "QoS"): the client never has more than
-``--window`` set points without their command; a set point that is due while the window is
-full waits for the next command, and is counted as ``held back`` with the time it waited.
-The stream is then as fast as the node serves it, at most ``--rate``, and nothing is lost:
+``--window`` set points without their command, and at most RECORDER_WINDOW set points or
+commands that the recorder has not reported received (it reports every REPORT_PERIOD_S on
+/diagnostics); a set point that is due while a window is full waits, and is counted as
+``held back`` (per window: node or recorder) with the time it waited. The stream is then as
+fast as the slower of node and recorder serves it, at most ``--rate``, and nothing is lost:
 published == received == recorded, for set points and commands alike.
 
 Readiness is a fact: the node is started with ``ready_subscribers:=2`` (the client and the
@@ -36,6 +38,8 @@ from typing import Any
 
 import numpy as np
 
+from es_msgs_py.topic_names import DM_DEPTH
+
 BENCH_DIR = Path(__file__).resolve().parent
 sys.path.insert(0, str(BENCH_DIR))
 
@@ -45,6 +49,11 @@ DRAIN_S = 60.0
 STOP_S = 30.0
 #: Set points without a command at most (flow control); far below the /dm history depth.
 DEFAULT_WINDOW = 32
+#: Messages per topic the recorder may not yet have reported received: half the history
+#: depth, so that neither the node's writer nor the recorder's reader can overflow.
+RECORDER_WINDOW = DM_DEPTH // 2
+#: The recorder's report period [s]: at 1 kHz, 50 messages per report, far below the window.
+REPORT_PERIOD_S = 0.05
 
 
 @dataclass
@@ -59,8 +68,10 @@ class FlowRun:
     rate_hz: float = 0.0
     p50_ms: float = 0.0
     p99_ms: float = 0.0
-    held_back: int = 0
+    held_back: dict[str, int] = field(default_factory=dict)
     held_back_s: float = 0.0
+    #: CPU time [ms] per set point during the stream: node, recorder, this client
+    cpu_ms: dict[str, float] = field(default_factory=dict)
     counts: dict[str, int] = field(default_factory=dict)
 
     @property
@@ -105,10 +116,11 @@ class FlowClient:
 
     def __init__(self, shape: tuple[int, int]) -> None:
         import rclpy
+        from diagnostic_msgs.msg import DiagnosticArray
         from std_msgs.msg import Float64MultiArray
 
         from es_msgs_py.arrays import grid_to_msg
-        from es_msgs_py.topics import COMMAND, SETPOINT, TEMPERATURE, qos_for
+        from es_msgs_py.topics import COMMAND, DIAGNOSTICS, SETPOINT, TEMPERATURE, qos_for
 
         self.context = rclpy.Context()
         rclpy.init(context=self.context)
@@ -121,6 +133,10 @@ class FlowClient:
                                                       qos_for(TEMPERATURE))
         self.commands = self.node.create_subscription(Float64MultiArray, COMMAND,
                                                       self._on_command, qos_for(COMMAND))
+        # the recorder's counts, its acknowledgement (``--report-period`` REPORT_PERIOD_S)
+        self.recorded: dict[str, int] = {}
+        self.node.create_subscription(DiagnosticArray, DIAGNOSTICS, self._on_diagnostics,
+                                      qos_for(DIAGNOSTICS))
         self.sent = 0
         self.received = 0
         self.received_at: list[float] = []
@@ -135,36 +151,71 @@ class FlowClient:
         self.last_command = msg
         self.received_at.append(time.perf_counter())
 
-    def wait(self, done: Any, what: str, timeout: float, procs: Sequence[_Proc]) -> None:
-        """Spin until ``done()``; raise RuntimeError naming ``what`` after ``timeout`` s."""
+    def wait(self, done: Any, what: str, timeout: float, procs: Sequence[_Proc],
+             required: bool = True) -> bool:
+        """Spin until ``done()``; after ``timeout`` s raise naming ``what``, or return False.
+
+        Raises:
+            RuntimeError: one of ``procs`` exited, or (``required``) the timeout passed.
+
+        """
         deadline = time.monotonic() + timeout
         while not done():
             dead = [p for p in procs if p.popen.poll() is not None]
             if dead:
                 raise RuntimeError(f"{dead[0].log.stem} exited: {dead[0].output()[-800:]}")
             if time.monotonic() > deadline:
+                if not required:
+                    return False
                 raise RuntimeError(f"{what}: not within {timeout:g} s")
             self.executor.spin_once(timeout_sec=0.02)
+        return True
 
-    def stream(self, rate_hz: float, seconds: float, window: int) -> tuple[np.ndarray, int, float]:
-        """Send ``rate_hz * seconds`` set points, never more than ``window`` unanswered.
+    def _on_diagnostics(self, msg: Any) -> None:
+        from es_msgs_py.topics import COMMAND, SETPOINT
+
+        for status in msg.status:
+            if status.name != "record: bag":
+                continue
+            for pair in status.values:
+                for topic in (SETPOINT, COMMAND):
+                    if pair.key == f"{topic} received" and pair.value.isdigit():
+                        self.recorded[topic] = int(pair.value)
+
+    def behind(self, window: int) -> str | None:
+        """Why the next set point must wait, or None: the node's or the recorder's window."""
+        from es_msgs_py.topics import COMMAND, SETPOINT
+
+        if self.sent - self.received >= window:  # one command per set point, in order
+            return "node"
+        if (self.sent - self.recorded.get(SETPOINT, 0) >= RECORDER_WINDOW
+                or self.received - self.recorded.get(COMMAND, 0) >= RECORDER_WINDOW):
+            return "recorder"
+        return None
+
+    def stream(self, rate_hz: float, seconds: float, window: int
+               ) -> tuple[np.ndarray, dict[str, int], float]:
+        """Send ``rate_hz * seconds`` set points; each waits while :meth:`behind` says so.
 
         Returns:
-            (send times [s, perf_counter], set points held back, total time held back [s]).
+            (send times [s, perf_counter], set points held back per reason, total time held
+            back [s]).
 
         """
         count = round(rate_hz * seconds)
         period = 1.0 / rate_hz
         sent_at = np.empty(count)
-        held, held_s = 0, 0.0
+        held = {"node": 0, "recorder": 0}
+        held_s = 0.0
         due = time.perf_counter()
         for k in range(count):
             while (left := due - time.perf_counter()) > 0.0:
                 self.executor.spin_once(timeout_sec=left)
-            if self.sent - self.received >= window:  # one command per set point, in order
-                held += 1
+            reason = self.behind(window)
+            if reason is not None:
+                held[reason] += 1
                 start = time.perf_counter()
-                while self.sent - self.received >= window:
+                while self.behind(window) is not None:
                     self.executor.spin_once(timeout_sec=1.0)
                 held_s += time.perf_counter() - start
                 due = time.perf_counter()  # the schedule restarts from the acknowledgement
@@ -180,6 +231,12 @@ class FlowClient:
 
         self.node.destroy_node()
         rclpy.shutdown(context=self.context)
+
+
+def _cpu_s(pid: int) -> float:
+    """User + system CPU seconds of process ``pid`` so far (``/proc/<pid>/stat``)."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 def _load() -> float:
@@ -207,8 +264,9 @@ def flow_run(condition: str, shape: tuple[int, int], *, rate_hz: float, seconds:
     with tempfile.TemporaryDirectory(prefix="bench_flow_") as tmp, \
             hogs(cpu=2 if condition != "idle" else 0):
         bag = Path(tmp) / "bag"
-        recorder = _Proc([str(executable("es_msgs_py", "record")), "-o", str(bag), SETPOINT,
-                          COMMAND], log_dir / f"flow_record_{tag}.log")
+        recorder = _Proc([str(executable("es_msgs_py", "record")), "-o", str(bag),
+                          "--report-period", str(REPORT_PERIOD_S), SETPOINT, COMMAND],
+                         log_dir / f"flow_record_{tag}.log")
         start = (
             [sys.executable, "-m", "cProfile", "-o", str(log_dir / f"flow_feedforward_{tag}.prof"),
              "-m", "es_feedforward.feedforward_node"]
@@ -233,9 +291,20 @@ def flow_run(condition: str, shape: tuple[int, int], *, rate_hz: float, seconds:
                 client.sent += 1
                 client.wait(lambda: client.received >= client.sent, "a command", READY_S, procs)
             base = client.received
+            cpu_before = [_cpu_s(node.popen.pid), _cpu_s(recorder.popen.pid), time.process_time()]
             sent_at, run.held_back, run.held_back_s = client.stream(rate_hz, seconds, window)
+            cpu_after = [_cpu_s(node.popen.pid), _cpu_s(recorder.popen.pid), time.process_time()]
+            run.cpu_ms = {name: (after - before) * 1e3 / len(sent_at) for name, before, after
+                          in zip(("node", "recorder", "client"), cpu_before, cpu_after,
+                                 strict=True)}
             client.wait(lambda: client.received >= client.sent, "every command back",
                         DRAIN_S, procs)
+            # the recorder drained too, before it is stopped (in flight at SIGINT: not recorded)
+            # (what it never reports is a loss: the counts below show it)
+            client.wait(lambda: client.recorded.get(SETPOINT) == client.sent
+                        and client.recorded.get(COMMAND) == client.received,
+                        "the recorder's report of every set point and command", DRAIN_S, procs,
+                        required=False)
             back = np.asarray(client.received_at[base:base + len(sent_at)])
             latency = back - sent_at
             run.rate_hz = (len(sent_at) - 1) / float(sent_at[-1] - sent_at[0])
@@ -290,7 +359,8 @@ def section_flow(settings: Any, results: Any, log_dir: Path) -> None:
             ("rate", [r.rate_hz for r in done], "Hz"),
             ("latency_p50", [r.p50_ms for r in done], "ms"),
             ("latency_p99", [r.p99_ms for r in done], "ms"),
-            ("held_back", [r.held_back for r in done], "set points"),
+            ("held_back", [sum(r.held_back.values()) for r in done], "set points"),
+            ("node_cpu", [r.cpu_ms["node"] for r in done], "ms per set point"),
             ("lost", [0 if r.lossless else 1 for r in done], "runs with a loss"),
         ):
             results.records.append(Record.of(f"flow_{tag}_{name}", n, values, unit))
@@ -299,7 +369,8 @@ def section_flow(settings: Any, results: Any, log_dir: Path) -> None:
             results.notes.append(
                 f"flow {condition} run {i + 1}: load average {r.load_before:.1f} -> "
                 f"{r.load_after:.1f}; {counts}; held back {r.held_back} "
-                f"({r.held_back_s:.2f} s)")
+                f"({r.held_back_s:.2f} s); CPU ms per set point "
+                + ", ".join(f"{k} {v:.2f}" for k, v in r.cpu_ms.items()))
             if not r.lossless:
                 results.failures.append(f"flow {condition} run {i + 1} lost messages: {counts}")
     results.notes.append(
@@ -308,7 +379,9 @@ def section_flow(settings: Any, results: Any, log_dir: Path) -> None:
         "command (flow control, docs/architecture.md QoS); idle, then beside two CPU hogs "
         "(bench/load.py). rate: set points per second the stream achieved; latency: set "
         "point published -> its command received; held_back: set points that waited for the "
-        "window; lost: runs where published == received == recorded did not hold.")
+        "window; node_cpu: the node process's CPU time per set point during the stream (the "
+        "rest of its wall time per set point is waiting for a core); lost: runs where "
+        "published == received == recorded did not hold.")
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -303,6 +303,7 @@ def test_sigkilled_recorder_bag_is_readable_up_to_last_flush(tmp_path: Path) -> 
         (["-o", "{tmp}/bag", "--storage", "rosbag1", "/x"], "invalid choice: 'rosbag1'"),
         (["-o", "{tmp}/bag", "/bad topic"], "invalid topic name '/bad topic'"),
         (["-o", "{tmp}", "/dm/command"], "exists already"),
+        (["-o", "{tmp}/bag", "--report-period", "0", "/x"], "--report-period must be in"),
     ],
 )
 def test_bad_arguments_exit_2_with_one_line(tmp_path: Path, args: list[str], message: str) -> None:

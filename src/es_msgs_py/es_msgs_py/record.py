@@ -8,9 +8,10 @@ Subscriptions use the contract QoS of each topic with a deeper queue, so that a 
 ``--flush-interval`` seconds, so even a killed recorder leaves a bag readable up to its last
 flush; SIGINT/SIGTERM close it cleanly (messages still in flight when the signal arrives
 are not recorded). Counts of received and written messages per topic are published on
-/diagnostics every second and logged at exit, with the messages the recorder missed: from
-each message's publication sequence number (the publisher's count, 1 for its first message),
-what was published before the recorder joined and what fell into gaps since. That is known
+/diagnostics every ``--report-period`` seconds (default 1) and logged at exit, with the
+messages the recorder missed: from each message's publication sequence number (the
+publisher's count, 1 for its first message), what was published before the recorder joined
+and what fell into gaps since. That is known
 for topics with one publisher (every /dm topic); elsewhere it is reported as unknown.
 ``record: ready`` on /diagnostics says "not ready" until every recorded /dm topic has matched
 a publisher (a lockstep plant can wait for it: nothing of the run is then missed).
@@ -59,6 +60,8 @@ class Options:
     topics: tuple[str, ...]
     flush_interval: float
     queue_depth: int
+    #: seconds between the counts on /diagnostics (a flow-controlled source paces on them)
+    report_period: float = 1.0
 
 
 #: Topics with exactly one publisher by contract: their publication sequence numbers count
@@ -144,6 +147,10 @@ def parse_args(argv: Sequence[str]) -> Options:
     parser.add_argument(
         "--queue-depth", type=int, default=1000, help="subscription queue depth per topic"
     )
+    parser.add_argument(
+        "--report-period", type=float, default=1.0,
+        help="seconds between the counts on /diagnostics (also sent on a level change)",
+    )
     ns = parser.parse_args(list(argv))
     names = [*ALL_DM_TOPICS] if ns.all_dm else []
     for name in ns.topics:
@@ -159,8 +166,11 @@ def parse_args(argv: Sequence[str]) -> Options:
         parser.error(f"--flush-interval must be in (0, 3600] s, got {ns.flush_interval}")
     if ns.queue_depth < 1:
         parser.error(f"--queue-depth must be >= 1, got {ns.queue_depth}")
+    if not 0.01 <= ns.report_period <= 3600.0:
+        parser.error(f"--report-period must be in [0.01, 3600] s, got {ns.report_period}")
     return Options(
-        ns.output, ns.storage, tuple(dict.fromkeys(names)), ns.flush_interval, ns.queue_depth
+        ns.output, ns.storage, tuple(dict.fromkeys(names)), ns.flush_interval, ns.queue_depth,
+        ns.report_period,
     )
 
 
@@ -187,7 +197,7 @@ class Recorder(Node):
         # Steady-clock timers: flushing must go on when sim time stands still.
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.create_timer(options.flush_interval, self._flush, clock=steady)
-        self.create_timer(1.0, self._publish_diagnostics, clock=steady)
+        self.create_timer(options.report_period, self._publish_diagnostics, clock=steady)
         if self._pending:
             self.create_timer(0.2, self._discover, clock=steady)
         self._waiting_for = self._unmatched()
