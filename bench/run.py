@@ -69,6 +69,7 @@ SECTIONS: dict[str, str] = {
     "identify": "sections.identify",
     "teardown": "sections.teardown",
     "feedforward_load": "sections.feedforward_load",
+    "flow": "sections.flow",
 }
 #: Sections run when ``--only`` is not given (the identification sweep has its own command).
 DEFAULT_SECTIONS = tuple(name for name in SECTIONS if name != "identify")

@@ -117,9 +117,6 @@ def _bag_of(line: str, cwd: Path) -> Path:
     return cwd / shlex.split(line)[shlex.split(line).index("--bag") + 1]
 
 
-# Known race, not yet fixed: under ros2 launch the recorder once missed the first 11 of 150
-# estimates (matched the thermal node's publisher late); one rerun, reported by pytest.
-@pytest.mark.flaky(reruns=1)
 @pytest.mark.parametrize("line", LAUNCHES + [c for c in STEPS if "bringup --scenario" in c])
 def test_a_run_ends_by_itself_with_every_message_in_its_bag(
     ros2: Ros2, tmp_path: Path, line: str

@@ -47,6 +47,8 @@ def test_every_node_gets_the_scenario_grid_sensors_lag_and_time_scale() -> None:
     assert nodes[FEEDFORWARD]["compensation.temperature_lead_s"] == 0.0
     assert nodes[PLANT]["wait_ready"] == [RECORDER, THERMAL, FEEDFORWARD]
     assert nodes[PLANT]["start_subscribers"] == 1
+    # first estimate to feedforward, plant and recorder; first command to plant and recorder
+    assert (nodes[THERMAL]["ready_subscribers"], nodes[FEEDFORWARD]["ready_subscribers"]) == (3, 2)
     assert all(nodes[n]["use_sim_time"] is True for n in (RECORDER, THERMAL, FEEDFORWARD))
 
 
@@ -61,6 +63,7 @@ def test_duration_time_scale_and_grid_overrides_reach_every_node() -> None:
     assert (nodes[FEEDFORWARD]["rows"], nodes[FEEDFORWARD]["cols"]) == (4, 5)
     assert RECORDER not in nodes  # no bag, no recorder
     assert nodes[PLANT]["wait_ready"] == [THERMAL, FEEDFORWARD]
+    assert (nodes[THERMAL]["ready_subscribers"], nodes[FEEDFORWARD]["ready_subscribers"]) == (2, 1)
 
 
 def test_a_test_stand_is_plant_and_recorder_only() -> None:

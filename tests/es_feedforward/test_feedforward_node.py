@@ -260,6 +260,35 @@ def test_node_reports_not_ready_until_its_inputs_are_matched() -> None:
         assert proc.stop() == 0
 
 
+def test_node_is_ready_only_once_its_command_publisher_matched_ready_subscribers() -> None:
+    # A subscription matching the node's publisher is not the publisher matching it: the node
+    # counts its own side, so a recorder it waits for gets the first command.
+    args = ["--ros-args", "-p", "rows:=2", "-p", "cols:=3", "-p", "diagnostics_period:=0.2",
+            "-p", "mode:=uncompensated", "-p", "ready_subscribers:=2"]
+    with (
+        node_process("es_feedforward", "feedforward_node", args) as proc,
+        ros_node("ff_ready_out_test") as node,
+    ):
+        seen: dict[str, str] = {}
+
+        def on_diag(msg: DiagnosticArray) -> None:
+            for status in msg.status:
+                if status.name == "feedforward: ready":
+                    seen["ready"] = status.message
+
+        def says(message: str) -> bool:
+            return spin_until(node, lambda: seen.get("ready") == message, READY_TIMEOUT)
+
+        node.create_subscription(DiagnosticArray, DIAGNOSTICS, on_diag, qos_for(DIAGNOSTICS))
+        node.create_publisher(Float64MultiArray, SETPOINT, qos_for(SETPOINT))
+        assert says("not ready: waiting for /dm/command subscribers (0 of 2 matched)"), seen
+        node.create_subscription(Float64MultiArray, COMMAND, lambda _m: None, qos_for(COMMAND))
+        assert says("not ready: waiting for /dm/command subscribers (1 of 2 matched)"), seen
+        node.create_subscription(Float64MultiArray, COMMAND, lambda _m: None, qos_for(COMMAND))
+        assert says("ready"), seen
+        assert proc.stop() == 0
+
+
 def test_node_rejects_an_invalid_parameters_file_with_one_line(tmp_path: Path) -> None:
     path = tmp_path / "bad.yaml"
     path.write_text(

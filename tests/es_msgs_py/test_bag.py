@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 from builtin_interfaces.msg import Time
 from rclpy.serialization import deserialize_message, serialize_message
+from rosbags.interfaces import ConnectionExtRosbag2
 from rosbags.rosbag2 import CompressionFormat, CompressionMode, Reader, StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 from rosgraph_msgs.msg import Clock
@@ -30,7 +31,7 @@ from es_msgs_py.bag import (
     write_array_bag,
 )
 from es_msgs_py.diagnostics import Level, make_array, make_status
-from es_msgs_py.topics import CLOCK, COMMAND, DIAGNOSTICS, TEMPERATURE_RAW
+from es_msgs_py.topics import CLOCK, COMMAND, DIAGNOSTICS, DM_DEPTH, TEMPERATURE_RAW
 
 STORAGES = ["mcap", "sqlite3"]
 RNG = np.random.default_rng(7)
@@ -135,6 +136,12 @@ def test_bags_are_standard_rosbag2(tmp_path: Path, storage: str) -> None:
         (conn,) = reader.connections
         assert (conn.topic, conn.msgtype) == (COMMAND, FLOAT64_MULTI_ARRAY)
         assert conn.digest.startswith("RIHS01_")
+        # offered as every es_dm /dm endpoint publishes: keep last DM_DEPTH, reliable
+        assert isinstance(conn.ext, ConnectionExtRosbag2)
+        ((history, depth, reliability),) = [
+            (q.history.name, q.depth, q.reliability.name) for q in conn.ext.offered_qos_profiles
+        ]
+        assert (history, depth, reliability) == ("KEEP_LAST", DM_DEPTH, "RELIABLE")
         raw = [data for _, _, data in reader.messages()]
     msgs = [deserialize_message(bytes(r), Float64MultiArray) for r in raw]
     np.testing.assert_array_equal([msg_to_grid(m, (2, 3)) for m in msgs], grids)

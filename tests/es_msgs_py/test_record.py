@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
@@ -21,7 +22,16 @@ from support.ros import test_node as ros_node
 from es_msgs_py.arrays import grid_to_msg, msg_to_grid, msg_to_sensors, sensors_to_msg
 from es_msgs_py.bag import BagError, decode_float64_multi_arrays, read_bag
 from es_msgs_py.record import TopicCount
-from es_msgs_py.topics import CLOCK, COMMAND, DIAGNOSTICS, DM_QOS, TEMPERATURE_RAW, qos_for
+from es_msgs_py.topics import (
+    CLOCK,
+    COMMAND,
+    DIAGNOSTICS,
+    DIAGNOSTICS_QOS,
+    DM_DEPTH,
+    DM_QOS,
+    TEMPERATURE_RAW,
+    qos_for,
+)
 
 pytestmark = pytest.mark.dds
 
@@ -136,6 +146,23 @@ def test_recorder_writes_every_message_and_closes_on_sigint(tmp_path: Path) -> N
     assert np.all(np.diff(series[COMMAND].times) >= 0)
     assert abs(series[COMMAND].times[0] - time.time()) < 120  # wall-clock stamps
     assert len(series[DIAGNOSTICS]) >= 1  # its own counts, at least
+    # the bag's metadata says what the publishers offer: /dm keep last DM_DEPTH, not 10
+    offered = _offered_qos(bag)
+    assert offered[COMMAND] == offered[TEMPERATURE_RAW] == [("keep_last", DM_DEPTH, "reliable")]
+    assert offered[DIAGNOSTICS] == [("keep_last", DIAGNOSTICS_QOS.depth, "reliable")]
+
+
+def _offered_qos(bag: Path) -> dict[str, list[tuple[str, int, str]]]:
+    """Return each topic's ``offered_qos_profiles`` (history, depth, reliability) in ``bag``."""
+    meta = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    out = {}
+    for entry in meta["topics_with_message_count"]:
+        topic = entry["topic_metadata"]
+        profiles = topic["offered_qos_profiles"]
+        if isinstance(profiles, str):  # older metadata versions embed a YAML string
+            profiles = yaml.safe_load(profiles)
+        out[topic["name"]] = [(q["history"], q["depth"], q["reliability"]) for q in profiles]
+    return out
 
 
 def test_missed_messages_come_from_publication_sequence_numbers() -> None:
@@ -276,6 +303,7 @@ def test_sigkilled_recorder_bag_is_readable_up_to_last_flush(tmp_path: Path) -> 
         (["-o", "{tmp}/bag", "--storage", "rosbag1", "/x"], "invalid choice: 'rosbag1'"),
         (["-o", "{tmp}/bag", "/bad topic"], "invalid topic name '/bad topic'"),
         (["-o", "{tmp}", "/dm/command"], "exists already"),
+        (["-o", "{tmp}/bag", "--report-period", "0", "/x"], "--report-period must be in"),
     ],
 )
 def test_bad_arguments_exit_2_with_one_line(tmp_path: Path, args: list[str], message: str) -> None:

@@ -23,6 +23,7 @@ import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rcl_interfaces.srv import SetParameters
+from rclpy.client import Client
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from rclpy.publisher import Publisher
@@ -145,6 +146,7 @@ class Watcher:
         self.injected_implausible_temperatures = 0
         self.clock = -1.0
         self.diagnostics: dict[str, DiagnosticStatus] = {}
+        self._parameter_clients: dict[str, Client] = {}
         node = self.node
         self.subscriptions: dict[str, Subscription] = {
             topics.COMMAND: node.create_subscription(
@@ -267,24 +269,42 @@ class Watcher:
         with self.lock:
             return self.commands.received
 
+    def parameter_client(self, node_name: str, timeout: float = READY_TIMEOUT) -> Client:
+        """Return a client of ``/<node_name>/set_parameters`` once the service has matched.
+
+        The client is made once per node and kept: discovery of a service is done while the
+        graph is quiet (call this before the part a test measures), not under a fault.
+
+        Raises:
+            NotReadyError: the service was not available within ``timeout`` wall seconds.
+
+        """
+        client = self._parameter_clients.get(node_name)
+        if client is None:
+            client = self.node.create_client(SetParameters, f"/{node_name}/set_parameters")
+            self._parameter_clients[node_name] = client
+        poll_until(client.service_is_ready, f"service /{node_name}/set_parameters", timeout)
+        return client
+
     def set_parameters(self, node_name: str, params: Sequence[Parameter],
-                       timeout: float = 10.0) -> list[tuple[bool, str]]:
-        """Set parameters of another node one by one; return (successful, reason) of each."""
-        client = self.node.create_client(SetParameters, f"/{node_name}/set_parameters")
-        try:
-            if not client.wait_for_service(timeout_sec=timeout):
-                raise TimeoutError(f"/{node_name}/set_parameters is not available")
-            outcomes = []
-            for param in params:
-                request = SetParameters.Request(parameters=[param.to_parameter_msg()])
-                future = client.call_async(request)
-                if not self.wait_for(future.done, timeout):
-                    raise TimeoutError(f"no answer from /{node_name}/set_parameters")
-                result = future.result().results[0]
-                outcomes.append((bool(result.successful), str(result.reason)))
-            return outcomes
-        finally:
-            self.node.destroy_client(client)
+                       timeout: float = READY_TIMEOUT) -> list[tuple[bool, str]]:
+        """Set parameters of another node one by one; return (successful, reason) of each.
+
+        Raises:
+            NotReadyError: the node's parameter service never became available, or did not
+                answer a request, within ``timeout`` wall seconds.
+
+        """
+        client = self.parameter_client(node_name, timeout)
+        outcomes = []
+        for param in params:
+            request = SetParameters.Request(parameters=[param.to_parameter_msg()])
+            future = client.call_async(request)
+            if not self.wait_for(future.done, timeout):
+                raise NotReadyError(f"no answer from /{node_name}/set_parameters in {timeout:g} s")
+            result = future.result().results[0]
+            outcomes.append((bool(result.successful), str(result.reason)))
+        return outcomes
 
     def close(self) -> None:
         """Stop spinning, destroy the node, shut the context down."""

@@ -33,7 +33,11 @@ if TYPE_CHECKING:
 pytestmark = pytest.mark.dds
 
 SHAPE = (3, 3)
-DURATION = 6.0  # sim seconds at 100 Hz control, 10 Hz sensors
+# Sim seconds at 100 Hz control, 10 Hz sensors. Long enough that the thermal node's restart
+# (seconds of start-up and discovery on a loaded machine) ends well before the run does: the
+# watcher notices sim time passing KILL_THERMAL_AT late when the plant runs at full speed,
+# and every 10 Hz sample without the thermal node costs sync_timeout of wall time.
+DURATION = 15.0
 KILL_FEEDFORWARD_AT = 1.0
 KILL_THERMAL_AT = 3.0
 
@@ -55,9 +59,6 @@ def _kill_and_restart(
     return advanced, came_back, f"killed at {clock_at_kill:.2f} s sim, now {watcher.clock:.2f} s"
 
 
-# Known race, not yet fixed: after the thermal node's restart the plant's parameter service
-# was once not found within 10 s on an idle machine; one rerun, reported by pytest.
-@pytest.mark.flaky(reruns=1)
 def test_nodes_killed_and_restarted_in_lockstep(tmp_path: Path, fault_cases: FaultCases) -> None:
     area = "closed loop in lockstep"
     bag = tmp_path / "bag"
@@ -67,7 +68,7 @@ def test_nodes_killed_and_restarted_in_lockstep(tmp_path: Path, fault_cases: Fau
         # start_subscribers 2: the recorder and the watcher must match before step 0.
         # sync_timeout 1: with the thermal node dead each 10 Hz sample costs that much wall
         # time, which leaves its restart (start-up, discovery; seconds on a loaded machine)
-        # up to 30 s before the end; command_timeout 0.1 at 100 Hz leaves the feedforward's
+        # about 100 s before the end; command_timeout 0.1 at 100 Hz leaves the feedforward's
         # restart 20 s before the thermal node is killed.
         plant={"rows": 3, "cols": 3, "duration": DURATION, "command_timeout": 0.1,
                "sync_timeout": 1.0, "start_subscribers": 2},
@@ -87,6 +88,8 @@ def test_nodes_killed_and_restarted_in_lockstep(tmp_path: Path, fault_cases: Fau
         # the plant matches the rest itself before its first step (matched command and
         # temperature sources, start_subscribers subscriptions of each of its outputs)
         procs["plant"] = Proc("plant", plant_spec.command)
+        # the plant's parameter service is discovered now, not later amid the restarts' traffic
+        watcher.parameter_client("plant")
 
         # The feedforward killed mid-run: the plant holds, the commands resume after restart.
         counted = watcher.command_count
@@ -98,6 +101,12 @@ def test_nodes_killed_and_restarted_in_lockstep(tmp_path: Path, fault_cases: Fau
         fault_cases.expect(area, "feedforward restarted: command stream resumes", resumed,
                            detail)
 
+        # mid-run (the plant surely alive: its service was matched at its start)
+        (plant_set,) = watcher.set_parameters(
+            "plant", [Parameter("command_timeout", value=100.0)])
+        fault_cases.expect(area, "plant parameter set at run time (read-only): rejected",
+                           not plant_set[0] and bool(plant_set[1]), repr(plant_set))
+
         # The thermal node killed mid-run: the plant continues, estimates resume on restart.
         temperatures_seen = watcher.temperatures
         advanced, resumed, detail = _kill_and_restart(
@@ -106,11 +115,6 @@ def test_nodes_killed_and_restarted_in_lockstep(tmp_path: Path, fault_cases: Fau
         fault_cases.expect(area, "thermal SIGKILLed: plant steps on past its sync timeout",
                            advanced and procs["plant"].alive(), detail)
         fault_cases.expect(area, "thermal restarted: estimates resume", resumed, detail)
-
-        (plant_set,) = watcher.set_parameters(
-            "plant", [Parameter("command_timeout", value=100.0)])
-        fault_cases.expect(area, "plant parameter set at run time (read-only): rejected",
-                           not plant_set[0] and bool(plant_set[1]), repr(plant_set))
 
         finished = watcher.wait_for(lambda: not procs["plant"].alive(), 180.0)
         plant_exit = procs["plant"].popen.returncode

@@ -217,6 +217,14 @@ def _controller_specs(
         if config.namespace:
             path = namespaced_params_file(path, FEEDFORWARD, config)
         files = (path,)
+    # Readiness includes the first message reaching every subscriber of the graph (DDS
+    # matching is one-sided: the recorder's match alone does not say the publisher's side has
+    # matched it): estimates go to the feedforward, the lockstep plant and the recorder,
+    # commands to the plant and the recorder.
+    recorder = int(config.bag is not None)
+    synced = int(bool(plant_values.get("sync_temperature", True)))
+    thermal["ready_subscribers"] = 1 + synced + recorder
+    feedforward["ready_subscribers"] = 1 + recorder
     return [
         NodeSpec(
             "es_thermal", "thermal_node", THERMAL, {**sim_time, **thermal, **config.thermal}

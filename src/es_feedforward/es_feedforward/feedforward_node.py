@@ -42,6 +42,7 @@ from es_msgs_py.diagnostics import (
     make_status,
     readiness_status,
     unmatched,
+    unreached,
 )
 from es_msgs_py.node_main import run_node, usage_text
 from es_msgs_py.params import ParameterValues, declare_parameters
@@ -193,11 +194,12 @@ class FeedforwardNode(Node):
         self._counts["commands"] += 1
 
     def _unconnected_inputs(self) -> list[str]:
-        """Return the input topics that have matched no publisher yet (readiness)."""
+        """Return what readiness waits for: unmatched inputs, the command's subscribers."""
         needed = [self._setpoint_sub]
         if self._core.needs_temperature:
             needed.insert(0, self._temperature_sub)
-        return unmatched(needed)
+        wanted = int(self._values["ready_subscribers"])  # type: ignore[call-overload]
+        return [*unmatched(needed), *unreached(self._command_pub, wanted)]
 
     def _check_ready(self) -> None:
         """Follow the inputs' matching until ready; say so on /diagnostics at once."""

@@ -116,6 +116,15 @@ def parameter_specs() -> list[ParameterSpec]:
             read_only=True,
         ),
         ParameterSpec(
+            "ready_subscribers",
+            0,
+            "Subscriptions /dm/command must have matched before 'feedforward: ready' (the "
+            "plant and recorder that must get the first command; the graph sets it).",
+            0,
+            64,
+            read_only=True,
+        ),
+        ParameterSpec(
             OBSERVER_PREFIX + "kp",
             observer_defaults.kp,
             "Observer PI proportional gain (normalised by the observer gain).",

@@ -72,6 +72,31 @@ def unmatched(subscriptions: Iterable[_Matched]) -> list[str]:
     return [s.topic_name for s in subscriptions if s.get_publisher_count() == 0]
 
 
+class _Publishing(Protocol):
+    """A publisher that knows how many subscriptions it matched (rclpy ``Publisher``)."""
+
+    @property
+    def topic_name(self) -> str:
+        """The publisher's topic."""
+
+    def get_subscription_count(self) -> int:
+        """Return how many subscriptions the publisher matched."""
+
+
+def unreached(publisher: _Publishing, wanted: int) -> list[str]:
+    """Describe ``publisher`` if it has matched fewer than ``wanted`` subscriptions, else ``[]``.
+
+    Matching is one-sided in DDS: a subscription that has matched a publisher (what the
+    subscriber's readiness sees) gets nothing the publisher sends before the publisher has
+    matched it in turn, so a node whose first message must reach every peer (a recorder's
+    bag) waits for its own publisher's count.
+    """
+    have = publisher.get_subscription_count()
+    if have >= wanted:
+        return []
+    return [f"{publisher.topic_name} subscribers ({have} of {wanted} matched)"]
+
+
 def readiness_status(node: str, waiting_for: Sequence[str]) -> DiagnosticStatus:
     """Return the ``"<node>: ready"`` status: OK, or WARN naming what the node waits for."""
     if not waiting_for:

@@ -8,9 +8,10 @@ Subscriptions use the contract QoS of each topic with a deeper queue, so that a 
 ``--flush-interval`` seconds, so even a killed recorder leaves a bag readable up to its last
 flush; SIGINT/SIGTERM close it cleanly (messages still in flight when the signal arrives
 are not recorded). Counts of received and written messages per topic are published on
-/diagnostics every second and logged at exit, with the messages the recorder missed: from
-each message's publication sequence number (the publisher's count, 1 for its first message),
-what was published before the recorder joined and what fell into gaps since. That is known
+/diagnostics every ``--report-period`` seconds (default 1) and logged at exit, with the
+messages the recorder missed: from each message's publication sequence number (the
+publisher's count, 1 for its first message), what was published before the recorder joined
+and what fell into gaps since. That is known
 for topics with one publisher (every /dm topic); elsewhere it is reported as unknown.
 ``record: ready`` on /diagnostics says "not ready" until every recorded /dm topic has matched
 a publisher (a lockstep plant can wait for it: nothing of the run is then missed).
@@ -25,11 +26,20 @@ from dataclasses import dataclass
 from typing import NoReturn
 
 from rclpy.clock import Clock, ClockType
+from rclpy.duration import Duration
 from rclpy.event_handler import QoSMessageLostInfo, SubscriptionEventCallbacks
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
 from rclpy.subscription import Subscription
 from rclpy.validate_full_topic_name import validate_full_topic_name
+from rosbags.interfaces import (
+    Qos,
+    QosDurability,
+    QosHistory,
+    QosLiveliness,
+    QosReliability,
+    QosTime,
+)
 
 from es_msgs_py import topics
 from es_msgs_py.bag import STORAGES, BagError, BagWriter
@@ -50,6 +60,8 @@ class Options:
     topics: tuple[str, ...]
     flush_interval: float
     queue_depth: int
+    #: seconds between the counts on /diagnostics (a flow-controlled source paces on them)
+    report_period: float = 1.0
 
 
 #: Topics with exactly one publisher by contract: their publication sequence numbers count
@@ -92,6 +104,26 @@ class TopicCount:
         return "unknown" if self.missed is None else str(self.missed)
 
 
+def _bag_time(duration: Duration) -> QosTime:
+    sec, nsec = divmod(int(duration.nanoseconds), 1_000_000_000)
+    return QosTime(sec=sec, nsec=nsec)
+
+
+def offered_qos(profile: QoSProfile) -> Qos:
+    """Return ``profile`` (a publisher's QoS) as a bag's ``offered_qos_profiles`` entry."""
+    return Qos(
+        QosHistory(int(profile.history)),
+        int(profile.depth),
+        QosReliability(int(profile.reliability)),
+        QosDurability(int(profile.durability)),
+        _bag_time(profile.deadline),
+        _bag_time(profile.lifespan),
+        QosLiveliness(int(profile.liveliness)),
+        _bag_time(profile.liveliness_lease_duration),
+        avoid_ros_namespace_conventions=bool(profile.avoid_ros_namespace_conventions),
+    )
+
+
 class _OneLineParser(argparse.ArgumentParser):
     """Argument errors are one line on stderr and exit code 2."""
 
@@ -115,6 +147,10 @@ def parse_args(argv: Sequence[str]) -> Options:
     parser.add_argument(
         "--queue-depth", type=int, default=1000, help="subscription queue depth per topic"
     )
+    parser.add_argument(
+        "--report-period", type=float, default=1.0,
+        help="seconds between the counts on /diagnostics (also sent on a level change)",
+    )
     ns = parser.parse_args(list(argv))
     names = [*ALL_DM_TOPICS] if ns.all_dm else []
     for name in ns.topics:
@@ -130,8 +166,11 @@ def parse_args(argv: Sequence[str]) -> Options:
         parser.error(f"--flush-interval must be in (0, 3600] s, got {ns.flush_interval}")
     if ns.queue_depth < 1:
         parser.error(f"--queue-depth must be >= 1, got {ns.queue_depth}")
+    if not 0.01 <= ns.report_period <= 3600.0:
+        parser.error(f"--report-period must be in [0.01, 3600] s, got {ns.report_period}")
     return Options(
-        ns.output, ns.storage, tuple(dict.fromkeys(names)), ns.flush_interval, ns.queue_depth
+        ns.output, ns.storage, tuple(dict.fromkeys(names)), ns.flush_interval, ns.queue_depth,
+        ns.report_period,
     )
 
 
@@ -158,7 +197,7 @@ class Recorder(Node):
         # Steady-clock timers: flushing must go on when sim time stands still.
         steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.create_timer(options.flush_interval, self._flush, clock=steady)
-        self.create_timer(1.0, self._publish_diagnostics, clock=steady)
+        self.create_timer(options.report_period, self._publish_diagnostics, clock=steady)
         if self._pending:
             self.create_timer(0.2, self._discover, clock=steady)
         self._waiting_for = self._unmatched()
@@ -167,7 +206,15 @@ class Recorder(Node):
             f"recording {', '.join(options.topics)} to {options.output} ({options.storage})"
         )
 
-    def _subscribe(self, topic: str, type_name: str) -> None:
+    def _subscribe(
+        self, topic: str, type_name: str, offered: Sequence[QoSProfile] = ()
+    ) -> None:
+        """Record ``topic``; the bag says it was offered ``offered`` (default: the contract's).
+
+        Raises:
+            BagError: the bag cannot register the topic (unknown type, another type).
+
+        """
         contract = topics.qos_for(topic)
         qos = QoSProfile(
             history=contract.history,
@@ -175,7 +222,9 @@ class Recorder(Node):
             reliability=contract.reliability,
             durability=contract.durability,
         )
-        self._bag.add_topic(topic, type_name)
+        # what the publishers offer, as rosbag2 writes it (a contract topic: the contract's
+        # QoS, which every es_dm endpoint uses; a discovered one: its publishers' own)
+        self._bag.add_topic(topic, type_name, [offered_qos(q) for q in offered or (contract,)])
         count = self._counts[topic] = TopicCount(type_name)
 
         counts_sequence = topic in SINGLE_PUBLISHER_TOPICS
@@ -234,8 +283,9 @@ class Recorder(Node):
             if not types:
                 continue
             self._pending.remove(topic)
+            offered = [info.qos_profile for info in self.get_publishers_info_by_topic(topic)]
             try:
-                self._subscribe(topic, types[0])
+                self._subscribe(topic, types[0], offered)
             except (BagError, ValueError) as err:
                 self.get_logger().error(f"cannot record {topic}: {err}")
 

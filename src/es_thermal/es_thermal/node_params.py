@@ -89,6 +89,12 @@ SPECS: tuple[ParameterSpec, ...] = (
         read_only=True,
     ),
     ParameterSpec(
+        "ready_subscribers", 0,
+        "Subscriptions /dm/temperature must have matched before 'thermal: ready' (the peers "
+        "and recorder that must get the first estimate; the graph sets it).", 0, 64,
+        read_only=True,
+    ),
+    ParameterSpec(
         "time_scale",
         1.0,
         "Multiplier of every slow time (the simulator's shortened scenarios; 1 = physical): "

@@ -16,7 +16,8 @@ accepted heat load is held; NaN/inf, out-of-range and stuck sensors are
 excluded and the estimate continues from the others (WARN); with no valid sensor, or no raw
 message for ``fault.stale_timeout`` wall seconds, the node publishes no estimate (ERROR), so
 the feedforward holds, and it resumes by itself when valid readings return. ``thermal: ready``
-on /diagnostics says "not ready" until /dm/temperature/raw has matched a publisher. Should an update
+on /diagnostics says "not ready" until /dm/temperature/raw has matched a publisher and
+/dm/temperature ``ready_subscribers`` subscriptions (the graph's peers). Should an update
 fail all the same (a bug, not bad input), the callback logs it, reports ERROR, publishes
 nothing for that message and restarts the estimate from the next readings: the node keeps
 running.
@@ -54,7 +55,14 @@ from std_msgs.msg import Float64MultiArray
 
 from es_msgs_py import topics
 from es_msgs_py.arrays import LayoutError, grid_to_msg, msg_to_grid, msg_to_sensors
-from es_msgs_py.diagnostics import Level, make_array, make_status, readiness_status, unmatched
+from es_msgs_py.diagnostics import (
+    Level,
+    make_array,
+    make_status,
+    readiness_status,
+    unmatched,
+    unreached,
+)
 from es_msgs_py.node_main import run_node, usage_text
 from es_msgs_py.params import declare_parameters
 from es_thermal.estimator import SampleClock, TemperatureEstimator
@@ -127,8 +135,10 @@ class ThermalNode(Node):
             Float64MultiArray, topics.TEMPERATURE_RAW, self._on_raw,
             topics.qos_for(topics.TEMPERATURE_RAW),
         )
-        # Readiness: the estimator is built; ready once the raw readings' publisher matched.
-        self._waiting_for = unmatched([self._raw_sub])
+        # Readiness: the estimator is built; ready once the raw readings' publisher matched
+        # and the estimates' publisher has matched its ``ready_subscribers``.
+        self._ready_subscribers = values.get_int("ready_subscribers")
+        self._waiting_for = self._unready()
         self._ready_timer = self.create_timer(0.05, self._check_ready, clock=self._wall)
         period = values.get_float("diagnostics_period")
         self.create_timer(period, self._publish_diagnostics, clock=self._wall)
@@ -236,9 +246,13 @@ class ThermalNode(Node):
 
     # --- diagnostics ------------------------------------------------------------------------
 
+    def _unready(self) -> list[str]:
+        """Return what readiness still waits for: the raw input, the estimates' subscribers."""
+        return [*unmatched([self._raw_sub]), *unreached(self._pub, self._ready_subscribers)]
+
     def _check_ready(self) -> None:
-        """Follow the raw input's matching until ready; say so on /diagnostics at once."""
-        waiting = unmatched([self._raw_sub])
+        """Follow the raw input's and the output's matching until ready; say so at once."""
+        waiting = self._unready()
         if waiting != self._waiting_for:
             self._waiting_for = waiting
             self._publish_diagnostics()

@@ -34,6 +34,7 @@ from es_msgs_py.bag.errors import (
     BagWriteError,
     UnknownMessageTypeError,
 )
+from es_msgs_py.topic_names import DM_DEPTH
 
 __all__ = ["BAG_VERSION", "STORAGES", "BagWriter", "Storage", "ros_type_name", "write_array_bag"]
 
@@ -50,11 +51,12 @@ Storage = Literal["mcap", "sqlite3"]
 
 
 def _default_qos() -> list[Qos]:
+    """Return the offered QoS of a /dm topic: what every es_dm endpoint uses (``DM_QOS``)."""
     never = QosTime(sec=0, nsec=0)
     return [
         Qos(
             QosHistory.KEEP_LAST,
-            10,
+            DM_DEPTH,
             QosReliability.RELIABLE,
             QosDurability.VOLATILE,
             never,
