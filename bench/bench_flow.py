@@ -253,10 +253,10 @@ def flow_run(condition: str, shape: tuple[int, int], *, rate_hz: float, seconds:
     """
     from load import hogs
 
-    from es_msgs_py.bag import read_bag
-    from es_msgs_py.topics import COMMAND, SETPOINT
     from es_bringup.bringup import executable
     from es_bringup.invariants import published_counts_from_log, recorder_counts_from_log
+    from es_msgs_py.bag import read_bag
+    from es_msgs_py.topics import COMMAND, SETPOINT
 
     rows, cols = shape
     run = FlowRun(condition, _load(), 0.0, rate_hz, window)

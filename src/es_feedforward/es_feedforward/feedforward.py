@@ -34,6 +34,7 @@ import numpy.typing as npt
 
 from es_feedforward.compensation import CompensationParams
 from es_feedforward.errors import FeedforwardConfigError, FeedforwardInputError
+from es_feedforward.kernels import Backend, default_backend, observer_iterations, prepare
 from es_physics.effects import Compensator, in_model_order
 from es_physics.laws import (
     CODE_CLIPPED_HIGH,
@@ -41,6 +42,7 @@ from es_physics.laws import (
     CODE_INVALID,
     CODE_OK,
     DEFAULT_V_LIMIT,
+    RATIO_CAP,
     CompiledLaws,
     InverseResult,
     LawsAtTemperature,
@@ -60,6 +62,9 @@ SETPOINT_CEILING: Final = 1.0
 PLAUSIBLE_TEMPERATURE: Final = (-50.0, 200.0)
 #: Age [s] beyond which a temperature estimate is stale.
 DEFAULT_TEMPERATURE_TIMEOUT: Final = 2.0
+#: Relative margin below the reach of ``v_limit`` under which set points skip the inverse that
+#: only reports their status (far above the inverse's rounding, ~1e-15).
+REACH_MARGIN: Final = 1e-9
 
 
 class Mode(StrEnum):
@@ -192,17 +197,33 @@ class Feedforward:
     _temperature_time: float | None
     _temperature_problem: str | None
 
-    def __init__(self, config: FeedforwardConfig, previous: Feedforward | None = None) -> None:
-        """Build the feedforward for ``config`` (``previous``: the core it replaces).
+    def __init__(
+        self,
+        config: FeedforwardConfig,
+        previous: Feedforward | None = None,
+        backend: Backend | None = None,
+    ) -> None:
+        """Build the feedforward for ``config``.
+
+        Args:
+            config: the configuration.
+            previous: a feedforward of the same grid whose states carry over.
+            backend: inner loops (:mod:`es_feedforward.kernels`); ``None``: the default
+                (fused when numba is importable, unless ``ES_DM_FEEDFORWARD_KERNELS=numpy``).
 
         Raises:
             FeedforwardConfigError: the configuration is inconsistent (the reason is the message).
+            es_feedforward.kernels.KernelBackendError: the kernels asked for are not available.
 
         """
         reason = config.reason_to_reject()
         if reason is not None:
             raise FeedforwardConfigError(reason)
         self.config = config
+        self.backend = default_backend() if backend is None else backend
+        if config.mode is Mode.OBSERVER:
+            prepare(self.backend)  # compile now, not on the first set point
+        self._reach: tuple[LawsAtTemperature, tuple[float, FloatArray, FloatArray]] | None = None
         shape = config.shape
         comp = config.compensation
         self._laws_compiled = CompiledLaws(config.params, shape)
@@ -356,7 +377,7 @@ class Feedforward:
         voltage, status = result.voltage, result.status
         reshaped = bool(self._drive_stages)
         if reshaped:
-            voltage, status = self._drive_and_limits(result, t, T)
+            voltage, status = self._drive_and_limits(result, t)
         if raw_status is not None:
             np.maximum(status, raw_status, out=status)
         maybe_invalid = raw_status is not None or laws.flagged or reshaped
@@ -382,60 +403,84 @@ class Feedforward:
             z = stage.setpoint(z, T, t)
         return z
 
+    def _reach_bounds(self, laws: LawsAtTemperature) -> tuple[float, FloatArray, FloatArray]:
+        """Return set points [m] that ``v_limit`` surely reaches / surely does not reach.
+
+        With z_reach = z(v_limit) (capped at RATIO_CAP z_sat) per actuator: (smallest
+        z_reach (1 - REACH_MARGIN), z_reach (1 - REACH_MARGIN), z_reach (1 + REACH_MARGIN)),
+        computed once per temperature. Only for laws that flag no actuator.
+        """
+        if self._reach is None or self._reach[0] is not laws:
+            t = np.tanh(laws.q * self.config.v_limit)
+            reach = np.minimum(t * t, RATIO_CAP) * laws.z_sat
+            below = reach * (1.0 - REACH_MARGIN)
+            self._reach = (laws, (float(below.min()), below, reach * (1.0 + REACH_MARGIN)))
+        return self._reach[1]
+
+    def _reach_status(self, laws: LawsAtTemperature, z: FloatArray) -> StatusArray:
+        """Return the hyperbolic inverse's status of ``z`` without inverting where it is clear.
+
+        Usable laws and finite z >= 0 away from the reach of ``v_limit``: OK below it,
+        CLIPPED_HIGH beyond; anything else (set points within REACH_MARGIN of the reach
+        included) takes the inverse itself.
+        """
+        if not laws.flagged and z.size and z.min() >= 0.0:
+            everywhere, below, beyond = self._reach_bounds(laws)
+            if z.max() < everywhere:
+                return np.zeros(z.shape, np.int8)
+            high = z >= beyond
+            if np.count_nonzero(high) == z.size - np.count_nonzero(z < below):
+                return high.astype(np.int8) * np.int8(CODE_CLIPPED_HIGH)
+        return laws.hyperbolic_inverse(z, self.config.v_limit).status
+
+    @staticmethod
+    def _model_error(laws: LawsAtTemperature, voltage: FloatArray, z: FloatArray) -> FloatArray:
+        """Return z_model(voltage) - z [m] (``laws.hyperbolic_forward``, in one buffer)."""
+        error = np.multiply(laws.q, voltage)
+        np.tanh(error, out=error)
+        error *= error
+        error /= laws.inv_zsat
+        error -= z
+        return error
+
     def _linearized(
         self, laws: LawsAtTemperature, z: FloatArray
     ) -> tuple[InverseResult, FloatArray]:
         """Bias at V_max(T), drive z - z_sat/3 through 1 / d_max(T)."""
-        reach = laws.hyperbolic_inverse(z, self.config.v_limit)  # statuses of the set point
+        v_limit = self.config.v_limit
+        status = self._reach_status(laws, z)  # statuses of the set point
         voltage = np.maximum(z, 0.0)
         voltage /= laws.d_max
         voltage += laws.linear_offset
-        voltage = np.clip(voltage, 0.0, self.config.v_limit)
-        high = reach.status == CODE_CLIPPED_HIGH
-        voltage[high] = self.config.v_limit
-        error = np.asarray(laws.hyperbolic_forward(voltage) - z, np.float64)
-        return limit_voltages(voltage, reach.status, self.config.v_limit), error
+        if voltage.size and not (voltage.min() >= 0.0 and voltage.max() <= v_limit):
+            np.clip(voltage, 0.0, v_limit, out=voltage)
+        if status.size and status.max() >= CODE_CLIPPED_HIGH:
+            voltage[status == CODE_CLIPPED_HIGH] = v_limit
+        error = self._model_error(laws, voltage, z)
+        return limit_voltages(voltage, status, v_limit), error
 
     def _observer(self, laws: LawsAtTemperature, z: FloatArray) -> tuple[InverseResult, FloatArray]:
         """Run the observer's PI loop towards z; the integrator state persists.
 
         The loop works on y = sqrt(z) (linear in V at low field: y = sqrt(M/L) V) and its
         gain is scheduled on the observer's local gain dy/dV = sqrt(M/L) sech^2(k V / L),
-        so with kp + ki <= 1 it approaches the set point from below without overshoot.
+        so with kp + ki <= 1 it approaches the set point from below without overshoot
+        (:func:`es_feedforward.kernels.observer_iterations`).
         """
         gains = self.config.observer
         v_limit = self.config.v_limit
-        reach = laws.hyperbolic_inverse(z, v_limit)
+        status = self._reach_status(laws, z)
         target = np.sqrt(np.clip(z, 0.0, None))
-        q, sqrt_n, sqrt_z_sat = laws.q, laws.sqrt_n, laws.sqrt_z_sat
-        floor = 1e-6 * sqrt_n
-        integral = np.clip(self._integral, 0.0, v_limit)
-        voltage = integral
-        t = np.empty_like(integral)
-        gain = np.empty_like(integral)
-        error = np.empty_like(integral)
-        for _ in range(gains.iterations):
-            np.multiply(q, voltage, out=t)
-            np.tanh(t, out=t)
-            # local gain of sqrt(z) over V: sqrt(M/L) sech^2(u)
-            np.multiply(t, t, out=gain)
-            np.subtract(1.0, gain, out=gain)
-            gain *= sqrt_n
-            np.maximum(gain, floor, out=gain)
-            np.multiply(sqrt_z_sat, t, out=error)
-            np.subtract(target, error, out=error)
-            error /= gain
-            integral = integral + (error if gains.ki == 1.0 else gains.ki * error)
-            np.clip(integral, 0.0, v_limit, out=integral)  # anti-windup
-            voltage = (
-                integral if gains.kp == 0.0 else np.clip(integral + gains.kp * error, 0.0, v_limit)
-            )
-        self._integral = integral
-        model_error = laws.hyperbolic_forward(voltage) - target * target
-        return limit_voltages(voltage, reach.status, v_limit), np.asarray(model_error, np.float64)
+        voltage, self._integral = observer_iterations(
+            self._integral, laws, target, v_limit=v_limit, kp=gains.kp, ki=gains.ki,
+            iterations=gains.iterations, backend=self.backend,
+        )  # fmt: skip
+        target *= target
+        model_error = self._model_error(laws, voltage, target)
+        return limit_voltages(voltage, status, v_limit), model_error
 
     def _drive_and_limits(
-        self, result: InverseResult, t: float, T: FloatArray
+        self, result: InverseResult, t: float
     ) -> tuple[FloatArray, StatusArray]:
         """Undo the drive's stages (last first), then keep every voltage in [0, v_limit]."""
         status = result.status

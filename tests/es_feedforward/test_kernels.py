@@ -1,0 +1,140 @@
+"""The fused kernels give the numpy path's numbers; the shortcut statuses equal the inverse's."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from es_feedforward.feedforward import (
+    REACH_MARGIN,
+    Feedforward,
+    FeedforwardConfig,
+    Mode,
+    ObserverGains,
+)
+from es_feedforward.kernels import (
+    KERNELS_ENV,
+    Backend,
+    KernelBackendError,
+    default_backend,
+    fused_available,
+    observer_iterations,
+)
+from es_physics.laws import CODE_CLIPPED_HIGH, CODE_OK, DEFAULT_V_LIMIT, LawsAtTemperature
+from es_physics.params import ActuatorParams
+
+SHAPE = (12, 16)
+#: Temperatures [degC] from inside the laws' range to beyond it (clamped, flagged).
+TEMPERATURES = (25.0, 40.0, 46.0, 52.0, 80.0)
+
+#: Each mode once with the default gains, the observer also with a proportional part.
+CASES = [(mode, ObserverGains()) for mode in Mode] + [
+    (Mode.OBSERVER, ObserverGains(kp=0.3, ki=0.5, iterations=4))
+]
+
+
+def _params(rng: np.random.Generator) -> ActuatorParams:
+    return ActuatorParams(
+        m1=rng.uniform(-45e-18, -38e-18, SHAPE),
+        m2=rng.uniform(1300e-18, 1700e-18, SHAPE),
+        k1=rng.uniform(-19e-9, -16e-9, SHAPE),
+        k2=rng.uniform(1100e-9, 1250e-9, SHAPE),
+    )
+
+
+def _setpoints(rng: np.random.Generator, ff: Feedforward, step: int) -> np.ndarray:
+    """Set points in reach, beyond it, at its edge, negative and (every third step) NaN."""
+    assert ff._laws is not None
+    z = rng.uniform(0.0, 1.2, SHAPE) * ff._laws.z_sat * 0.6
+    z.flat[:3] = -1e-9
+    z.flat[3:6] = 2.0 * ff._laws.z_sat.flat[3:6]  # beyond any reach
+    if step % 3 == 2:
+        z.flat[7] = np.nan
+    return z
+
+
+def test_fused_is_default_and_env_forces_numpy(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.delenv(KERNELS_ENV, raising=False)
+    assert default_backend() is (Backend.FUSED if fused_available() else Backend.NUMPY)
+    monkeypatch.setenv(KERNELS_ENV, "numpy")
+    assert default_backend() is Backend.NUMPY
+    config = FeedforwardConfig(shape=SHAPE, mode=Mode.OBSERVER)
+    assert Feedforward(config).backend is Backend.NUMPY
+    monkeypatch.setenv(KERNELS_ENV, "gpu")
+    with pytest.raises(KernelBackendError, match="expected one of auto, numpy, fused"):
+        default_backend()
+
+
+def test_numba_is_installed() -> None:
+    assert fused_available()  # a pinned dependency: the fused path is the one that runs
+
+
+@pytest.mark.parametrize(("mode", "gains"), CASES)
+def test_fused_equals_numpy_over_temperatures_and_set_points(
+    mode: Mode, gains: ObserverGains
+) -> None:
+    rng = np.random.default_rng(7)
+    config = FeedforwardConfig(shape=SHAPE, params=_params(rng), mode=mode, observer=gains)
+    cores = {b: Feedforward(config, backend=b) for b in Backend}
+    saw = set()
+    for step, T0 in enumerate(np.repeat(TEMPERATURES, 3)):
+        T = T0 + rng.uniform(-1.0, 1.0, SHAPE)
+        t = 0.01 * step
+        for core in cores.values():
+            assert core.update_temperature(T, t) is None
+        z = _setpoints(rng, cores[Backend.NUMPY], step)
+        numpy_result = cores[Backend.NUMPY].command(z, t)
+        fused_result = cores[Backend.FUSED].command(z, t)
+        np.testing.assert_array_equal(fused_result.status, numpy_result.status)
+        np.testing.assert_allclose(fused_result.voltage, numpy_result.voltage, rtol=1e-12,
+                                   atol=0.0)
+        if numpy_result.model_error is not None:
+            assert fused_result.model_error is not None
+            np.testing.assert_allclose(fused_result.model_error, numpy_result.model_error,
+                                       rtol=1e-12, atol=1e-24)
+        saw.update(np.unique(numpy_result.status).tolist())
+        assert np.all(np.isfinite(fused_result.voltage))
+        assert fused_result.voltage.min() >= 0.0
+        assert fused_result.voltage.max() <= DEFAULT_V_LIMIT
+    assert {CODE_OK, CODE_CLIPPED_HIGH} <= saw  # the saturation branch was exercised
+
+
+@pytest.mark.parametrize("kp", [0.0, 0.25])
+def test_observer_iterations_backends_agree_on_saturating_voltages(kp: float) -> None:
+    rng = np.random.default_rng(3)
+    shape = (64,)
+    q = rng.uniform(0.5e-3, 3e-2, shape)
+    n = rng.uniform(1e-10, 2e-9, shape)
+    laws = LawsAtTemperature(q=q, n=n, inv_zsat=q * q / n, status=np.zeros(shape, np.int8))
+    target = laws.sqrt_z_sat * rng.uniform(0.0, 1.1, shape)  # some beyond saturation
+    integral = rng.uniform(-10.0, 400.0, shape)  # some to be clipped
+    out = {
+        b: observer_iterations(integral, laws, target, v_limit=350.0, kp=kp, ki=1.0 - kp,
+                               iterations=6, backend=b)
+        for b in Backend
+    }
+    for mine, theirs in zip(out[Backend.FUSED], out[Backend.NUMPY], strict=True):
+        np.testing.assert_allclose(mine, theirs, rtol=1e-12, atol=0.0)
+    assert (out[Backend.FUSED][0] is out[Backend.FUSED][1]) == (kp == 0.0)
+    assert np.any(out[Backend.NUMPY][0] == 350.0)
+
+
+@pytest.mark.parametrize("T0", TEMPERATURES)
+def test_reach_status_equals_the_inverse_status(T0: float) -> None:
+    rng = np.random.default_rng(int(T0))
+    ff = Feedforward(FeedforwardConfig(shape=SHAPE, params=_params(rng)))
+    ff.update_temperature(T0 + rng.uniform(-1.0, 1.0, SHAPE), 0.0)
+    laws = ff._laws
+    assert laws is not None
+    t = np.tanh(laws.q * DEFAULT_V_LIMIT)
+    reach = t * t * laws.z_sat
+    cases = [
+        reach * rng.uniform(0.0, 0.9, SHAPE),  # all in reach
+        reach * rng.uniform(0.5, 1.5, SHAPE),  # some beyond
+        reach * (1.0 + rng.choice([-1.0, 1.0], SHAPE) * rng.uniform(0, 3, SHAPE) * REACH_MARGIN),
+        reach * np.where(rng.random(SHAPE) < 0.5, 0.5, 2.0),
+        reach * rng.uniform(-0.5, 1.5, SHAPE),  # negative ones
+    ]
+    for z in cases:
+        expected = laws.hyperbolic_inverse(z, DEFAULT_V_LIMIT).status
+        np.testing.assert_array_equal(ff._reach_status(laws, z), expected)
