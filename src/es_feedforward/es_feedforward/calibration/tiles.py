@@ -38,6 +38,10 @@ DEFAULT_TILE: Final = 16
 TileMap = Callable[[Callable[["TileJob"], "TileFit"], Sequence["TileJob"]], list["TileFit"]]
 
 
+class DaskSetupError(RuntimeError):
+    """The Dask cluster for the tiles could not be started or reached (one-line message)."""
+
+
 def serial_map(fn: Callable[[TileJob], TileFit], jobs: Sequence[TileJob]) -> list[TileFit]:
     """Run the tile jobs one after the other in this process."""
     return [fn(job) for job in jobs]
