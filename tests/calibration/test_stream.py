@@ -5,15 +5,16 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from es_feedforward.calibration.align import align
+from es_feedforward.calibration.align import IndexArray, align
 from es_feedforward.calibration.bagio import read_measured_bags
 from es_feedforward.calibration.bagstream import BagRecording
-from es_feedforward.calibration.model import play_operator
+from es_feedforward.calibration.model import FloatArray, play_operator
 from es_feedforward.calibration.pipeline import calibrate
 from es_feedforward.calibration.recording import MemoryRecording, gather
 from es_feedforward.calibration.search import (
@@ -70,7 +71,7 @@ def test_iter_bag_yields_what_read_bag_reads(bag: Path) -> None:
 class _Shuffled(MemoryRecording):
     """Batches out of order: the command stream must reorder them before the play loop."""
 
-    def batches(self):  # type: ignore[no-untyped-def]
+    def batches(self) -> Iterator[tuple[str, IndexArray, FloatArray]]:
         items = list(super().batches())
         order = np.random.default_rng(0).permutation(len(items))
         return iter([items[i] for i in order])
