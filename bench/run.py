@@ -17,7 +17,8 @@ time and peak memory), ``scale`` (bench_scale.py: the feedforward node at 66 x 6
 needs root), ``selfsensing`` (bench_selfsensing.py, offline cores). Peak memory of every
 node process comes with the sections that start them. ``identify`` (the identification sweep
 of identify.py on standgen bags, its own report in OUT/identify) is not in the default
-selection: run it with ``--only identify``.
+selection: run it with ``--only identify``; nor is ``calibrate_stream``
+(bench_calibrate_stream.py: streamed calibration of 64 x 64 and 128 x 128 bags of many GB).
 
 Every figure is the median of repeated runs with their min and max (``summary.md``: the
 compact table the README shows). ``bench.json`` holds
@@ -65,14 +66,15 @@ import numpy as np
 BENCH_DIR = Path(__file__).resolve().parent
 sys.path.insert(0, str(BENCH_DIR))  # the sibling bench_*.py modules
 
+from bench_calibrate_stream import section_calibrate_stream  # noqa: E402 - after the path
 from bench_multihost import section_multihost  # noqa: E402 - after the path above
 from bench_scale import section_lockstep_scale, section_scale  # noqa: E402
 
 SECTIONS = ("kernels", "convert", "feedforward", "lockstep", "recorder", "calibrate", "thermal",
             "calibration_loop", "import", "scale", "lockstep_scale", "multihost", "selfsensing",
-            "identify", "teardown", "feedforward_load")
+            "identify", "teardown", "feedforward_load", "calibrate_stream")
 #: Sections run when ``--only`` is not given (the identification sweep has its own command).
-DEFAULT_SECTIONS = tuple(name for name in SECTIONS if name != "identify")
+DEFAULT_SECTIONS = tuple(name for name in SECTIONS if name not in ("identify", "calibrate_stream"))
 
 
 #: Grid shapes of the DDS benchmark (N = 144, 1024, 4096).
@@ -1205,6 +1207,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "lockstep": lambda: section_lockstep(settings, results, log_dir),
         "recorder": lambda: section_recorder(results, log_dir),
         "calibrate": lambda: section_calibrate(settings, results),
+        "calibrate_stream": lambda: section_calibrate_stream(settings, results),
         "thermal": lambda: section_thermal(settings, results),
         "calibration_loop": lambda: section_calibration_loop(results, args.output),
         "import": lambda: section_import(args.quick, results),
