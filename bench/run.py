@@ -17,7 +17,8 @@ time and peak memory), ``scale`` (bench_scale.py: the feedforward node at 66 x 6
 needs root), ``selfsensing`` (bench_selfsensing.py, offline cores). Peak memory of every
 node process comes with the sections that start them. ``identify`` (the identification sweep
 of identify.py on standgen bags, its own report in OUT/identify) is not in the default
-selection: run it with ``--only identify``.
+selection: run it with ``--only identify``; nor is ``calibrate_stream``
+(bench_calibrate_stream.py: streamed calibration of 64 x 64 and 128 x 128 bags of many GB).
 
 Every figure is the median of repeated runs with their min and max (``summary.md``: the
 compact table the README shows). ``bench.json`` holds
@@ -70,9 +71,10 @@ SECTIONS: dict[str, str] = {
     "teardown": "sections.teardown",
     "feedforward_load": "sections.feedforward_load",
     "flow": "sections.flow",
+    "calibrate_stream": "sections.calibrate_stream",
 }
 #: Sections run when ``--only`` is not given (the identification sweep has its own command).
-DEFAULT_SECTIONS = tuple(name for name in SECTIONS if name != "identify")
+DEFAULT_SECTIONS = tuple(name for name in SECTIONS if name not in ("identify", "calibrate_stream"))
 
 
 def main(argv: Sequence[str] | None = None) -> int:

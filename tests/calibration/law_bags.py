@@ -44,10 +44,9 @@ def temperature_profile(t: npt.NDArray[np.float64], duration: float) -> npt.NDAr
     return 40.0 + 10.0 * np.sin(np.pi * t / duration)
 
 
-def law_run(duration: float = 90.0, seed: int = 1) -> LawRun:
-    """Return a run of ``duration`` s on a ``GRID`` of actuators."""
+def law_run(duration: float = 90.0, seed: int = 1, shape: tuple[int, int] = GRID) -> LawRun:
+    """Return a run of ``duration`` s on a ``shape`` grid of actuators."""
     rng = np.random.default_rng(seed)
-    shape = GRID
     t = np.arange(0.0, duration, 1.0 / RATE)
     phase = rng.uniform(0.0, 2.0 * np.pi, (2, *shape))
     tt = t[:, None, None]

@@ -15,6 +15,13 @@ sqlite3), then writes into OUTDIR:
 - ``feedforward_params.yaml``: the ROS 2 parameters of the ``feedforward`` node (per-actuator
   ``law.*`` maps and the ``compensation.*`` of the accepted effects).
 
+Bags are streamed (:mod:`es_feedforward.calibration.bagstream`): two passes in batches of
+messages, the whole grid only at the samples the fit uses, so memory depends on ``--tile``
+and the sample budgets, not on the recording's length. The grid-wide refit runs in actuator
+tiles (:mod:`es_feedforward.calibration.tiles`), serially or as tasks on Dask:
+``--workers N`` starts a local cluster, ``--scheduler tcp://host:port`` uses a running one
+(Dask is imported only then).
+
 The tool is told nothing about how the data were made. Bad input (missing or empty topics,
 a single message, mismatched grids, too short, all-NaN, corrupt, a bag given twice, bags
 overlapping in time) ends with one line on stderr and exit status 2, as does an output
@@ -54,10 +61,11 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from es_feedforward.calibration.align import MIN_SAMPLES, CalibrationInputError
-from es_feedforward.calibration.bagio import read_measured_bags
+from es_feedforward.calibration.bagstream import BagRecording
 from es_feedforward.calibration.gaps import GAP_FACTOR
 from es_feedforward.calibration.model import CANDIDATES
-from es_feedforward.calibration.pipeline import calibrate
+from es_feedforward.calibration.pipeline import Calibration, calibrate
+from es_feedforward.calibration.tiles import DEFAULT_TILE, DaskSetupError
 from es_msgs_py.labimport import LabImportError, import_recording, load_map
 
 EXIT_BAD_INPUT = 2
@@ -96,6 +104,22 @@ def _parser() -> argparse.ArgumentParser:
         "--candidates",
         default=",".join(CANDIDATES),
         help="comma-separated candidate effects to test (default: all)",
+    )
+    parser.add_argument(
+        "--tile",
+        type=int,
+        default=DEFAULT_TILE,
+        help="edge of the actuator tiles of the grid-wide refit (default %(default)s); the "
+        "bags are streamed, so memory depends on this and not on the recording's length",
+    )
+    parser.add_argument(
+        "--workers",
+        type=int,
+        help="run the tiles on a local Dask cluster of N worker processes",
+    )
+    parser.add_argument(
+        "--scheduler",
+        help="run the tiles on an existing Dask cluster (tcp://host:port)",
     )
     parser.add_argument("-q", "--quiet", action="store_true", help="print nothing on success")
     return parser
@@ -136,6 +160,24 @@ def _as_bags(paths: Sequence[Path], map_path: Path | None, work: Path, quiet: bo
     return bags
 
 
+def _calibrate(
+    recording: BagRecording, candidates: tuple[str, ...], args: argparse.Namespace
+) -> Calibration:
+    """Calibrate, the tiles on Dask when ``--workers`` or ``--scheduler`` is given.
+
+    Raises:
+        CalibrationInputError: bad data.
+        DaskSetupError: the Dask cluster cannot be started or reached.
+
+    """
+    if args.workers is None and args.scheduler is None:
+        return calibrate(recording, candidates, tile=args.tile)
+    from es_feedforward.calibration.dask_tiles import dask_map  # Dask only when asked for
+
+    with dask_map(args.workers, args.scheduler) as run_tiles:
+        return calibrate(recording, candidates, tile=args.tile, run=run_tiles)
+
+
 def run(argv: Sequence[str] | None = None) -> int:
     """Run the tool; return the exit status."""
     args = _parser().parse_args(argv)
@@ -146,6 +188,9 @@ def run(argv: Sequence[str] | None = None) -> int:
             f"calibrate: unknown candidate(s) {', '.join(unknown)}; known: {', '.join(CANDIDATES)}",
             file=sys.stderr,
         )
+        return EXIT_BAD_INPUT
+    if args.tile < 1 or (args.workers is not None and args.workers < 1):
+        print("calibrate: --tile and --workers must be at least 1", file=sys.stderr)
         return EXIT_BAD_INPUT
     try:
         args.output.mkdir(parents=True, exist_ok=True)  # fail before a long calibration
@@ -158,8 +203,7 @@ def run(argv: Sequence[str] | None = None) -> int:
     try:
         with tempfile.TemporaryDirectory(prefix=".import-", dir=args.output) as work:
             bags = _as_bags(args.bags, args.map, Path(work), args.quiet)
-            measured = read_measured_bags(bags)
-        cal = calibrate(measured, candidates)
+            cal = _calibrate(BagRecording(bags), candidates, args)
         # matplotlib and the feedforward configuration are only needed once there is a result
         from es_feedforward.calibration.report import write_report
         from es_feedforward.calibration.schema import (
@@ -170,7 +214,7 @@ def run(argv: Sequence[str] | None = None) -> int:
         notes = write_parameters_yaml(cal, args.output / "feedforward_params.yaml")
         write_calibration_json(cal, args.output / "calibration.json")
         report = write_report(cal, args.output, notes)
-    except (CalibrationInputError, LabImportError, OSError) as err:
+    except (CalibrationInputError, LabImportError, DaskSetupError, OSError) as err:
         print(f"calibrate: {err}".splitlines()[0], file=sys.stderr)
         return EXIT_BAD_INPUT
     except MemoryError:

@@ -97,6 +97,12 @@ class AlignedData:
         include_same_stamp: whether a command stamped exactly at a sample is already in effect.
         repeated_stamps: how repeated stamps were resolved ("" when none repeat).
         gaps: gaps found in any topic, in time order, with the samples each excluded.
+        sample_index: (N,) position of each sample in the stamp-sorted displacement series
+            it was aligned from (what a streamed recording gathers by).
+        grid_mean_temperature: the whole grid's mean temperature [degC] when this holds
+            only some actuators' columns (None: the mean of ``temperature``).
+        command_period_s: the command period [s] when ``command_times`` holds only some
+            commands (None: their median spacing).
 
     """
 
@@ -118,6 +124,9 @@ class AlignedData:
     include_same_stamp: bool = True
     repeated_stamps: str = ""
     gaps: list[Gap] = field(default_factory=list)
+    sample_index: IndexArray = field(default_factory=lambda: np.zeros(0, np.intp))
+    grid_mean_temperature: float | None = None
+    command_period_s: float | None = None
 
     @property
     def command_finite_all(self) -> bool:
@@ -137,11 +146,15 @@ class AlignedData:
     @property
     def command_period(self) -> float:
         """Return the median command period [s]."""
+        if self.command_period_s is not None:
+            return self.command_period_s
         return float(np.median(np.diff(self.command_times)))
 
     @property
     def mean_temperature(self) -> float:
         """Return the mean temperature over the record and actuators [degC]."""
+        if self.grid_mean_temperature is not None:
+            return self.grid_mean_temperature
         return float(np.mean(self.temperature))
 
     @property
@@ -227,18 +240,20 @@ def _check_series(name: str, times: FloatArray, values: FloatArray, grid: tuple[
         raise CalibrationInputError(f"{name}: time stamps go backwards")
 
 
-def _resolve_repeated_stamps(data: MeasuredData) -> tuple[MeasuredData, dict[str, int], str]:
+def _resolve_repeated_stamps(
+    data: MeasuredData,
+) -> tuple[MeasuredData, dict[str, int], str, IndexArray | None]:
     """Apply the rules of stamps.py to ``data`` (each series sorted by time).
 
-    Returns the data to align, counts of dropped samples, and a one-line account
-    of what was done ("" when no stamp repeats).
+    Returns the data to align, counts of dropped samples, a one-line account of what was
+    done ("" when no stamp repeats) and the displacement samples kept (None: all).
     """
     counts: dict[str, int] = {}
     notes: list[str] = []
     out = data
     n_temp = int(repeated(data.temperature_times).sum())
     if n_temp:
-        out = replace(out, temperature_times=spread_repeated(data.temperature_times))
+        out = replace(out, temperature_times=temperature_stamps(data.temperature_times))
         notes.append(
             f"{n_temp} of {data.temperature_times.size} temperature stamps repeated, spread up "
             "to the next stamp"
@@ -247,7 +262,7 @@ def _resolve_repeated_stamps(data: MeasuredData) -> tuple[MeasuredData, dict[str
     disp_rep = repeated(data.displacement_times)
     n_cmd, n_disp = int(cmd_rep.sum()), int(disp_rep.sum())
     if n_cmd == 0 and n_disp == 0:
-        return out, counts, "; ".join(notes)
+        return out, counts, "; ".join(notes), None
     share = (
         f"repeated stamps: {n_cmd} of {cmd_rep.size} commands, "
         f"{n_disp} of {disp_rep.size} displacements"
@@ -257,7 +272,7 @@ def _resolve_repeated_stamps(data: MeasuredData) -> tuple[MeasuredData, dict[str
         previous = np.concatenate([[2.0 * t[0] - t[1]], t[:-1]])
         out = replace(out, displacement_times=t, command_times=0.5 * (previous + t))
         notes.append(f"{share}; paired by message order (displacement i answers command i)")
-        return out, counts, "; ".join(notes)
+        return out, counts, "; ".join(notes), None
     # time-based pairing: a displacement is ambiguous when its stamp repeats among the
     # displacements, or when the command in effect (either same-stamp convention) is one of
     # a run of commands sharing a stamp (their true times lie anywhere up to the next stamp)
@@ -282,7 +297,41 @@ def _resolve_repeated_stamps(data: MeasuredData) -> tuple[MeasuredData, dict[str
         f"{share}; counts differ, so paired by time and {counts[AMBIGUOUS]} ambiguous "
         "displacement samples dropped"
     )
-    return out, counts, "; ".join(notes)
+    return out, counts, "; ".join(notes), np.flatnonzero(keep)
+
+
+def resample_temperature(
+    times: FloatArray, values: FloatArray
+) -> tuple[FloatArray, FloatArray, FloatArray, int]:
+    """Return the temperature on a uniform time base, its rate, and the NaN values filled.
+
+    ``times`` (Nt,) [s] are strictly increasing (repeated stamps spread), ``values`` (Nt, A)
+    [degC]; NaN values are interpolated per actuator. Returns the uniform times (Nu,), the
+    temperature and its Savitzky-Golay slope (Nu, A) [degC, degC/s] and the NaN count.
+
+    Raises:
+        CalibrationInputError: an actuator has fewer than 2 finite temperatures.
+
+    """
+    nan = int((~np.isfinite(values)).sum())
+    temp = _fill_nan_columns(times, values)
+    t_period = float(np.median(np.diff(times)))  # > 0: repeated stamps were spread
+    n_uniform = int(np.floor((times[-1] - times[0]) / t_period)) + 1
+    uniform = times[0] + t_period * np.arange(max(n_uniform, 2))
+    pos = np.clip(np.searchsorted(times, uniform, side="right") - 1, 0, len(times) - 2)
+    w = np.clip((uniform - times[pos]) / np.maximum(np.diff(times)[pos], 1e-12), 0, 1)
+    temp_u = temp[pos] * (1.0 - w[:, None]) + temp[pos + 1] * w[:, None]
+    window = _rate_window(t_period)
+    if window <= temp_u.shape[0]:
+        rate = savgol_filter(temp_u, window, 2, deriv=1, delta=t_period, axis=0)
+    else:
+        rate = np.gradient(temp_u, t_period, axis=0)
+    return uniform, temp_u, np.asarray(rate, np.float64), nan
+
+
+def temperature_stamps(times: FloatArray) -> FloatArray:
+    """Return temperature stamps with runs of repeated stamps spread (stamps.py)."""
+    return spread_repeated(times) if repeated(times).any() else times
 
 
 def _rate_window(period: float) -> int:
@@ -316,7 +365,9 @@ def align(data: MeasuredData, n_blocks: int | None = None) -> AlignedData:
         if times[-1] == times[0]:
             raise CalibrationInputError(f"{name}: all {times.size} messages share one time stamp")
     gaps = _all_gaps(data)
-    data, dropped, stamp_note = _resolve_repeated_stamps(data)
+    data, dropped, stamp_note, index = _resolve_repeated_stamps(data)
+    if index is None:
+        index = np.arange(data.displacement_times.size)
     A = rows_cols[0] * rows_cols[1]
 
     # samples before the first command have no known input: drop them
@@ -325,12 +376,13 @@ def align(data: MeasuredData, n_blocks: int | None = None) -> AlignedData:
     dropped["displacement before first command"] = first
     t_abs = data.displacement_times[first:]
     z = data.displacement[first:].reshape(-1, A)
+    index = index[first:]
     if gaps:
         # samples that would need data from a gap go (gaps.py); this copies the kept rows
         t_period = float(np.median(np.diff(data.temperature_times)))
         out, counts, gaps = exclude(t_abs, gaps, (_rate_window(t_period) // 2) * t_period)
         dropped.update({GAP_DROPS[role]: n for role, n in counts.items()})
-        t_abs, z = t_abs[~out], z[~out]
+        t_abs, z, index = t_abs[~out], z[~out], index[~out]
     if t_abs.size < MIN_SAMPLES:
         raise CalibrationInputError(
             f"too short to fit: {t_abs.size} displacement samples after the first command "
@@ -351,22 +403,10 @@ def align(data: MeasuredData, n_blocks: int | None = None) -> AlignedData:
         cmd = np.where(cmd_finite.any(axis=0), cmd[idx, np.arange(A)], 0.0)
         cmd = np.where(np.isfinite(cmd), cmd, 0.0)
 
-    temp = data.temperature.reshape(-1, A)
     temp_times = data.temperature_times - start
-    dropped["temperature NaN"] = int((~np.isfinite(temp)).sum())
-    temp = _fill_nan_columns(temp_times, temp)
-    # uniform resampling of the temperature for its derivative
-    t_period = float(np.median(np.diff(temp_times)))  # > 0: repeated stamps were spread
-    n_uniform = int(np.floor((temp_times[-1] - temp_times[0]) / t_period)) + 1
-    uniform = temp_times[0] + t_period * np.arange(max(n_uniform, 2))
-    pos = np.clip(np.searchsorted(temp_times, uniform, side="right") - 1, 0, len(temp_times) - 2)
-    w = np.clip((uniform - temp_times[pos]) / np.maximum(np.diff(temp_times)[pos], 1e-12), 0, 1)
-    temp_u = temp[pos] * (1.0 - w[:, None]) + temp[pos + 1] * w[:, None]
-    window = _rate_window(t_period)
-    if window <= temp_u.shape[0]:
-        rate = savgol_filter(temp_u, window, 2, deriv=1, delta=t_period, axis=0)
-    else:
-        rate = np.gradient(temp_u, t_period, axis=0)
+    uniform, temp_u, rate, dropped["temperature NaN"] = resample_temperature(
+        temp_times, data.temperature.reshape(-1, A)
+    )
 
     t = t_abs - start
     duration = float(t[-1])
@@ -399,6 +439,7 @@ def align(data: MeasuredData, n_blocks: int | None = None) -> AlignedData:
         dropped=dropped,
         repeated_stamps=stamp_note,
         gaps=gaps,
+        sample_index=index,
     )
     if valid.sum(axis=0).min() < MIN_SAMPLES:
         worst = int(np.argmin(valid.sum(axis=0)))

@@ -39,9 +39,13 @@ def _listed_topics(path: Path) -> set[str] | None:
 
 
 def _grid_temperature(series: TopicSeries, grid: tuple[int, int], path: Path) -> np.ndarray:
-    values = series.values
-    if values is None:
+    if series.values is None:
         raise CalibrationInputError(f"{path}: {series.topic} is not a Float64MultiArray")
+    return _on_grid(series.values, grid, path)
+
+
+def _on_grid(values: np.ndarray, grid: tuple[int, int], path: Path) -> np.ndarray:
+    """Return temperatures (N, R, C) from a grid topic or one sensor per actuator or one."""
     if values.ndim == 3:
         return values
     count = values.shape[1]

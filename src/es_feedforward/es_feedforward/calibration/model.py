@@ -337,18 +337,23 @@ class CompositeModel:
 
 
 def play_operator(
-    command: FloatArray, threshold: float | FloatArray, keep: npt.NDArray[np.intp]
+    command: FloatArray,
+    threshold: float | FloatArray,
+    keep: npt.NDArray[np.intp],
+    state: FloatArray | None = None,
 ) -> FloatArray:
     """Return the backlash (play) operator of a command sequence at the rows ``keep``.
 
     ``command`` is (N, A), time-major; ``threshold`` a scalar or an array broadcasting against
     (A,) (a stack of thresholds works with ``command`` (N, 1)). The state starts at the clipped
-    zero, y_0 = clip(0, V_0 - r, V_0 + r). Only the rows ``keep`` (sorted) are returned, so a
+    zero, y_0 = clip(0, V_0 - r, V_0 + r), or continues from ``state`` (the operator's value
+    after the previous rows, a streamed command). Only the rows ``keep`` (sorted) are returned, so a
     long run needs no full-size output; the loop is over time, vectorised over actuators.
     """
     r = np.asarray(threshold, np.float64)
     shape = np.broadcast_shapes(command.shape[1:], r.shape)
-    state = np.clip(np.zeros(shape), command[0] - r, command[0] + r)
+    start = np.zeros(shape) if state is None else np.array(np.broadcast_to(state, shape))
+    state = np.clip(start, command[0] - r, command[0] + r)
     low = np.empty(shape)
     out = np.empty((len(keep), *shape))
     if not len(keep):

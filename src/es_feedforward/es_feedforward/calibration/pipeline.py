@@ -14,9 +14,18 @@ from typing import Final
 import numpy as np
 
 from es_feedforward.calibration import unexplained
-from es_feedforward.calibration.align import AlignedData, MeasuredData, align
+from es_feedforward.calibration.align import (
+    MIN_SAMPLES,
+    AlignedData,
+    CalibrationInputError,
+    MeasuredData,
+    align,
+    resample_temperature,
+    temperature_stamps,
+)
 from es_feedforward.calibration.local import per_actuator_round
 from es_feedforward.calibration.model import CANDIDATES, FloatArray
+from es_feedforward.calibration.recording import MemoryRecording, Recording, gather
 from es_feedforward.calibration.residual import ResidualStructure, analyse
 from es_feedforward.calibration.search import (
     ModelState,
@@ -25,10 +34,17 @@ from es_feedforward.calibration.search import (
     choose_stamp_convention,
     fitted_effect,
     heldout_residual,
-    refit_full,
     screen_block,
 )
 from es_feedforward.calibration.selection import RoundRecord, search_effects
+from es_feedforward.calibration.tiles import (
+    DEFAULT_TILE,
+    TileMap,
+    compact_grid,
+    layout,
+    refit_tiles,
+    serial_map,
+)
 from es_physics.effects import get
 
 #: Actuators whose full-rate held-out residual is analysed (spectra, correlations).
@@ -62,7 +78,11 @@ class AcceptedEffect:
 
 @dataclass
 class Calibration:
-    """Everything the calibration found (see schema.py for the JSON form)."""
+    """Everything the calibration found (see schema.py for the JSON form).
+
+    ``aligned`` describes the run (grid, time base, drops, gaps); its per-actuator arrays
+    hold the screening block's actuators only (the whole grid is never held at full rate).
+    """
 
     aligned: AlignedData
     base: ModelState
@@ -136,22 +156,99 @@ def _unexplained(after: ResidualStructure, final_rms: float) -> list[str]:
     return unexplained.describe(after, final_rms, NOISE_RATIO_LIMIT)
 
 
-def calibrate(measured: MeasuredData, candidates: tuple[str, ...] = CANDIDATES) -> Calibration:
-    """Run the whole calibration on ``measured``; raise CalibrationInputError on bad data."""
+def _grid_refit(
+    recording: Recording,
+    aligned: AlignedData,
+    states: list[ModelState],
+    tile: int,
+    run: TileMap,
+) -> tuple[list[ModelState], dict[str, int]]:
+    """Refit each model of ``states`` on the whole grid in tiles; return them and NaN counts.
+
+    ``aligned`` is the screening block's alignment (the time base of the whole run). One
+    streamed pass gathers the grid at the refit's samples (recording.py).
+
+    Raises:
+        CalibrationInputError: an actuator has fewer than ``MIN_SAMPLES`` usable samples.
+
+    """
+    grid = recording.grid
+    A = grid[0] * grid[1]
+    sizing = Workspace(aligned, np.arange(A, dtype=np.intp), grid)  # the grid's row budgets
+    rows = np.union1d(sizing.fit_rows, sizing.score_rows)
+    needed = []
+    for state in states:
+        whole, _ = sizing.split_delay(state.delay_s)
+        for shift in {0.0, state.delay_s, whole, whole + aligned.command_period}:
+            needed.append(aligned.command_index(rows, shift))
+    commands = np.unique(np.concatenate(needed))
+    commands = commands[commands >= 0]
+    thresholds = sorted({r for s in states if s.model.play for r in s.thresholds})
+    gathered = gather(recording, aligned.sample_index[rows], aligned.sample_index, commands,
+                      thresholds)
+    if gathered.usable.min() < MIN_SAMPLES:
+        worst = int(np.argmin(gathered.usable))
+        raise CalibrationInputError(
+            f"too short to fit: actuator {worst} has {int(gathered.usable[worst])} usable "
+            f"samples (need {MIN_SAMPLES})"
+        )
+    times, values = recording.temperature()
+    uniform, temp, rate, temp_nan = resample_temperature(
+        temperature_stamps(times) - aligned.start_time, values
+    )
+    compact = compact_grid(
+        aligned, rows, commands, gathered, temperature=(uniform, temp, rate), grid=grid
+    )
+    halo = 1 if any(s.model.spatial for s in states) else 0
+    tiles = layout(grid, tile, halo)
+    out: list[ModelState] = []
+    for state in states:
+        start = out[-1].fit.local if out else None
+        out.append(refit_tiles(compact, gathered.play, state, start, tiles=tiles, run=run))
+    counts = {
+        "displacement NaN": gathered.displacement_nan,
+        "command NaN": gathered.command_nan,
+        "temperature NaN": temp_nan,
+    }
+    return out, counts
+
+
+def calibrate(
+    measured: MeasuredData | Recording,
+    candidates: tuple[str, ...] = CANDIDATES,
+    *,
+    tile: int = DEFAULT_TILE,
+    run: TileMap = serial_map,
+) -> Calibration:
+    """Run the whole calibration; raise CalibrationInputError on bad data.
+
+    Args:
+        measured: the run, in memory or a streamed recording (bagio.BagRecording).
+        candidates: effects to test.
+        tile: edge of the actuator tiles of the grid-wide refit [actuators]; a tile as
+            large as the grid is the in-memory joint fit.
+        run: how tiles run (:func:`~es_feedforward.calibration.tiles.serial_map`, or a Dask
+            client's map, see dask_tiles.py).
+
+    """
+    recording = MemoryRecording(measured) if isinstance(measured, MeasuredData) else measured
     timings: dict[str, float] = {}
     clock = time.perf_counter()
-    aligned = choose_stamp_convention(align(measured))
+    grid = recording.grid
+    idx, block_grid = screen_block(grid)
+    block = align(recording.block(idx, block_grid))
+    full_grid = block_grid == grid
+    if not full_grid:  # the block's model inputs use the whole grid's mean temperature
+        times, values = recording.temperature()
+        mean = float(np.mean(resample_temperature(
+            temperature_stamps(times) - block.start_time, values)[1]))
+        block = replace(block, grid_mean_temperature=mean)
+    aligned = choose_stamp_convention(block)
     timings["align"] = time.perf_counter() - clock
 
     clock = time.perf_counter()
-    idx, grid = screen_block(aligned.grid)
-    screen = Workspace(aligned, idx, grid)
+    screen = Workspace(aligned, np.arange(idx.size, dtype=np.intp), block_grid)
     base_screen = base_state(screen)
-    full_grid = idx.size == aligned.n_actuators
-    if full_grid:
-        base_full = base_screen
-    else:
-        base_full, _ = refit_full(aligned, base_screen)
     timings["base fit"] = time.perf_counter() - clock
 
     clock = time.perf_counter()
@@ -171,13 +268,15 @@ def calibrate(measured: MeasuredData, candidates: tuple[str, ...] = CANDIDATES) 
     timings["effect search"] = time.perf_counter() - clock
 
     clock = time.perf_counter()
-    prefix_states = [base_full]
-    for _, _, after_state in added:
-        if full_grid:
-            prefix_states.append(after_state)
-        else:
-            state, _ = refit_full(aligned, after_state, prefix_states[-1])
-            prefix_states.append(state)
+    screened = [base_screen] + [after_state for _, _, after_state in added]
+    if full_grid:
+        prefix_states = screened
+    else:
+        prefix_states, counts = _grid_refit(recording, aligned, screened, tile, run)
+        aligned = replace(aligned, dropped={**aligned.dropped, **counts})
+    timings["grid refit"] = time.perf_counter() - clock
+    clock = time.perf_counter()
+    base_full = prefix_states[0]
     after, resid_after = analysis.analyse(final_screen)
     final = prefix_states[-1]
     # re-express the uncertainties with the residual's autocorrelation
@@ -187,7 +286,9 @@ def calibrate(measured: MeasuredData, candidates: tuple[str, ...] = CANDIDATES) 
             cov_local=final.fit.cov_local * after.tau_int,
             cov_global=final.fit.cov_global * after.tau_int,
         )
-    timings["refit and analysis"] = time.perf_counter() - clock
+    timings["analysis"] = time.perf_counter() - clock
+    # the run's description: the whole grid on the block's time base
+    aligned = replace(aligned, grid=grid)
 
     effects = []
     for (name, _, _), prev, state in zip(added, prefix_states[:-1], prefix_states[1:], strict=True):

@@ -45,7 +45,7 @@ from es_msgs_py.bag.raw import RawTopic, StorageFormat
 if TYPE_CHECKING:  # the class get_typestore returns, named for annotations only
     from rosbags.typesys.store import Typestore
 
-__all__ = ["STORAGE_PLUGINS", "TopicSeries", "read_bag"]
+__all__ = ["STORAGE_PLUGINS", "TopicSeries", "read_bag", "storage_files"]
 
 #: rosbag2 storage id -> how to recognise and read its files.
 STORAGE_PLUGINS: Final[Mapping[str, StorageFormat]] = MappingProxyType(
@@ -78,7 +78,7 @@ class TopicSeries:
         return int(self.times.size)
 
 
-def _storage_files(path: Path) -> tuple[list[Path], bool]:
+def storage_files(path: Path) -> tuple[list[Path], bool]:
     """Return the bag's storage files (several for a split bag) and whether it was closed.
 
     Raises:
@@ -181,7 +181,7 @@ def read_bag(path: str | Path, topics: Iterable[str] | None = None) -> dict[str,
     """
     bag = Path(path)
     wanted = set(topics) if topics is not None else None
-    files, strict = _storage_files(bag)
+    files, strict = storage_files(bag)
     raw_topics: dict[str, RawTopic] = {}
     for file in files:
         for topic, raw in _read_storage(file, strict, wanted).items():

@@ -13,13 +13,14 @@ from __future__ import annotations
 import mmap
 import struct
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Final
 
 from es_msgs_py.bag.errors import CorruptBagError, NotABagError, UnsupportedBagError
 from es_msgs_py.bag.raw import RawTopic, StorageFormat
 
-__all__ = ["FORMAT", "MAGIC", "STORAGE_ID", "read"]
+__all__ = ["FORMAT", "MAGIC", "STORAGE_ID", "iter_read", "read"]
 
 #: rosbag2's storage identifier.
 STORAGE_ID: Final = "mcap"
@@ -163,6 +164,70 @@ def read(file: Path, strict: bool, wanted: set[str] | None) -> dict[str, RawTopi
     scan = _Scan(file, strict, wanted)
     scan.run(memoryview(mapped))
     return scan.topics
+
+
+def iter_read(
+    file: Path, strict: bool, wanted: set[str] | None, batch_bytes: int
+) -> Iterator[dict[str, RawTopic]]:
+    """Yield the topics of an MCAP file in batches of about ``batch_bytes`` of records.
+
+    The file is read record by record (no memory map), so at most one batch and one chunk
+    are held: memory does not grow with the file. Each batch holds the messages read since
+    the previous one, in file order (topics without messages in the batch are left out).
+
+    Raises:
+        NotABagError: the file is empty or does not start with the MCAP magic.
+        CorruptBagError: a record is damaged, or (``strict``) the file is truncated.
+        UnsupportedBagError: a chunk is compressed with something other than zstd.
+
+    """
+    size = file.stat().st_size
+    if size == 0:
+        raise NotABagError(f"{file} is empty")
+    scan = _Scan(file, strict, wanted)
+    with file.open("rb") as handle:
+        if handle.read(8) != MAGIC:
+            raise NotABagError(f"{file} is not an MCAP bag (bad file magic)")
+        if strict:
+            handle.seek(size - 8)
+            if size < 16 or handle.read(8) != MAGIC:
+                raise CorruptBagError(f"{file}: truncated MCAP storage (no footer)")
+            handle.seek(8)
+        pos, pending = 8, 0
+        while True:
+            head = handle.read(9)
+            if len(head) < 9:
+                scan.cut(True, pos)
+                break
+            op = head[0]
+            if op == 0 or 0x10 <= op < 0x80:
+                raise scan.corrupt(f"invalid record opcode 0x{op:02x} at byte {pos}")
+            (length,) = struct.unpack_from("<Q", head, 1)
+            if pos + 9 + length > size:
+                scan.cut(True, pos)
+                break
+            if op in _OP_DATA_OVER:
+                scan.complete = True
+                break
+            scan.record(op, memoryview(handle.read(length)))
+            pos += 9 + length
+            pending += length
+            if pending >= batch_bytes:
+                yield _take(scan)
+                pending = 0
+    if strict and not scan.complete:
+        raise CorruptBagError(f"{file}: truncated MCAP storage (no data end record)")
+    yield _take(scan)
+
+
+def _take(scan: _Scan) -> dict[str, RawTopic]:
+    """Return the messages the scan holds and empty it (its channels stay known)."""
+    batch = {}
+    for topic, raw in scan.topics.items():
+        if raw.stamps:
+            batch[topic] = RawTopic(raw.type_name, raw.definition, raw.stamps, raw.payloads)
+            scan.topics[topic] = RawTopic(raw.type_name, raw.definition)
+    return batch
 
 
 #: This storage for the bag reader's table.

@@ -1,0 +1,62 @@
+"""Calibration tiles as tasks on Dask (``dask.distributed``): a local cluster or a scheduler.
+
+Imported only when ``calibrate`` is given ``--workers`` or ``--scheduler``: a calibration
+without them never imports Dask. Each tile (tiles.py) is one task; its compact data travel
+with it, and the shared values are combined in this process between the two passes.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+
+from dask.distributed import Client, LocalCluster
+
+from es_feedforward.calibration.tiles import DaskSetupError, TileFit, TileJob, TileMap
+
+
+@contextmanager
+def dask_map(workers: int | None = None, scheduler: str | None = None) -> Iterator[TileMap]:
+    """Yield a tile map running on Dask; close what was started on exit.
+
+    Args:
+        workers: start a local cluster of this many single-threaded worker processes.
+        scheduler: address of an existing scheduler (``tcp://host:port``); wins over
+            ``workers``.
+
+    Raises:
+        DaskSetupError: the cluster cannot be started or the scheduler not reached.
+
+    """
+    cluster: LocalCluster | None = None
+    try:
+        if scheduler:
+            client = Client(scheduler, timeout="30s")
+        else:
+            cluster = LocalCluster(
+                n_workers=workers or 1,
+                threads_per_worker=1,
+                processes=True,
+                dashboard_address=None,
+                silence_logs=logging.ERROR,
+            )
+            client = Client(cluster)
+    except (OSError, TimeoutError, ValueError) as err:
+        if cluster is not None:
+            cluster.close()
+        where = scheduler or f"a local cluster of {workers} workers"
+        raise DaskSetupError(f"cannot use Dask ({where}): {err}") from None
+
+    def run(fn: Callable[[TileJob], TileFit], jobs: Sequence[TileJob]) -> list[TileFit]:
+        # scatter first: each tile's data go to a worker once, not inside the task graph
+        data = client.scatter(list(jobs))
+        futures = client.map(fn, data, pure=False)
+        return list(client.gather(futures))
+
+    try:
+        yield run
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()

@@ -1,0 +1,160 @@
+"""Streamed, tiled and Dask calibration (issue 18): same results as the in-memory path."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from es_feedforward.calibration.align import IndexArray, align
+from es_feedforward.calibration.bagio import read_measured_bags
+from es_feedforward.calibration.bagstream import BagRecording
+from es_feedforward.calibration.model import FloatArray, play_operator
+from es_feedforward.calibration.pipeline import calibrate
+from es_feedforward.calibration.recording import MemoryRecording, gather
+from es_feedforward.calibration.search import (
+    Workspace,
+    base_state,
+    choose_stamp_convention,
+    refit_full,
+    screen_block,
+)
+from es_msgs_py.bag import read_bag
+from es_msgs_py.bag.stream import iter_bag
+from tests.calibration import law_bags as lb
+
+GRID = (10, 10)  # larger than the 8 x 8 screening block: the grid-wide refit runs
+EXPANSION_M_PER_DEGC = 0.4e-9
+CANDIDATES = ("thermal_expansion",)
+
+
+def _series(duration: float = 12.0) -> lb.Series:
+    run = lb.law_run(duration, seed=3, shape=GRID)
+    t, z = run.topics["/dm/displacement"]
+    z = z + EXPANSION_M_PER_DEGC * (run.temperature - 40.0)
+    return {**run.topics, "/dm/displacement": (t, z)}
+
+
+@pytest.fixture(scope="module")
+def bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return lb.write(_series(), tmp_path_factory.mktemp("stream") / "bag")
+
+
+def _run_cli(bag: Path, out: Path, *extra: str) -> dict:
+    cmd = [sys.executable, "-m", "es_feedforward.calibrate", str(bag), "-o", str(out), "-q",
+           "--candidates", ",".join(CANDIDATES), *extra]
+    proc = subprocess.run(cmd, capture_output=True, text=True, check=False, timeout=900)
+    assert proc.returncode == 0, proc.stderr
+    return dict(json.loads((out / "calibration.json").read_text()))
+
+
+def test_iter_bag_yields_what_read_bag_reads(bag: Path) -> None:
+    """Small batches in file order hold every message once, as read_bag decodes them."""
+    whole = read_bag(bag)
+    stamps: dict[str, list[int]] = {}
+    batches = 0
+    for batch in iter_bag(bag, batch_bytes=20_000):
+        batches += 1
+        for topic, raw in batch.items():
+            stamps.setdefault(topic, []).extend(raw.stamps)
+    assert batches > 1  # one batch per storage chunk at least
+    for topic, series in whole.items():
+        got = np.sort(np.asarray(stamps[topic])) * 1e-9
+        np.testing.assert_allclose(got, series.times, rtol=0, atol=1e-12)
+
+
+class _Shuffled(MemoryRecording):
+    """Batches out of order: the command stream must reorder them before the play loop."""
+
+    def batches(self) -> Iterator[tuple[str, IndexArray, FloatArray]]:
+        items = list(super().batches())
+        order = np.random.default_rng(0).permutation(len(items))
+        return iter([items[i] for i in order])
+
+
+def test_gather_equals_the_aligned_arrays(tmp_path: Path) -> None:
+    series = _series(6.0)
+    t, v = series["/dm/command"]
+    v = v.copy()
+    v[5:40, 0, 1] = np.nan  # held from the last finite value, as align holds it
+    v[:3, 2, 2] = np.nan  # before any finite value: 0
+    measured = read_measured_bags([lb.write({**series, "/dm/command": (t, v)}, tmp_path / "b")])
+    aligned = align(measured)
+    rows = np.arange(0, aligned.t.size, 7)
+    commands = np.unique(np.maximum(aligned.command_index(rows, 0.02), 0))
+    thresholds = [5.0, 20.0]
+    got = gather(_Shuffled(measured), aligned.sample_index[rows], aligned.sample_index,
+                 commands, thresholds)
+    np.testing.assert_array_equal(got.displacement, aligned.displacement[rows])
+    np.testing.assert_array_equal(got.command, aligned.command[commands])
+    np.testing.assert_array_equal(got.command_finite, aligned.command_finite[commands])
+    for r in thresholds:
+        whole = play_operator(aligned.command, r, commands)
+        np.testing.assert_allclose(got.play[r], whole, rtol=0, atol=1e-12)
+    assert got.command_nan == aligned.dropped["command NaN"] == 38
+    assert got.usable.sum() == aligned.valid.sum()
+
+
+def test_one_tile_is_the_joint_grid_refit(bag: Path) -> None:
+    """The in-memory path (one tile over the grid) is main's joint refit of the grid."""
+    measured = read_measured_bags([bag])
+    cal = calibrate(measured, (), tile=max(GRID))
+    aligned = choose_stamp_convention(align(measured))
+    idx, grid = screen_block(aligned.grid)
+    joint, _ = refit_full(aligned, base_state(Workspace(aligned, idx, grid)))
+    np.testing.assert_allclose(cal.base.fit.local, joint.fit.local, rtol=1e-9)
+    assert cal.base.heldout_sse == pytest.approx(joint.heldout_sse, rel=1e-9)
+
+
+def test_streamed_tiles_equal_the_in_memory_path(bag: Path) -> None:
+    """Streamed bag in 3 x 3 tiles (halo-free) vs one in-memory tile: within 1 sigma."""
+    memory = calibrate(read_measured_bags([bag]), CANDIDATES, tile=max(GRID))
+    streamed = calibrate(BagRecording([bag], batch_bytes=50_000), CANDIDATES, tile=3)
+    assert [e.name for e in memory.effects] == [e.name for e in streamed.effects] == list(
+        CANDIDATES)
+    a, b = memory.final.fit, streamed.final.fit
+    sigma_g = np.sqrt(np.diag(a.cov_global))
+    assert np.all(np.abs(a.glob - b.glob) <= sigma_g)
+    sigma_l = np.sqrt(np.einsum("app->ap", a.cov_local))
+    assert np.all(np.abs(a.local - b.local) <= sigma_l)
+    expansion = streamed.effects[0].parameters["alpha_m_per_degc"]
+    assert expansion == pytest.approx(EXPANSION_M_PER_DEGC, rel=0.05)
+    assert streamed.aligned.grid == GRID
+    assert streamed.final.heldout_count == memory.final.heldout_count
+
+
+def test_two_dask_workers_equal_the_serial_run(bag: Path, tmp_path: Path) -> None:
+    serial = _run_cli(bag, tmp_path / "serial", "--tile", "4")
+    dask = _run_cli(bag, tmp_path / "dask", "--tile", "4", "--workers", "2")
+    assert dask["effects"][0]["parameters"] == serial["effects"][0]["parameters"]
+    assert dask["law"] == serial["law"]
+    assert dask["heldout_rms_after_m"] == serial["heldout_rms_after_m"]
+
+
+def test_no_dask_import_without_workers(bag: Path, tmp_path: Path) -> None:
+    code = (
+        "import sys\n"
+        "from es_feedforward.calibrate import run\n"
+        f"status = run([{str(bag)!r}, '-o', {str(tmp_path / 'out')!r}, '-q', "
+        f"'--candidates', 'thermal_expansion', '--tile', '4'])\n"
+        "assert status == 0, status\n"
+        "print(sorted(m for m in sys.modules if m.split('.')[0] in ('dask', 'distributed')))\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          check=False, timeout=900)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() == "[]"
+
+
+def test_bad_tile_and_unreachable_scheduler_are_one_line(bag: Path, tmp_path: Path) -> None:
+    for extra in (["--tile", "0"], ["--scheduler", "tcp://127.0.0.1:9"]):
+        cmd = [sys.executable, "-m", "es_feedforward.calibrate", str(bag), "-o",
+               str(tmp_path / "o"), "-q", *extra]
+        proc = subprocess.run(cmd, capture_output=True, text=True, check=False, timeout=900)
+        assert proc.returncode == 2, proc.stderr
+        assert len(proc.stderr.strip().splitlines()) == 1, proc.stderr
