@@ -17,6 +17,7 @@ held out), so that the held-out score tests interpolation across the run, not ex
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 from typing import Final
 
 import numpy as np
@@ -138,19 +139,19 @@ class AlignedData:
         """Return R*C."""
         return self.grid[0] * self.grid[1]
 
-    @property
+    @cached_property
     def sample_rate(self) -> float:
         """Return the median displacement sample rate [Hz]."""
         return float(1.0 / np.median(np.diff(self.t)))
 
-    @property
+    @cached_property
     def command_period(self) -> float:
         """Return the median command period [s]."""
         if self.command_period_s is not None:
             return self.command_period_s
         return float(np.median(np.diff(self.command_times)))
 
-    @property
+    @cached_property
     def mean_temperature(self) -> float:
         """Return the mean temperature over the record and actuators [degC]."""
         if self.grid_mean_temperature is not None:

@@ -75,16 +75,38 @@ class Workspace:
         self._play: dict[tuple[float, float], FloatArray] = {}
         self._static_cache: dict[tuple[int, int], dict[str, FloatArray]] = {}
         self.history = DriveHistory(aligned.command[:, actuators], aligned.command_period)
+        self._sub_rows: dict[int, IndexArray] = {}
+        self._travel: FloatArray | None = None
+
+    def sub_rows(self, stride: int) -> IndexArray:
+        """Return every ``stride``-th training row (the same array for the same stride)."""
+        if stride not in self._sub_rows:
+            self._sub_rows[stride] = self.fit_rows[::stride]
+        return self._sub_rows[stride]
 
     def _command_rows(self, delay_s: float) -> tuple[IndexArray, IndexArray]:
         a = self.aligned
         return a.command_index(self.fit_rows, delay_s), a.command_index(self.score_rows, delay_s)
 
     def play(self, thresholds: Sequence[float], command_rows: IndexArray) -> FloatArray:
-        """Return the play of the command (len(rows), len(thresholds), A) at ``command_rows``."""
+        """Return the play of the command (len(rows), len(thresholds), A) at ``command_rows``.
+
+        NaN until the operator's state no longer depends on its unknown state at the start
+        of the data: once the command has moved over 2 r (then every start state has met the
+        command's edge). An actuator whose command never does so keeps the start convention
+        of :func:`play_operator`.
+        """
         keep = np.unique(np.maximum(command_rows, 0))
         r = np.asarray(thresholds, np.float64)[:, None]
-        values = play_operator(self.aligned.command[:, self.actuators], r, keep)
+        command = self.aligned.command[:, self.actuators]
+        values = play_operator(command, r, keep)
+        if self._travel is None:
+            self._travel = np.maximum.accumulate(command, axis=0) - np.minimum.accumulate(
+                command, axis=0
+            )
+        moved = self._travel[:, None, :] >= 2.0 * r[None]  # (N, K, A)
+        settle = np.where(moved.any(axis=0), np.argmax(moved, axis=0), 0)  # (K, A)
+        values[keep[:, None, None] < settle[None]] = np.nan
         return values[np.searchsorted(keep, np.maximum(command_rows, 0))]
 
     def play_pair(
@@ -152,10 +174,17 @@ class Workspace:
             if not a.command_finite_all:
                 valid &= a.command_finite[np.ix_(np.maximum(ci, 0), self.actuators)].T
             voltage = np.asarray(voltage + weight * u, np.float64)
+        operators = None
+        if play is not None:
+            operators = np.ascontiguousarray(play.transpose(1, 2, 0))
+            settled = np.isfinite(operators).all(axis=0)
+            if not settled.all():  # a play state not yet known (see play()): left out
+                valid &= settled
+                operators = np.where(np.isfinite(operators), operators, 0.0)
         return FitInputs(
             t=static["t"],
             voltage=voltage,
-            play=None if play is None else np.ascontiguousarray(play.transpose(1, 2, 0)),
+            play=operators,
             temperature=static["temperature"],
             temperature_rate=static["temperature_rate"],
             displacement=np.where(valid, static["displacement"], 0.0),
