@@ -74,9 +74,17 @@ class Workspace:
         self.score_rows = select_rows(~aligned.train, n_score)
         self._play: dict[tuple[float, float], FloatArray] = {}
         self._static_cache: dict[tuple[int, int], dict[str, FloatArray]] = {}
-        self.history = DriveHistory(aligned.command[:, actuators], aligned.command_period)
+        self._history: DriveHistory | None = None
         self._sub_rows: dict[int, IndexArray] = {}
         self._travel: FloatArray | None = None
+
+    @property
+    def history(self) -> DriveHistory:
+        """The actuators' command history (built on first use: only drive filters need it)."""
+        if self._history is None:
+            a = self.aligned
+            self._history = DriveHistory(a.command[:, self.actuators], a.command_period)
+        return self._history
 
     def sub_rows(self, stride: int) -> IndexArray:
         """Return every ``stride``-th training row (the same array for the same stride)."""
