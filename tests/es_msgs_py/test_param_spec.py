@@ -65,7 +65,7 @@ def test_a_value_of_the_wrong_type_raises_a_type_error_naming_it(getter: str, na
     values = ParameterValues({**VALUES, "rate_frac": 2.5})
     with pytest.raises(ParameterTypeError, match=f"parameter {name}=") as err:
         getattr(values, getter)(name)
-    assert isinstance(err.value, TypeError)
+    assert isinstance(err.value, TypeError) and isinstance(err.value, ValueError)
 
 
 def test_values_are_a_read_only_mapping_of_the_raw_values() -> None:

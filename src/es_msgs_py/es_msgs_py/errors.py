@@ -1,6 +1,6 @@
 """The exception classes of es_msgs_py, in one place (pure: no imports at all).
 
-Every class subclasses the builtin it refines (``ValueError``, one ``TypeError``), so a
+Every class subclasses the builtin it refines (``ValueError``; one also ``TypeError``), so a
 generic handler still catches them, while a caller that wants "a bag problem" or "a layout
 problem" catches just that.
 
@@ -9,7 +9,7 @@ problem" catches just that.
 - :class:`BagError` and its subclasses: a bag cannot be read or written
   (:mod:`es_msgs_py.bag`; also exported there as :mod:`es_msgs_py.bag.errors`). Each message
   is one readable line.
-- :class:`ParameterTypeError` (a ``TypeError``): a declared parameter read back with a
+- :class:`ParameterTypeError` (a ``TypeError`` and ``ValueError``): a parameter read back with a
   typed getter of :class:`es_msgs_py.param_spec.ParameterValues` has another type.
 - :class:`ParameterValueError`: a node parameter's initial value is not acceptable
   (:func:`es_msgs_py.params.declare_parameters`, the executor choice of
@@ -79,8 +79,12 @@ class BagExistsError(BagWriteError):
     """The path of a new bag exists already; a bag is never overwritten."""
 
 
-class ParameterTypeError(TypeError):
-    """A node parameter's value has the wrong type for what reads it (a string for a number)."""
+class ParameterTypeError(TypeError, ValueError):
+    """A node parameter's value has the wrong type for what reads it (a string for a number).
+
+    A ``TypeError`` by nature, and a ``ValueError`` too: a node that meets it at start-up
+    exits with one readable line like for any other invalid parameter.
+    """
 
 
 class ParameterValueError(ValueError):
