@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import argparse
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import NoReturn
@@ -103,11 +103,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     options.out.mkdir(parents=True, exist_ok=True)
     progress(f"output folder: {options.out}")
     demo = Demo(options, progress)
-    interrupted: Callable[[], None] = demo.runner.interrupt
     try:
         report = demo.run()
     except KeyboardInterrupt:
-        interrupted()
+        demo.runner.interrupt()
         progress("interrupted; every node stopped")
         return 130
     except (DemoError, ValueError, OSError) as err:

@@ -5,15 +5,14 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+from es_feedforward.feedforward import Mode
+
 #: Closed-loop scenarios of the main job.
 SCENARIOS: tuple[str, ...] = ("thesis_ac", "thesis_dc_ac", "dm_exposure")
 #: Feedforward modes: the baseline first, then every compensating mode.
 MODES: tuple[str, ...] = (
-    "uncompensated",
-    "inverse_hyperbolic",
-    "inverse_quadratic",
-    "linearized_dmax",
-    "observer",
+    Mode.UNCOMPENSATED.value,
+    *(mode.value for mode in Mode if mode is not Mode.UNCOMPENSATED),
 )
 #: ``--long`` multiplies every scenario's time scale by this (slower thermal transients).
 LONG_FACTOR = 5.0

@@ -180,7 +180,7 @@ class Demo:
             sim_s=analysis.sim_s,
         )
 
-    def calibration_loop(self) -> tuple[str, list[RunResult]]:
+    def calibration_loop(self) -> str:
         """Step 4: an undeclared effect, found by the tool; tracking before and after."""
         self.progress(
             f"4/5 calibration loop: test stand with an effect the model lacks, calibrate, "
@@ -209,8 +209,7 @@ class Demo:
         runs = [self._analyse(job) for job in done]
         for run, label in zip(runs, ("before", "after"), strict=True):
             run.mode = f"inverse_hyperbolic ({label})"
-        text = loop_markdown(calibrated, runs, stand.bag)
-        return text, runs
+        return loop_markdown(calibrated, runs, stand.bag)
 
     def selfsensing(self, calibrated: Calibrated) -> str:
         """Step 4b: resonance test stand, calibrate_resonance, the three sensor set-ups."""
@@ -272,14 +271,14 @@ class Demo:
         calibrated = self.calibrate_all(stands)
         results = self.closed_loop(calibrated)
         goal = goal_markdown(results, calibrated, self.time_scale_factor)
-        loop_text, loop_runs = self.calibration_loop() if self.options.loop else ("", [])
+        loop_text = self.calibration_loop() if self.options.loop else ""
         selfsensing = (
             self.selfsensing(calibrated[selfsensing_demo.SCENARIO])
             if self.options.selfsensing
             else ""
         )
         self.progress("5/5 report")
-        preamble = [story_markdown(stands, calibrated, self.options)]
+        preamble = [story_markdown(stands, calibrated)]
         if loop_text:
             preamble.append(loop_text)
         inputs = ReportInputs(
@@ -294,5 +293,4 @@ class Demo:
                 time_scale_markdown(self.options, self.time_scale_factor),
             ],
         )
-        del loop_runs
         return write_report(inputs, self.options.out)

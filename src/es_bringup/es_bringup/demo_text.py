@@ -136,9 +136,7 @@ def nm(value: object) -> str:
     return f"{value * 1e9:.3f} nm"
 
 
-def story_markdown(
-    stands: dict[str, Job], calibrated: dict[str, Calibrated], options: Options
-) -> str:
+def story_markdown(stands: dict[str, Job], calibrated: dict[str, Calibrated]) -> str:
     """Return the characterisation and calibration part of the report."""
     lines = [
         "## 1. Characterisation: the simulator as a test stand",
@@ -171,7 +169,6 @@ def story_markdown(
             f"{nm(cal.summary.get('heldout_rms_after_m'))} | {effects} | `{cal.params}` | "
             f"`{cal.report}` |"
         )
-    del options
     return "\n".join(lines)
 
 

@@ -27,6 +27,7 @@ from scipy.signal import savgol_filter
 from es_feedforward.calibration.gaps import GAP_FACTOR, Gap, exclude, find_gaps
 from es_feedforward.calibration.model import BoolArray, FloatArray
 from es_feedforward.calibration.stamps import repeated, run_lengths, spread_repeated
+from es_feedforward.errors import CalibrationInputError
 
 IndexArray = npt.NDArray[np.intp]
 
@@ -52,10 +53,6 @@ GAP_DROPS: Final = {
 #: Number of interleaved blocks for long records, and the shortest block [s].
 MAX_BLOCKS: Final = 16
 MIN_BLOCK_S: Final = 1.0
-
-
-class CalibrationInputError(ValueError):
-    """Measured data that cannot be calibrated; the message is one readable line."""
 
 
 @dataclass(frozen=True)

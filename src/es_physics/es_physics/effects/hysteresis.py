@@ -26,6 +26,7 @@ from scipy.optimize import nnls
 
 from es_physics.effects.base import Effect, FittedEffect, FloatArray, Parameter, Role
 from es_physics.effects.stages import Compensator, PlantContext, PlantStage, StepState
+from es_physics.errors import OperatorFitError
 
 #: Hysteresis weight a = a0 exp(-(T_a - Tm - HYSTERESIS_ONSET) / HYSTERESIS_DECAY) [degC].
 HYSTERESIS_ONSET: Final = 2.0
@@ -251,10 +252,6 @@ def compensated_operators(
     ]
     used = [(w, r) for w, r in pairs if w > 0.0]
     return tuple(w for w, _ in used), tuple(r for _, r in used)
-
-
-class OperatorFitError(ValueError):
-    """A normal-equation system of play-operator weights that cannot be solved."""
 
 
 def nonnegative_weights(gram: FloatArray, rhs: FloatArray) -> tuple[FloatArray, float]:
