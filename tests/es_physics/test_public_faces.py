@@ -9,7 +9,9 @@ from types import ModuleType
 
 import pytest
 
-PACKAGES = ("es_msgs_py", "es_physics", "es_feedforward", "es_sim_plant", "es_thermal")
+PACKAGES = (
+    "es_msgs_py", "es_physics", "es_feedforward", "es_sim_plant", "es_thermal", "es_bringup",
+)  # fmt: skip
 
 
 @pytest.mark.parametrize("name", PACKAGES)

@@ -1,1 +1,65 @@
-"""Bring-up and evaluation of the es_dm graph: launch, supervisor, demo and its report."""
+"""Bring-up and evaluation of the es_dm graph: launch, supervisor, demo and its report.
+
+The top layer: it imports every other package and nothing of ours imports it (tests and
+bench do). Pure, without rclpy: the graph description (:mod:`.graph`), the supervisor
+(:mod:`.supervisor`), the evaluation of recorded runs (:mod:`.metrics`, :mod:`.invariants`,
+:mod:`.analysis`, :mod:`.goal`, :mod:`.report`, :mod:`.selfsensing_study`) and
+:mod:`.errors`. Executables: :mod:`.bringup`, :mod:`.demo` (with its ``demo_*`` parts),
+:mod:`.golden`, :mod:`.selfsensing_demo`; the launch file ``closed_loop.launch.py``.
+Importing the package is cheap: its modules are loaded on first use (``es_bringup.graph``).
+"""
+
+from __future__ import annotations
+
+import importlib
+from types import ModuleType
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # type checkers see the modules; at run time they load on first access
+    from es_bringup import (
+        analysis,
+        bringup,
+        demo,
+        errors,
+        goal,
+        golden,
+        graph,
+        invariants,
+        metrics,
+        report,
+        selfsensing_demo,
+        selfsensing_study,
+        supervisor,
+    )
+
+#: The public modules of the package.
+__all__ = [
+    "analysis",
+    "bringup",
+    "demo",
+    "errors",
+    "goal",
+    "golden",
+    "graph",
+    "invariants",
+    "metrics",
+    "report",
+    "selfsensing_demo",
+    "selfsensing_study",
+    "supervisor",
+]
+
+
+# Hidden from type checkers, which then flag a misspelt module instead of accepting any name.
+if not TYPE_CHECKING:
+
+    def __getattr__(name: str) -> ModuleType:
+        """Import a public module on first access (e.g. ``es_bringup.graph``).
+
+        Raises:
+            AttributeError: ``name`` is not a public module of the package.
+
+        """
+        if name in __all__:
+            return importlib.import_module(f"{__name__}.{name}")
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from es_bringup.errors import RunDataError
 from es_bringup.invariants import (
     InvariantReport,
     check_commands,
@@ -135,14 +136,14 @@ def analyse_run(
 
     Raises:
         es_msgs_py.bag.BagError: the bag is unreadable or lacks a needed topic.
-        ValueError: the run is too short or its topics do not fit the lockstep protocol.
+        RunDataError: the run is too short or its topics do not fit the lockstep protocol.
 
     """
     bag = read_bag(bag_path)
     needed = (topics.DISPLACEMENT, topics.SETPOINT, topics.TEMPERATURE)
     missing = [t for t in needed if t not in bag or bag[t].values is None]
     if missing:
-        raise ValueError(f"{bag_path}: no {', '.join(missing)} recorded")
+        raise RunDataError(f"{bag_path}: no {', '.join(missing)} recorded")
     disp, sp, temp = (bag[t].values for t in needed)
     assert disp is not None and sp is not None and temp is not None
     every = sensor_every(control_rate, sensor_rate)

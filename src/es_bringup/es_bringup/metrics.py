@@ -21,6 +21,8 @@ from typing import TYPE_CHECKING, NamedTuple
 import numpy as np
 import numpy.typing as npt
 
+from es_bringup.errors import RunDataError
+
 if TYPE_CHECKING:
     from es_sim_plant.plant import SimulationResult
 
@@ -136,15 +138,15 @@ def align_run(
         temperature: temperature grids, degC, shape (K, R, C).
 
     Raises:
-        ValueError: grids of different shapes, set point and displacement counts that do
+        RunDataError: grids of different shapes, set point and displacement counts that do
             not fit the lockstep protocol, or no sample left after alignment.
 
     """
     shapes = {displacement.shape[1:], setpoint.shape[1:], temperature.shape[1:]}
     if len(shapes) != 1 or displacement.ndim != 3:
-        raise ValueError(f"grid shapes differ between topics: {sorted(shapes)}")
+        raise RunDataError(f"grid shapes differ between topics: {sorted(shapes)}")
     if len(setpoint) not in (len(displacement), len(displacement) - 1):
-        raise ValueError(
+        raise RunDataError(
             f"{len(displacement)} displacements and {len(setpoint)} set points do not fit "
             "one of each per lockstep step"
         )
@@ -154,7 +156,7 @@ def align_run(
     t_index = np.searchsorted(temperature_times, out_times, side="right") - 1
     keep = t_index >= 0
     if not np.any(keep):
-        raise ValueError("no displacement sample follows a set point and a temperature")
+        raise RunDataError("no displacement sample follows a set point and a temperature")
     flat = rows * cols
     return AlignedRun(
         times=out_times[keep],
@@ -224,14 +226,14 @@ def period_slots(
         skip_s: start-up time left out before the first period, s.
 
     Raises:
-        ValueError: fewer than one whole period after ``skip_s``, or a bad period/slot width.
+        RunDataError: fewer than one whole period after ``skip_s``, or a bad period/slot width.
 
     """
     if not (period_s > 0 and slot_width > 0):
-        raise ValueError(f"period ({period_s}) and slot width ({slot_width}) must be > 0")
+        raise RunDataError(f"period ({period_s}) and slot width ({slot_width}) must be > 0")
     dt, samples, start, count = whole_periods(run, period_s, skip_s)
     if count < 1:
-        raise ValueError(f"run shorter than one {period_s:g} s period after {skip_s:g} s")
+        raise RunDataError(f"run shorter than one {period_s:g} s period after {skip_s:g} s")
     stop = start + count * samples
     actuators = run.output.shape[1]
 

@@ -26,6 +26,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, TextIO
 
+from es_bringup.errors import SupervisorError
+
 #: Exit code of :meth:`Supervisor.run` when a process failed or a stop was not clean.
 EXIT_FAILURE = 1
 #: Exit code of :meth:`Supervisor.run` when the group was interrupted (SIGINT/SIGTERM).
@@ -169,7 +171,7 @@ class Supervisor:
     def start(self, spec: ProcessSpec) -> None:
         """Start one process now."""
         if any(r.spec.name == spec.name for r in self._running):
-            raise ValueError(f"process name {spec.name!r} used twice")
+            raise SupervisorError(f"process name {spec.name!r} used twice")
         running = _Running(spec, self.log_dir / f"{spec.name}.log", self._echo, self._env)
         self._running.append(running)
         self._announce(f"started {spec.name} (pid {running.popen.pid})")
@@ -211,7 +213,7 @@ class Supervisor:
 
         """
         if not any(r.spec.primary for r in self._running):
-            raise ValueError("no primary process started")
+            raise SupervisorError("no primary process started")
         deadline = None if wall_timeout is None else time.monotonic() + wall_timeout
         while True:
             if self._interrupted.is_set():

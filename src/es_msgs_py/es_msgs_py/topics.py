@@ -11,6 +11,7 @@ from typing import IO, Final
 
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
+from es_msgs_py.errors import UnknownMessageTypeError
 from es_msgs_py.topic_names import (
     CLOCK,
     COMMAND,
@@ -133,17 +134,18 @@ def message_class(type_name: str) -> type:
     """Return the rclpy message class for a ROS 2 type name such as ``std_msgs/msg/Header``.
 
     Raises:
-        ValueError: if the name is not of the form ``pkg/msg/Name`` or cannot be imported.
+        UnknownMessageTypeError: the name is not of the form ``pkg/msg/Name`` or cannot be
+            imported.
 
     """
     parts = type_name.split("/")
     if len(parts) != 3 or parts[1] != "msg" or not all(p.isidentifier() for p in parts):
-        raise ValueError(f"not a ROS 2 message type name: {type_name!r}")
+        raise UnknownMessageTypeError(f"not a ROS 2 message type name: {type_name!r}")
     try:
         module = importlib.import_module(f"{parts[0]}.msg")
         cls = getattr(module, parts[2])
     except (AttributeError, ImportError) as err:
-        raise ValueError(f"unknown message type {type_name!r}: {err}") from None
+        raise UnknownMessageTypeError(f"unknown message type {type_name!r}: {err}") from None
     if not isinstance(cls, type):
-        raise ValueError(f"unknown message type {type_name!r}")
+        raise UnknownMessageTypeError(f"unknown message type {type_name!r}")
     return cls
