@@ -398,8 +398,11 @@ class Feedforward:
 
     def _compensate_setpoint(self, z: FloatArray, T: FloatArray, t: float) -> FloatArray:
         """Turn the wanted displacement into the wanted free (basic-model) displacement."""
+        stages = self._stages.values()
+        for stage in stages:
+            z = stage.predict(z, t)
         # the forward chain undone from its end: the last stage's effect is removed first
-        for stage in reversed(self._stages.values()):
+        for stage in reversed(stages):
             z = stage.setpoint(z, T, t)
         return z
 

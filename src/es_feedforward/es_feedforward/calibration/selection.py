@@ -3,7 +3,9 @@
 Forward: every remaining candidate is refitted jointly with the per-actuator law on training
 rows and scored on held-out rows with a Bayesian information criterion whose sample count is
 the *effective* number of independent held-out residuals (n / integrated autocorrelation
-time), so that a correlated residual cannot buy a spurious effect. A candidate passes only
+time), so that a correlated residual cannot buy a spurious effect; of the residuals before
+and after the candidate, the less correlated one counts (a candidate that explains the
+structure which made the residual correlated is not discounted by it). A candidate passes only
 when it lowers that criterion, cuts the held-out RMS by at least ``MIN_RELATIVE_GAIN`` and has
 physical parameter values; the best passing candidate is added and the round repeats.
 
@@ -131,8 +133,12 @@ def _forward_round(
             continue
         new = min(candidate_states(ws, state, name, duration), key=lambda s: s.fit.total_cost)
         params = effect_parameters(new, name, ws.aligned)
+        # the structure a candidate explains made the old residual correlated: a residual
+        # it leaves whiter counts as many independent residuals as it then has
+        _, held_new = ws.input_pair(new.delay_s, new.play_thresholds)
+        n_new = max(n_eff, effective_count(ws, new, held_new))
         delta = information_delta(
-            state.heldout_sse, new.heldout_sse, n_eff, _unknowns(new, name, A)
+            state.heldout_sse, new.heldout_sse, n_new, _unknowns(new, name, A)
         )
         reason = _verdict(name, params, state, new, delta)
         ok = reason == "passes"

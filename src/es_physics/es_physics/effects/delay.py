@@ -60,7 +60,7 @@ class DelayPredictor(Compensator):
         # a straight-line prediction must not push a reachable set point below 0
         return np.asarray(np.where(z >= 0.0, np.maximum(predicted, 0.0), predicted), np.float64)
 
-    def setpoint(self, z: FloatArray, T: FloatArray, t: float) -> FloatArray:
+    def predict(self, z: FloatArray, t: float) -> FloatArray:
         """Return the set point predicted over the delay (see :meth:`__call__`)."""
         return self(z, t)
 

@@ -50,6 +50,8 @@ def _checked(effect: Effect) -> Effect:
         raise EffectError(f"effect name {effect.name!r} is not an identifier")
     for p in effect.plant:
         p.check(p.default, f"effects.{effect.name}")
+    if effect.simulated and type(effect).plant_stage is Effect.plant_stage:
+        raise EffectError(f"effect {effect.name} is simulated but has no plant_stage")
     if effect.role is Role.ADDITIVE and effect.local_parameters:
         raise EffectError(f"additive effect {effect.name} cannot have per-actuator unknowns")
     return effect

@@ -2,18 +2,24 @@
 
 Plant: the sensor reads T_s with dT_s/dt = (T_a - T_s) / tau. Calibration: the actuator
 leads the sensor, T_a = T_s + tau dT_s/dt. Feedforward: the same lead, its derivative
-low-pass filtered (``compensation.temperature_lead_s``, ``temperature_lead_filter_s``).
+low-pass filtered (``compensation.temperature_lead_s``, ``temperature_lead_filter_s``); a
+calibration sets the filter to LEAD_FILTER_FRACTION of the lag: the lead must follow changes
+of the actuator's temperature as fast as the lag hides them, and a shorter filter only
+amplifies the sensor's noise (the derivative of a noisy, quantised reading).
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import ClassVar
+from typing import ClassVar, Final
 
 import numpy as np
 
 from es_physics.effects.base import Effect, FittedEffect, FloatArray, Parameter, Role
 from es_physics.effects.stages import Compensator, PlantContext, PlantStage
+
+#: The lead's derivative filter as a fraction of the calibrated lag.
+LEAD_FILTER_FRACTION: Final = 0.5
 
 
 class SensorLagStage(PlantStage):
@@ -104,8 +110,11 @@ class SensorLag(Effect):
     def compensation_values(
         self, reported: dict[str, float], start_time: float
     ) -> dict[str, float]:
-        """Lead the measured temperature by the fitted lag."""
-        return {"temperature_lead_s": reported["tau_s"]}
+        """Lead the measured temperature by the fitted lag, its derivative filtered."""
+        return {
+            "temperature_lead_s": reported["tau_s"],
+            "temperature_lead_filter_s": LEAD_FILTER_FRACTION * reported["tau_s"],
+        }
 
     def plant_stage(self, settings: Mapping[str, float], context: PlantContext) -> PlantStage:
         """Return the sensor's lag."""

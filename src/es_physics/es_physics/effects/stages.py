@@ -19,7 +19,9 @@ displacement after the law).
 Feedforward hooks, in the order of one command (see ``es_feedforward.feedforward``):
 :meth:`Compensator.measured_temperature` (each temperature estimate),
 :meth:`Compensator.law_temperature` (the temperature the law is evaluated at),
-:meth:`Compensator.setpoint` (the wanted displacement -> the basic model's),
+:meth:`Compensator.predict` (the wanted displacement in time, e.g. ahead over a delay),
+:meth:`Compensator.setpoint` (the wanted displacement -> the basic model's; in reverse model
+order: the forward chain undone from its end),
 :meth:`Compensator.invert_drive` (the law's voltage -> the command; only when
 :attr:`Compensator.reshapes_drive`), :meth:`Compensator.commit` (the command sent).
 """
@@ -144,6 +146,10 @@ class Compensator:
     def law_temperature(self, T: FloatArray, t: float) -> FloatArray:
         """Return the temperatures [degC] the law is evaluated at for a command at ``t``."""
         return T
+
+    def predict(self, z: FloatArray, t: float) -> FloatArray:
+        """Return the wanted displacement [m] to aim at for the set point ``z`` given at ``t``."""
+        return z
 
     def setpoint(self, z: FloatArray, T: FloatArray, t: float) -> FloatArray:
         """Return the displacement [m] the stages before this one must produce for ``z``."""
