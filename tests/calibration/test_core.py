@@ -80,7 +80,8 @@ def test_jacobians_match_finite_differences(coupled: bool, per_actuator: bool) -
     local_keys = ("sensor_lag.tau_s", "self_heating.gain") if per_actuator else ()
     model = CompositeModel(effects, per_actuator=local_keys)
     p = ActuatorParams()
-    law = [p.m2, p.m1, p.k2, p.k1, 1e-19, 1e-10, *[3.0, 1e-4][: len(local_keys)]]
+    law = [float(v) for v in (p.m2, p.m1, p.k2, p.k1)]
+    law += [1e-19, 1e-10, *[3.0, 1e-4][: len(local_keys)]]
     local = np.tile(law, (6, 1)) * rng.uniform(0.95, 1.05, (6, len(law)))
     assert model.local_names[6:] == local_keys
     values = {
