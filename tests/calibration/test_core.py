@@ -284,6 +284,10 @@ def test_drive_lowpass_is_exact_for_a_ramp_and_its_log_tau_slope_matches() -> No
     np.testing.assert_allclose(d_log_tau, (up - down) / (2 * step), rtol=1e-6, atol=1e-9)
     with pytest.raises(ValueError, match="tau > 0"):
         first_order_lowpass(x, h, 0.0)
+    # a time constant so long that the pole rounds to 1: the output holds the start
+    y, d_log_tau = first_order_lowpass(x, h, 1e30)
+    np.testing.assert_allclose(y, np.broadcast_to(x[:1], x.shape))
+    assert np.all(np.isfinite(d_log_tau))
 
 
 def test_only_offered_parameters_can_be_fitted_per_actuator() -> None:
