@@ -16,6 +16,7 @@ from es_feedforward.calibration.model import (
     play_operator,
 )
 from es_feedforward.calibration.residual import integrated_autocorrelation_time, noise_floor
+from es_physics.effects import EffectError
 from es_physics.effects.coupling import grid_laplacian
 from es_physics.effects.hysteresis import play
 from es_physics.laws import hyperbolic_forward
@@ -70,16 +71,19 @@ def test_model_without_effects_is_the_hyperbolic_law() -> None:
     np.testing.assert_allclose(got, hyperbolic_forward(data.voltage, data.temperature, p))
 
 
+@pytest.mark.parametrize("per_actuator", [False, True])
 @pytest.mark.parametrize("coupled", [False, True])
-def test_jacobians_match_finite_differences(coupled: bool) -> None:
+def test_jacobians_match_finite_differences(coupled: bool, per_actuator: bool) -> None:
     rng = np.random.default_rng(3)
     data = _inputs(rng)
     effects = [e for e in CANDIDATES if e != "delay" and (coupled or e != "coupling")]
-    model = CompositeModel(effects)
+    local_keys = ("sensor_lag.tau_s", "self_heating.gain") if per_actuator else ()
+    model = CompositeModel(effects, per_actuator=local_keys)
     p = ActuatorParams()
-    local = np.tile([p.m2, p.m1, p.k2, p.k1, 1e-19, 1e-10], (6, 1)) * rng.uniform(
-        0.95, 1.05, (6, 6)
-    )
+    law = [float(v) for v in (p.m2, p.m1, p.k2, p.k1)]
+    law += [1e-19, 1e-10, *[3.0, 1e-4][: len(local_keys)]]
+    local = np.tile(law, (6, 1)) * rng.uniform(0.95, 1.05, (6, len(law)))
+    assert model.local_names[6:] == local_keys
     values = {
         "sensor_lag.tau_s": 3.0,
         "hysteresis.weight": 0.05,
@@ -280,3 +284,16 @@ def test_drive_lowpass_is_exact_for_a_ramp_and_its_log_tau_slope_matches() -> No
     np.testing.assert_allclose(d_log_tau, (up - down) / (2 * step), rtol=1e-6, atol=1e-9)
     with pytest.raises(ValueError, match="tau > 0"):
         first_order_lowpass(x, h, 0.0)
+    # a time constant so long that the pole rounds to 1: the output holds the start
+    y, d_log_tau = first_order_lowpass(x, h, 1e30)
+    np.testing.assert_allclose(y, np.broadcast_to(x[:1], x.shape))
+    assert np.all(np.isfinite(d_log_tau))
+
+
+def test_only_offered_parameters_can_be_fitted_per_actuator() -> None:
+    with pytest.raises(EffectError, match=r"drift\.fraction cannot be fitted per actuator"):
+        CompositeModel(("drift",), per_actuator=("drift.fraction",))
+    with pytest.raises(EffectError, match=r"sensor_lag\.tau_s"):
+        CompositeModel(("drift",), per_actuator=("sensor_lag.tau_s",))  # effect not chosen
+    model = CompositeModel(("self_heating",), per_actuator=("self_heating.gain",))
+    assert model.global_names == ("self_heating.log_tau_s",)

@@ -5,13 +5,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from es_physics.effects import FittedEffect
 from es_physics.effects.frequency_dispersion import (
+    FrequencyDispersion,
     relaxation_advance,
     relaxation_decay,
     relaxation_inverse,
     relaxation_output,
 )
-from es_physics.effects.self_heating import HeatingEstimate
+from es_physics.effects.self_heating import MEAN_WINDOW_S, HeatingEstimate, SelfHeating
 
 
 def test_relaxation_passes_dc_and_cuts_fast_drive_by_the_fraction() -> None:
@@ -52,3 +54,43 @@ def test_heating_estimate_rises_under_fast_drive_and_decays_on_hold() -> None:
         HeatingEstimate(1e-4, 0.0, 1.0)
     with pytest.raises(ValueError, match="gain"):
         est.retuned(float("nan"), 1.0, 1.0)
+
+
+def test_the_calibrations_loss_measure_is_the_heating_estimates() -> None:
+    # a 2 Hz sine of 100 V around 150 V at 1 kHz for 10 s, on two actuators
+    dt = 1e-3
+    t = np.arange(0.0, 10.0, dt)
+    command = 150.0 + 100.0 * np.sin(2 * np.pi * 2.0 * t)[:, None] * np.array([1.0, 0.5])
+    loss = SelfHeating().drive_signal(command, dt)
+    tau = 1e6
+    estimate = HeatingEstimate(1.0, tau, MEAN_WINDOW_S)  # tau >> run: dT integrates P / tau
+    for k, row in enumerate(command):
+        estimate.apply(row, k * dt)
+    # HeatingEstimate's excess with g = 1 is sum(P_k dt) / tau: the same measure P_k
+    np.testing.assert_allclose(
+        np.asarray(estimate.at((len(t) - 1) * dt)), loss[1:-1].sum(axis=0) * dt / tau, rtol=1e-4
+    )
+    # the measure's mean over the settled part is f A^2 (g f A^2 for a sine, see the module)
+    settled = loss[t > 5.0].mean(axis=0)
+    np.testing.assert_allclose(settled, 2.0 * np.array([100.0, 50.0]) ** 2, rtol=0.03)
+
+
+def test_filter_effects_must_be_determined() -> None:
+    heating, dispersion = SelfHeating(), FrequencyDispersion()
+    good = FittedEffect({"gain": 1e-5, "log_tau_s": 0.5}, {"gain": 1e-6, "log_tau_s": 0.1})
+    assert heating.undetermined(good) is None
+    loose = FittedEffect({"gain": 1e-4, "log_tau_s": 4.7}, {"gain": 5e-4, "log_tau_s": 3.0})
+    assert "gain not determined" in str(heating.undetermined(loose))
+    corner = FittedEffect(
+        {"fraction": 0.08, "log_corner_hz": 1.8}, {"fraction": 0.01, "log_corner_hz": 1.5}
+    )
+    assert "log_corner_hz not determined" in str(dispersion.undetermined(corner))
+    # reported in physical units, and what the feedforward gets from them
+    reported = heating.reported(good)
+    assert reported == {"gain": 1e-5, "tau_s": pytest.approx(np.exp(0.5))}
+    assert heating.problem(reported) is None
+    assert heating.problem({"gain": -1e-6, "tau_s": 1.0}) is not None
+    comp = heating.compensation_values(reported, 0.0)
+    assert comp["self_heating_gain"] == 1e-5
+    assert comp["self_heating_mean_window_s"] == MEAN_WINDOW_S
+    assert dispersion.problem({"fraction": 0.95, "corner_hz": 5.0}) is not None

@@ -22,7 +22,7 @@ from typing import Final
 
 import numpy as np
 import numpy.typing as npt
-from scipy.signal import lfilter, lfilter_zi
+from scipy.signal import lfilter
 
 from es_physics.effects import Effect
 
@@ -56,8 +56,9 @@ def first_order_lowpass(x: FloatArray, period: float, tau: float) -> tuple[Float
     c = one_minus_d / a
     pole = np.array([1.0, -d])
     b = np.array([1.0 - c, c - d])
-    zi = lfilter_zi(b, pole)[:, None] * x[0][None, :]
-    y, _ = lfilter(b, pole, x, axis=0, zi=zi)
+    # settled at x[0]: the transposed direct form's state is c x[0] (no solve, so a pole
+    # that rounds to 1 for a time constant far beyond the period stays well defined)
+    y, _ = lfilter(b, pole, x, axis=0, zi=c * x[:1])
     # d / d(log tau) of D, c and the taps (d a / d(log tau) = -a)
     d_d = a * d
     d_c = (one_minus_d - a * d) / a

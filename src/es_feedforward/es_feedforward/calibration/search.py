@@ -355,6 +355,21 @@ def fitted_effect(state: ModelState, effect: Effect, aligned: AlignedData) -> Fi
     )
 
 
+def undetermined(state: ModelState, name: str) -> str | None:
+    """Return why ``state``'s fit leaves effect ``name`` undetermined (see the effect), or None."""
+    model = state.model
+    effect = get(name)
+    sig_g = np.sqrt(np.maximum(np.diag(state.fit.cov_global), 0.0))
+    values: dict[str, float] = {}
+    sigma: dict[str, float] = {}
+    for i, p in enumerate(model.parameter_names(effect)):
+        key = model.key(effect, i)
+        if key in model.global_names:
+            j = model.global_names.index(key)
+            values[p], sigma[p] = float(state.fit.glob[j]), float(sig_g[j])
+    return effect.undetermined(FittedEffect(values, sigma))
+
+
 def effect_parameters(state: ModelState, name: str, aligned: AlignedData) -> dict[str, float]:
     """Return the physical parameters of effect ``name`` in ``state``."""
     effect = get(name)

@@ -33,6 +33,7 @@ from es_feedforward.calibration.search import (
     extend_global,
     fit_state,
     information_delta,
+    undetermined,
 )
 from es_physics.effects import Role, get
 
@@ -105,7 +106,7 @@ def _verdict(
 ) -> str:
     """Return "passes" or why adding ``name`` (``before`` -> ``after``) does not pay."""
     gain = 1.0 - after.heldout_rms / max(before.heldout_rms, 1e-300)
-    problem = get(name).problem(params)
+    problem = get(name).problem(params) or undetermined(after, name)
     if problem:
         return f"unphysical: {problem}"
     if before.heldout_rms < RESOLUTION_FLOOR_M:

@@ -158,6 +158,20 @@ class Additive:
     d_temperature: FloatArray | float = 0.0
 
 
+def filter_undetermined(fit: FittedEffect, coefficient: str, log_time: str) -> str | None:
+    """Return why a filter effect's fit is undetermined, or None (``HEATING``/``RELAXATION``).
+
+    The coefficient must be known to better than 100 % and the filter's log time constant
+    to better than 1 (a factor e), each at 1 sigma; a parameter fitted per actuator (absent
+    from ``fit.sigma``) is not checked here.
+    """
+    if coefficient in fit.sigma and not fit.sigma[coefficient] < abs(fit.values[coefficient]):
+        return f"{coefficient} not determined (1-sigma {fit.sigma[coefficient]:.3g})"
+    if log_time in fit.sigma and not fit.sigma[log_time] < 1.0:
+        return f"{log_time} not determined (1-sigma {fit.sigma[log_time]:.3g})"
+    return None
+
+
 class Effect(ABC):
     """One effect beyond the basic hyperbolic law (see the module docstring)."""
 
@@ -224,6 +238,15 @@ class Effect(ABC):
         for p in self.plant:
             if p.name in reported and not p.accepts(reported[p.name]):
                 return f"{p.name} {reported[p.name]:.3g} outside {p.range_text()}"
+        return None
+
+    def undetermined(self, fit: FittedEffect) -> str | None:
+        """Return why the fit leaves the effect's shared unknowns undetermined, or None.
+
+        ``fit`` holds the shared unknowns' values and 1-sigma as fitted (the default accepts
+        any). An effect the data cannot tell from another one (e.g. a time constant far
+        beyond the record, where a filter becomes an integrator) is no finding.
+        """
         return None
 
     def compensation_values(

@@ -32,7 +32,14 @@ from typing import ClassVar, Final
 
 import numpy as np
 
-from es_physics.effects.base import Effect, FittedEffect, FloatArray, Parameter, Role
+from es_physics.effects.base import (
+    Effect,
+    FittedEffect,
+    FloatArray,
+    Parameter,
+    Role,
+    filter_undetermined,
+)
 from es_physics.effects.stages import Compensator, PlantContext, PlantStage, StepState
 from es_physics.errors import EffectParameterError
 
@@ -240,6 +247,10 @@ class FrequencyDispersion(Effect):
         if not low <= reported["corner_hz"] <= high:
             return f"corner_hz {reported['corner_hz']:.3g} outside [{low:g}, {high:g}]"
         return None
+
+    def undetermined(self, fit: FittedEffect) -> str | None:
+        """Reject a corner known to worse than a factor e, or a fraction to worse than 100 %."""
+        return filter_undetermined(fit, "fraction", "log_corner_hz")
 
     def compensation_values(
         self, reported: dict[str, float], start_time: float

@@ -26,7 +26,14 @@ from typing import ClassVar, Final
 
 import numpy as np
 
-from es_physics.effects.base import Effect, FittedEffect, FloatArray, Parameter, Role
+from es_physics.effects.base import (
+    Effect,
+    FittedEffect,
+    FloatArray,
+    Parameter,
+    Role,
+    filter_undetermined,
+)
 from es_physics.effects.stages import Compensator, Drive, PlantContext, PlantStage
 from es_physics.errors import EffectParameterError
 
@@ -226,6 +233,10 @@ class SelfHeating(Effect):
         if not low <= reported["tau_s"] <= high:
             return f"tau_s {reported['tau_s']:.3g} s outside [{low:g}, {high:g}]"
         return None
+
+    def undetermined(self, fit: FittedEffect) -> str | None:
+        """Reject a tau known to worse than a factor e, or a gain to worse than 100 %."""
+        return filter_undetermined(fit, "gain", "log_tau_s")
 
     def compensation_values(
         self, reported: dict[str, float], start_time: float
