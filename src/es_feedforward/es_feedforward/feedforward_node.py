@@ -135,7 +135,8 @@ class FeedforwardNode(Node):
     def _on_setpoint(self, msg: Float64MultiArray) -> None:
         self._counts["setpoints"] += 1
         try:
-            setpoint = msg_to_grid(msg, self._core.config.shape)
+            # a view of the received message (not reused by rclpy, never written by the core)
+            setpoint = msg_to_grid(msg, self._core.config.shape, copy=False)
         except LayoutError as err:
             self._hold(f"set point rejected: {err}")
             self._reject(SETPOINT, str(err))  # its diagnostics count the held command
@@ -167,7 +168,7 @@ class FeedforwardNode(Node):
     def _on_temperature(self, msg: Float64MultiArray) -> None:
         self._counts["temperatures"] += 1
         try:
-            temperature = msg_to_grid(msg, self._core.config.shape)
+            temperature = msg_to_grid(msg, self._core.config.shape, copy=False)
         except LayoutError as err:
             self._reject(TEMPERATURE, str(err))
             return

@@ -50,7 +50,7 @@ from std_msgs.msg import Float64MultiArray
 from es_msgs_py import topics
 from es_msgs_py.arrays import LayoutError, grid_to_msg, msg_to_grid, sensors_to_msg
 from es_msgs_py.diagnostics import Level, make_array, make_status, ready_nodes
-from es_msgs_py.node_main import run_node, usage_text
+from es_msgs_py.node_main import executor_spec, run_node, usage_text
 from es_msgs_py.params import ParameterSpec, declare_parameters
 from es_sim_plant.effects import EFFECT_NAMES
 from es_sim_plant.plant import Plant
@@ -82,6 +82,7 @@ def _check_names(value: object) -> str | None:
 
 
 SPECS: tuple[ParameterSpec, ...] = (
+    executor_spec(),
     ParameterSpec(
         "scenario",
         "dm_exposure",
