@@ -9,7 +9,9 @@ first), so a lockstep plant never waits; every such held command is counted, rai
 inputs are connected (/dm/setpoint and, except ``uncompensated``, /dm/temperature matched to
 a publisher) ``feedforward: ready`` on /diagnostics says "not ready" (a lockstep plant waits
 for it). Parameters: :mod:`es_feedforward.param_file` names, declared with ranges; a run-time
-change is validated as a whole set and swapped in between two set points.
+change is validated as a whole set and swapped in between two set points. Environment:
+``ES_DM_FEEDFORWARD_KERNELS=numpy`` runs the modes' inner loops in plain numpy instead of the
+fused (numba) ones, same numbers (:mod:`es_feedforward.kernels`).
 """
 
 from __future__ import annotations
