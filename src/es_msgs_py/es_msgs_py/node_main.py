@@ -76,11 +76,16 @@ class PublishCounter:
         return [f"published {topic}: {count}" for topic, count in sorted(self.counts.items())]
 
 
-def executor_spec() -> ParameterSpec:
-    """Return the read-only ``executor`` parameter a node declares to choose its executor."""
+def executor_spec(default: str = DEFAULT_EXECUTOR) -> ParameterSpec:
+    """Return the read-only ``executor`` parameter a node declares to choose its executor.
+
+    Args:
+        default: the node's default, one of :data:`EXECUTORS`.
+
+    """
     return ParameterSpec(
         EXECUTOR_PARAMETER,
-        DEFAULT_EXECUTOR,
+        default,
         "Executor: 'events' (rclpy's experimental EventsExecutor, several times cheaper per "
         "message) or 'single_threaded' (rclpy's default, as a fallback).",
         choices=EXECUTORS,
