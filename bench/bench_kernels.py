@@ -11,6 +11,9 @@ For each grid size N (a near-square R x C grid with per-actuator parameter maps,
   (``CompiledLaws.hyperbolic_inverse(z, T)``), the issue-3 figure;
 - ``inverse_hyperbolic`` ... ``uncompensated``: ``Feedforward.command(z, t)`` of each mode
   with the temperature already taken (what the node pays per set point);
+- ``observer_numpy`` (``--numpy-too``): the observer on the pure-numpy path
+  (``kernels.Backend.NUMPY``) beside the default (fused when numba is importable; see
+  ``ES_DM_FEEDFORWARD_KERNELS`` in :mod:`es_feedforward.kernels`);
 - ``update_temperature``: ``Feedforward.update_temperature`` (once per temperature message).
 
 Each figure is the best of several repeats of this thread's CPU time (so other processes on
@@ -31,6 +34,7 @@ from functools import partial
 import numpy as np
 
 from es_feedforward.feedforward import Feedforward, FeedforwardConfig, Mode
+from es_feedforward.kernels import Backend
 from es_physics.laws import DEFAULT_V_LIMIT, CompiledLaws
 from es_physics.params import ActuatorParams
 
@@ -86,8 +90,13 @@ def _paired(
     return best, best_floor
 
 
-def bench_kernels(sizes: Sequence[int] = DEFAULT_SIZES, repeats: int = 5) -> list[KernelTiming]:
-    """Time every kernel for every grid size; return one :class:`KernelTiming` per pair."""
+def bench_kernels(
+    sizes: Sequence[int] = DEFAULT_SIZES, repeats: int = 5, numpy_too: bool = False
+) -> list[KernelTiming]:
+    """Time every kernel for every grid size; return one :class:`KernelTiming` per pair.
+
+    ``numpy_too`` adds the observer on the pure-numpy path when the fused one is the default.
+    """
     rows_out: list[KernelTiming] = []
     for size in sizes:
         shape = grid_shape(size)
@@ -113,6 +122,10 @@ def bench_kernels(sizes: Sequence[int] = DEFAULT_SIZES, repeats: int = 5) -> lis
             ff = Feedforward(FeedforwardConfig(shape=shape, params=params, mode=mode))
             ff.update_temperature(T, 0.0)
             kernels[mode.value] = partial(ff.command, z, 0.0)
+            if numpy_too and mode is Mode.OBSERVER and ff.backend is not Backend.NUMPY:
+                plain = Feedforward(ff.config, backend=Backend.NUMPY)
+                plain.update_temperature(T, 0.0)
+                kernels[f"{mode.value}_numpy"] = partial(plain.command, z, 0.0)
         ff = Feedforward(FeedforwardConfig(shape=shape, params=params))
         kernels["update_temperature"] = partial(ff.update_temperature, T, 0.0)
         for name, call in kernels.items():
@@ -126,10 +139,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sizes", default=",".join(map(str, DEFAULT_SIZES)))
     parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--numpy-too", action="store_true",
+                        help="also time the observer on the pure-numpy path")
     args = parser.parse_args(argv)
     sizes = [int(s) for s in args.sizes.split(",")]
     print(f"{'kernel':26s} {'N':>6s} {'us/call':>10s} {'sqrt us':>9s} {'x sqrt':>8s}")
-    for row in bench_kernels(sizes, args.repeats):
+    for row in bench_kernels(sizes, args.repeats, args.numpy_too):
         print(
             f"{row.kernel:26s} {row.size:6d} {row.seconds_per_call * 1e6:10.2f} "
             f"{row.sqrt_seconds_per_call * 1e6:9.3f} {row.ratio_to_sqrt:8.1f}"

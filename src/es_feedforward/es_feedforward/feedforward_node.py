@@ -9,7 +9,9 @@ first), so a lockstep plant never waits; every such held command is counted, rai
 inputs are connected (/dm/setpoint and, except ``uncompensated``, /dm/temperature matched to
 a publisher) ``feedforward: ready`` on /diagnostics says "not ready" (a lockstep plant waits
 for it). Parameters: :mod:`es_feedforward.param_file` names, declared with ranges; a run-time
-change is validated as a whole set and swapped in between two set points.
+change is validated as a whole set and swapped in between two set points. Environment:
+``ES_DM_FEEDFORWARD_KERNELS=numpy`` runs the modes' inner loops in plain numpy instead of the
+fused (numba) ones, same numbers (:mod:`es_feedforward.kernels`).
 """
 
 from __future__ import annotations
@@ -143,7 +145,8 @@ class FeedforwardNode(Node):
     def _on_setpoint(self, msg: Float64MultiArray) -> None:
         self._counts["setpoints"] += 1
         try:
-            setpoint = msg_to_grid(msg, self._core.config.shape)
+            # a view of the received message (not reused by rclpy, never written by the core)
+            setpoint = msg_to_grid(msg, self._core.config.shape, copy=False)
         except LayoutError as err:
             self._hold(f"set point rejected: {err}")
             self._reject(SETPOINT, str(err))  # its diagnostics count the held command
@@ -175,7 +178,7 @@ class FeedforwardNode(Node):
     def _on_temperature(self, msg: Float64MultiArray) -> None:
         self._counts["temperatures"] += 1
         try:
-            temperature = msg_to_grid(msg, self._core.config.shape)
+            temperature = msg_to_grid(msg, self._core.config.shape, copy=False)
         except LayoutError as err:
             self._reject(TEMPERATURE, str(err))
             return

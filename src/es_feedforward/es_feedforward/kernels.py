@@ -16,6 +16,7 @@ it is built, not on the first set point.
 
 from __future__ import annotations
 
+import importlib.util
 import os
 from collections.abc import Callable
 from enum import StrEnum
@@ -44,12 +45,12 @@ class KernelBackendError(RuntimeError):
 
 @cache
 def fused_available() -> bool:
-    """Return whether numba can be imported (the fused kernels need it)."""
-    try:
-        import numba  # noqa: F401
-    except ImportError:
-        return False
-    return True
+    """Return whether numba is installed (the fused kernels need it).
+
+    Looked up without importing it: numba's import takes most of a second, paid only by a
+    feedforward whose mode has a fused kernel (:func:`prepare`).
+    """
+    return importlib.util.find_spec("numba") is not None
 
 
 def default_backend() -> Backend:

@@ -21,7 +21,7 @@ from es_feedforward.feedforward import (
     ObserverGains,
 )
 from es_feedforward.param_file import LAW_FIELDS, LAW_PREFIX, OBSERVER_PREFIX
-from es_msgs_py.node_main import EXECUTOR_PARAMETER, EXECUTORS
+from es_msgs_py.node_main import executor_spec
 from es_msgs_py.params import Check, ParameterSpec
 from es_physics.laws import DEFAULT_V_LIMIT
 from es_physics.params import ActuatorParams
@@ -75,14 +75,7 @@ def parameter_specs() -> list[ParameterSpec]:
     observer_defaults = ObserverGains()
     specs = [
         ParameterSpec("rows", 12, "Grid rows R (actuators).", 1, 1024, read_only=True),
-        ParameterSpec(
-            EXECUTOR_PARAMETER,
-            "events",
-            "Executor: 'events' (rclpy's experimental EventsExecutor, what the 1 kHz x 4096 "
-            "target needs) or 'single_threaded' (rclpy's default, as a fallback).",
-            choices=EXECUTORS,
-            read_only=True,
-        ),
+        executor_spec(),
         ParameterSpec("cols", 12, "Grid columns C (actuators).", 1, 1024, read_only=True),
         ParameterSpec(
             "mode",

@@ -4,8 +4,9 @@ Grid (per actuator): row-major R x C, ``layout.dim = [row(size R, stride R*C),
 col(size C, stride C)]``. Sensors: ``layout.dim = [sensor(size S, stride S)]``. Both with
 ``data_offset == 0`` and ``len(data) == R*C`` (or S).
 
-Conversion copies the buffer once (``array.array.frombytes`` / ``np.frombuffer``); there is
-no per-element Python work, so a 4096-element grid costs a few microseconds.
+Conversion copies the buffer once (``array.array.frombytes`` / ``np.frombuffer``), or not at
+all for a read-only view (``msg_to_grid(..., copy=False)``); there is no per-element Python
+work, so a 4096-element grid costs a few microseconds.
 """
 
 from __future__ import annotations
@@ -70,12 +71,17 @@ def _data_view(msg: Float64MultiArray, expected_len: int) -> FloatArray:
     return data
 
 
-def msg_to_grid(msg: Float64MultiArray, shape: tuple[int, int] | None = None) -> FloatArray:
+def msg_to_grid(
+    msg: Float64MultiArray, shape: tuple[int, int] | None = None, *, copy: bool = True
+) -> FloatArray:
     """Return the R x C grid of a contract message as a new float64 array.
 
     Args:
         msg: the message to read.
         shape: the (R, C) the receiver is configured for; ``None`` accepts any grid.
+        copy: ``False`` returns a read-only view of the message's buffer instead (no copy;
+            it keeps the message's data alive). For a receiver that owns the message (rclpy
+            builds a new one per received sample) and never writes to the grid.
 
     Raises:
         LayoutError: labels, sizes, strides, offset or length do not match the contract or
@@ -99,7 +105,11 @@ def msg_to_grid(msg: Float64MultiArray, shape: tuple[int, int] | None = None) ->
         )
     if shape is not None and (rows, cols) != tuple(shape):
         raise LayoutError(f"grid is {rows} x {cols}, expected {shape[0]} x {shape[1]}")
-    return _data_view(msg, rows * cols).reshape(rows, cols).copy()
+    grid = _data_view(msg, rows * cols).reshape(rows, cols)
+    if copy:
+        return grid.copy()
+    grid.flags.writeable = False
+    return grid
 
 
 def msg_to_sensors(msg: Float64MultiArray, count: int | None = None) -> FloatArray:

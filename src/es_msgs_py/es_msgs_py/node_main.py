@@ -38,6 +38,8 @@ EXECUTOR_PARAMETER: Final = "executor"
 #: on every wake-up. ``events``: rclpy's experimental EventsExecutor (C++ event queue,
 #: callbacks in arrival order), several times cheaper per message.
 EXECUTORS: Final = ("single_threaded", "events")
+#: The executor every node spins on unless its ``executor`` parameter says otherwise.
+DEFAULT_EXECUTOR: Final = "events"
 #: Longest time [s] the events executor spins without returning to Python: its own ``spin()``
 #: ignores SIGINT/SIGTERM (rclpy 7.1), so it is spun in slices and the context is checked.
 EVENTS_SPIN_SLICE: Final = 0.1
@@ -73,6 +75,23 @@ class PublishCounter:
     def log_lines(self) -> list[str]:
         """Return ``published <topic>: <count>`` for every topic, sorted by topic."""
         return [f"published {topic}: {count}" for topic, count in sorted(self.counts.items())]
+
+
+def executor_spec(default: str = DEFAULT_EXECUTOR) -> ParameterSpec:
+    """Return the read-only ``executor`` parameter a node declares to choose its executor.
+
+    Args:
+        default: the node's default, one of :data:`EXECUTORS`.
+
+    """
+    return ParameterSpec(
+        EXECUTOR_PARAMETER,
+        default,
+        "Executor: 'events' (rclpy's experimental EventsExecutor, several times cheaper per "
+        "message) or 'single_threaded' (rclpy's default, as a fallback).",
+        choices=EXECUTORS,
+        read_only=True,
+    )
 
 
 def executor_kind(node: Node) -> str:

@@ -46,7 +46,7 @@ from std_msgs.msg import Float64MultiArray
 from es_msgs_py import topics
 from es_msgs_py.arrays import LayoutError, grid_to_msg, msg_to_grid, sensors_to_msg
 from es_msgs_py.diagnostics import make_array, make_status, ready_nodes
-from es_msgs_py.node_main import run_node, usage_text
+from es_msgs_py.node_main import executor_spec, run_node, usage_text
 from es_msgs_py.param_spec import ParameterValues
 from es_msgs_py.params import declare_parameters
 from es_sim_plant.lockstep import FloatArray, Lockstep
@@ -63,6 +63,10 @@ from es_sim_plant.plant import Plant
 NODE_NAME = "plant"
 #: Period of the wall watchdog that enforces the timeouts [s].
 _WATCHDOG_PERIOD = 0.05
+#: The node's parameters: the configuration's and the executor's. events: about half the
+#: plant's CPU per lockstep step, but the recorder's late match of the thermal node's
+#: estimates (a race) then loses the first ones more often, so single-threaded by default.
+NODE_SPECS = (executor_spec("single_threaded"), *SPECS)
 #: A warning of one kind is logged at most this often [s wall].
 _WARN_THROTTLE = 1.0
 
@@ -81,7 +85,7 @@ class PlantNode(Node):
 
     def __init__(self) -> None:
         super().__init__(NODE_NAME)
-        values = declare_parameters(self, SPECS)
+        values = declare_parameters(self, NODE_SPECS)
         scenario = base_scenario(values)
         switches = ParameterValues(
             {
@@ -278,7 +282,7 @@ class PlantNode(Node):
 def main(args: Sequence[str] | None = None) -> int:
     """Run the plant node until shutdown or, with ``exit_when_done``, the scenario's end."""
     return run_node(
-        PlantNode, args, help_text=usage_text("es_sim_plant plant_node", __doc__ or "", SPECS)
+        PlantNode, args, help_text=usage_text("es_sim_plant plant_node", __doc__ or "", NODE_SPECS)
     )
 
 
