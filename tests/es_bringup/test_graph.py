@@ -66,6 +66,13 @@ def test_duration_time_scale_and_grid_overrides_reach_every_node() -> None:
     assert (nodes[THERMAL]["ready_subscribers"], nodes[FEEDFORWARD]["ready_subscribers"]) == (2, 1)
 
 
+def test_a_real_time_plant_is_no_subscriber_the_thermal_node_waits_for() -> None:
+    # a free-running plant does not subscribe to /dm/temperature (the soak runs this way)
+    nodes = by_name(GraphConfig(scenario="dm_exposure", bag=Path("b"),
+                                plant={"lockstep": False}))  # fmt: skip
+    assert (nodes[THERMAL]["ready_subscribers"], nodes[FEEDFORWARD]["ready_subscribers"]) == (2, 2)
+
+
 def test_a_test_stand_is_plant_and_recorder_only() -> None:
     graph = build_graph(GraphConfig(scenario="characterisation", bag=Path("b"),
                                     with_controllers=False))  # fmt: skip

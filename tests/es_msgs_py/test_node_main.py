@@ -114,6 +114,36 @@ def test_a_hanging_teardown_ends_the_process_with_exit_1_and_its_stack() -> None
     assert "in destroy_node" in done.stderr
 
 
+# Ctrl-C while the node is still being built: rclpy's handler shuts the context down and the
+# constructor's next rcl call fails ("context is invalid").
+STOPPED_WHILE_BUILT = r"""
+import sys
+import rclpy
+from rclpy.node import Node
+from es_msgs_py.node_main import run_node
+
+class StoppedWhileBuilt(Node):
+    def __init__(self):
+        super().__init__("stopped_while_built")
+        rclpy.shutdown()  # what the SIGINT handler does
+        self.create_timer(0.05, lambda: None)
+
+sys.exit(run_node(StoppedWhileBuilt, []))
+"""
+
+
+def test_a_stop_while_the_node_is_built_is_a_clean_exit() -> None:
+    done = subprocess.run(
+        [sys.executable, "-c", STOPPED_WHILE_BUILT],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
+    assert done.returncode == 0, done.stderr
+    assert "Traceback" not in done.stderr
+
+
 @pytest.mark.parametrize(
     ("package", "name"),
     [

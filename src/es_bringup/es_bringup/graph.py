@@ -222,7 +222,8 @@ def _controller_specs(
     # matched it): estimates go to the feedforward, the lockstep plant and the recorder,
     # commands to the plant and the recorder.
     recorder = int(config.bag is not None)
-    synced = int(bool(plant_values.get("sync_temperature", True)))
+    synced = int(bool(plant_values.get("lockstep", True))
+                 and bool(plant_values.get("sync_temperature", True)))
     thermal["ready_subscribers"] = 1 + synced + recorder
     feedforward["ready_subscribers"] = 1 + recorder
     return [

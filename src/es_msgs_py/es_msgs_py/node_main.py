@@ -216,9 +216,10 @@ def run_node(
         pass
     except RuntimeError:
         # rclpy 7.1 can fail a message take that races the context's shutdown ("Unable to
-        # convert call argument", seen in 1 of 50 Ctrl-C stops): that is the stop itself.
-        # With the context still up it is a real error.
-        if node is None or node.context.ok():
+        # convert call argument", seen in 1 of 50 Ctrl-C stops): that is the stop itself, and
+        # so is a Ctrl-C while the node is still being built (its next rcl call fails with
+        # "context is invalid"). With the context still up it is a real error.
+        if node.context.ok() if node is not None else rclpy.ok():
             raise
     except ValueError as err:
         print(f"error: {err}", file=sys.stderr)
