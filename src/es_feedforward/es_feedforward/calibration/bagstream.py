@@ -183,9 +183,8 @@ class BagRecording:
         return self._grid
 
     def _cat(self, topic: str | None, what: str) -> np.ndarray:
-        return np.concatenate(
-            [getattr(b.topics[topic or str(b.temperature_topic)], what) for b in self.bags]
-        )
+        parts = [getattr(b.topics[topic or str(b.temperature_topic)], what) for b in self.bags]
+        return parts[0] if len(parts) == 1 else np.concatenate(parts)  # no copy of one bag
 
     def block(self, columns: IndexArray, shape: tuple[int, int]) -> MeasuredData:
         """Return the screening block's data (the only columns the first pass kept).

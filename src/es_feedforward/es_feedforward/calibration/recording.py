@@ -116,11 +116,15 @@ class _CommandStream:
     def _consume(self, index: IndexArray, values: FloatArray) -> None:
         """Process the next commands in order (``index`` is consecutive from ``self.next``)."""
         finite = np.isfinite(values)
-        self.nan += int((~finite).sum())
-        last = np.where(finite, np.arange(index.size)[:, None], -1)
-        np.maximum.accumulate(last, axis=0, out=last)
-        held = np.where(last >= 0, values[np.maximum(last, 0), np.arange(values.shape[1])],
-                        self.held)
+        bad = int((~finite).sum())
+        self.nan += bad
+        held = values
+        if bad:
+            last = np.where(finite, np.arange(index.size)[:, None], -1)
+            np.maximum.accumulate(last, axis=0, out=last)
+            held = np.where(
+                last >= 0, values[np.maximum(last, 0), np.arange(values.shape[1])], self.held
+            )
         self.held = held[-1].copy()
         lo, hi = np.searchsorted(self.wanted, [index[0], index[-1] + 1])
         local = self.wanted[lo:hi] - index[0]
