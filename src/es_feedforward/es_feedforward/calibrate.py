@@ -57,6 +57,7 @@ from __future__ import annotations
 import argparse
 import sys
 import tempfile
+import time
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -203,7 +204,11 @@ def run(argv: Sequence[str] | None = None) -> int:
     try:
         with tempfile.TemporaryDirectory(prefix=".import-", dir=args.output) as work:
             bags = _as_bags(args.bags, args.map, Path(work), args.quiet)
-            cal = _calibrate(BagRecording(bags), candidates, args)
+            clock = time.perf_counter()
+            recording = BagRecording(bags)
+            first_pass = time.perf_counter() - clock
+            cal = _calibrate(recording, candidates, args)
+            cal.timings_s = {"bag first pass": first_pass, **cal.timings_s}
         # matplotlib and the feedforward configuration are only needed once there is a result
         from es_feedforward.calibration.report import write_report
         from es_feedforward.calibration.schema import (
