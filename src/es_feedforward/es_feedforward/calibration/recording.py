@@ -34,6 +34,10 @@ DISPLACEMENT_ROLE: Final = "displacement"
 MEMORY_BATCH_ROWS: Final = 4096
 
 
+class RecordingError(ValueError):
+    """A recording that does not hold what it promised (a skipped index, a column not kept)."""
+
+
 class Recording(Protocol):
     """A measured run that the calibration reads block-wise and in one streamed pass."""
 
@@ -147,6 +151,9 @@ def gather(
 ) -> Gathered:
     """Collect the whole grid at some samples in one pass over the recording.
 
+    Raises:
+        RecordingError: the recording's batches left a command out.
+
     Args:
         recording: the run.
         samples: stamp-sorted displacement indices to keep (ascending, unique).
@@ -173,7 +180,7 @@ def gather(
         in_kept[in_kept] = kept_sorted[k[in_kept]] == index[in_kept]
         usable += np.isfinite(values[in_kept]).sum(axis=0)
     if stream.pending:
-        raise ValueError("the recording's command batches skipped an index")
+        raise RecordingError("the recording's command batches skipped an index")
     return Gathered(
         displacement=disp,
         command=stream.command,
