@@ -151,15 +151,15 @@ def gather(
 ) -> Gathered:
     """Collect the whole grid at some samples in one pass over the recording.
 
-    Raises:
-        RecordingError: the recording's batches left a command out.
-
     Args:
         recording: the run.
         samples: stamp-sorted displacement indices to keep (ascending, unique).
         kept: every displacement index the alignment kept (for the usable counts).
         commands: stamp-sorted command indices to keep (ascending, unique).
         thresholds: play thresholds [V] whose operators are wanted at ``commands``.
+
+    Raises:
+        RecordingError: the recording's batches left a command out.
 
     """
     A = recording.grid[0] * recording.grid[1]
