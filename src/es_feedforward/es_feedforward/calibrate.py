@@ -16,9 +16,10 @@ sqlite3), then writes into OUTDIR:
   ``law.*`` maps and the ``compensation.*`` of the accepted effects).
 
 Bags are streamed (:mod:`es_feedforward.calibration.bagstream`): two passes in batches of
-messages, the whole grid only at the samples the fit uses, so memory depends on ``--tile``
-and the sample budgets, not on the recording's length. The grid-wide refit runs in actuator
-tiles (:mod:`es_feedforward.calibration.tiles`), serially or as tasks on Dask:
+messages, the whole grid only at the samples the fit uses: what grows with the recording's
+length is the 8 x 8 screening block at full rate and the grid's temperature at the sensor rate
+(1/64 of a 64 x 64 record, and less), not the grid at full rate. The grid-wide refit runs in
+actuator tiles (:mod:`es_feedforward.calibration.tiles`), serially or as tasks on Dask:
 ``--workers N`` starts a local cluster, ``--scheduler tcp://host:port`` uses a running one
 (Dask is imported only then).
 
@@ -110,8 +111,8 @@ def _parser() -> argparse.ArgumentParser:
         "--tile",
         type=int,
         default=DEFAULT_TILE,
-        help="edge of the actuator tiles of the grid-wide refit (default %(default)s); the "
-        "bags are streamed, so memory depends on this and not on the recording's length",
+        help="edge of the actuator tiles of the grid-wide refit (default %(default)s); "
+        "a tile as large as the grid is one joint fit",
     )
     parser.add_argument(
         "--workers",
