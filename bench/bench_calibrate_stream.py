@@ -17,6 +17,7 @@ Nothing is asserted.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import re
 import shutil
@@ -40,6 +41,10 @@ CASES: Final = {
     "64x64_5min_500Hz_1worker": (64, 300.0, 500.0, 1),
     "64x64_5min_500Hz_2workers": (64, 300.0, 500.0, 2),
     "128x128_5min_500Hz": (128, 300.0, 500.0, None),
+    "64x64_1min_500Hz_serial": (64, 60.0, 500.0, None),
+    "64x64_1min_500Hz_1worker": (64, 60.0, 500.0, 1),
+    "64x64_1min_500Hz_2workers": (64, 60.0, 500.0, 2),
+    "128x128_1min_500Hz": (128, 60.0, 500.0, None),
 }
 #: Smaller cases for a quick run (same shapes of work).
 QUICK_CASES: Final = {
@@ -61,6 +66,7 @@ class StreamRun:
     load_before: float
     load_after: float
     status: int
+    steps: str
 
 
 def bag_for(bag_dir: Path, edge: int, duration: float, rate: float) -> Path:
@@ -84,12 +90,15 @@ def measure(name: str, bag: Path, edge: int, workers: int | None, tile: int) -> 
         start = time.perf_counter()
         proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
         wall = time.perf_counter() - start
+        doc = Path(out) / "calibration.json"
+        timings = json.loads(doc.read_text())["timings_s"] if doc.is_file() else {}
     found = _RSS.search(proc.stderr)
     if proc.returncode != 0:
         print(proc.stderr[-2000:], file=sys.stderr)
     size = sum(f.stat().st_size for f in bag.iterdir()) / 1e9
     return StreamRun(name, edge * edge, wall, int(found.group(1)) / 1024 if found else float("nan"),
-                     size, load_before, os.getloadavg()[0], proc.returncode)
+                     size, load_before, os.getloadavg()[0], proc.returncode,
+                     ", ".join(f"{k} {v:.0f} s" for k, v in timings.items()))
 
 
 def run_cases(names: list[str], bag_dir: Path, tile: int, quick: bool = False) -> list[StreamRun]:
@@ -109,7 +118,7 @@ def line(r: StreamRun) -> str:
     """Return one readable line of a run."""
     return (f"calibrate {r.name}: {r.wall_s:.1f} s, peak RSS {r.peak_rss_mb:.0f} MB, bag "
             f"{r.bag_gb:.1f} GB, exit {r.status}, load average {r.load_before:.1f} -> "
-            f"{r.load_after:.1f} (2 cores)")
+            f"{r.load_after:.1f} (2 cores); steps: {r.steps}")
 
 
 def section_calibrate_stream(settings: Settings, results: Results) -> None:

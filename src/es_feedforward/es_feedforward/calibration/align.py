@@ -50,6 +50,8 @@ GAP_DROPS: Final = {
     "temperature": "displacement needing temperature from a gap",
     "command": "displacement in or after a command hole",
 }
+#: Actuators resampled at once by :func:`resample_temperature` (bounds its temporaries).
+RESAMPLE_COLUMNS: Final = 512
 #: Number of interleaved blocks for long records, and the shortest block [s].
 MAX_BLOCKS: Final = 16
 MIN_BLOCK_S: Final = 1.0
@@ -311,20 +313,30 @@ def resample_temperature(
         CalibrationInputError: an actuator has fewer than 2 finite temperatures.
 
     """
-    nan = int((~np.isfinite(values)).sum())
-    temp = _fill_nan_columns(times, values)
     t_period = float(np.median(np.diff(times)))  # > 0: repeated stamps were spread
     n_uniform = int(np.floor((times[-1] - times[0]) / t_period)) + 1
     uniform = times[0] + t_period * np.arange(max(n_uniform, 2))
     pos = np.clip(np.searchsorted(times, uniform, side="right") - 1, 0, len(times) - 2)
-    w = np.clip((uniform - times[pos]) / np.maximum(np.diff(times)[pos], 1e-12), 0, 1)
-    temp_u = temp[pos] * (1.0 - w[:, None]) + temp[pos + 1] * w[:, None]
+    w = np.clip((uniform - times[pos]) / np.maximum(np.diff(times)[pos], 1e-12), 0, 1)[:, None]
     window = _rate_window(t_period)
-    if window <= temp_u.shape[0]:
-        rate = savgol_filter(temp_u, window, 2, deriv=1, delta=t_period, axis=0)
-    else:
-        rate = np.gradient(temp_u, t_period, axis=0)
-    return uniform, temp_u, np.asarray(rate, np.float64), nan
+    temp_u = np.empty((uniform.size, values.shape[1]))
+    rate = np.empty_like(temp_u)
+    nan = 0
+    # in blocks of actuators: a whole grid's temporaries would be several times its size
+    for lo in range(0, values.shape[1], RESAMPLE_COLUMNS):
+        cols = slice(lo, lo + RESAMPLE_COLUMNS)
+        block = values[:, cols]
+        bad = int((~np.isfinite(block)).sum())
+        nan += bad
+        temp = _fill_nan_columns(times, block) if bad else block
+        temp_u[:, cols] = temp[pos] * (1.0 - w) + temp[pos + 1] * w
+        if window <= temp_u.shape[0]:
+            rate[:, cols] = savgol_filter(
+                temp_u[:, cols], window, 2, deriv=1, delta=t_period, axis=0
+            )
+        else:
+            rate[:, cols] = np.gradient(temp_u[:, cols], t_period, axis=0)
+    return uniform, temp_u, rate, nan
 
 
 def temperature_stamps(times: FloatArray) -> FloatArray:

@@ -32,7 +32,7 @@ from es_feedforward.calibration.align import (
 )
 from es_feedforward.calibration.bagio import _listed_topics, _on_grid
 from es_feedforward.calibration.model import FloatArray
-from es_feedforward.calibration.recording import COMMAND_ROLE, DISPLACEMENT_ROLE
+from es_feedforward.calibration.recording import COMMAND_ROLE, DISPLACEMENT_ROLE, RecordingError
 from es_feedforward.calibration.search import screen_block
 from es_msgs_py.bag import FLOAT64_MULTI_ARRAY, BagError, decode_float64_multi_arrays
 from es_msgs_py.bag.stream import BATCH_BYTES, iter_bag
@@ -183,20 +183,19 @@ class BagRecording:
         return self._grid
 
     def _cat(self, topic: str | None, what: str) -> np.ndarray:
-        return np.concatenate(
-            [getattr(b.topics[topic or str(b.temperature_topic)], what) for b in self.bags]
-        )
+        parts = [getattr(b.topics[topic or str(b.temperature_topic)], what) for b in self.bags]
+        return parts[0] if len(parts) == 1 else np.concatenate(parts)  # no copy of one bag
 
     def block(self, columns: IndexArray, shape: tuple[int, int]) -> MeasuredData:
         """Return the screening block's data (the only columns the first pass kept).
 
         Raises:
-            ValueError: ``columns`` are not the screening block of the grid.
+            RecordingError: ``columns`` are not the screening block of the grid.
 
         """
         expected, _ = screen_block(self.grid)
         if not np.array_equal(columns, expected):
-            raise ValueError("a streamed bag keeps only the screening block at full rate")
+            raise RecordingError("a streamed bag keeps only the screening block at full rate")
         temp = self._cat(None, "kept")[:, columns]
         return MeasuredData(
             command_times=self._cat(COMMAND, "times"),

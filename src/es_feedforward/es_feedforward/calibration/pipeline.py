@@ -160,13 +160,16 @@ def _grid_refit(
     recording: Recording,
     aligned: AlignedData,
     states: list[ModelState],
+    *,
+    temperature: tuple[FloatArray, FloatArray, FloatArray],
     tile: int,
     run: TileMap,
 ) -> tuple[list[ModelState], dict[str, int]]:
     """Refit each model of ``states`` on the whole grid in tiles; return them and NaN counts.
 
-    ``aligned`` is the screening block's alignment (the time base of the whole run). One
-    streamed pass gathers the grid at the refit's samples (recording.py).
+    ``aligned`` is the screening block's alignment (the time base of the whole run),
+    ``temperature`` the grid's (align.resample_temperature). One streamed pass gathers the
+    grid at the refit's samples (recording.py).
 
     Raises:
         CalibrationInputError: an actuator has fewer than ``MIN_SAMPLES`` usable samples.
@@ -192,13 +195,7 @@ def _grid_refit(
             f"too short to fit: actuator {worst} has {int(gathered.usable[worst])} usable "
             f"samples (need {MIN_SAMPLES})"
         )
-    times, values = recording.temperature()
-    uniform, temp, rate, temp_nan = resample_temperature(
-        temperature_stamps(times) - aligned.start_time, values
-    )
-    compact = compact_grid(
-        aligned, rows, commands, gathered, temperature=(uniform, temp, rate), grid=grid
-    )
+    compact = compact_grid(aligned, rows, commands, gathered, temperature=temperature, grid=grid)
     halo = 1 if any(s.model.spatial for s in states) else 0
     tiles = layout(grid, tile, halo)
     out: list[ModelState] = []
@@ -208,7 +205,6 @@ def _grid_refit(
     counts = {
         "displacement NaN": gathered.displacement_nan,
         "command NaN": gathered.command_nan,
-        "temperature NaN": temp_nan,
     }
     return out, counts
 
@@ -240,9 +236,13 @@ def calibrate(
     full_grid = block_grid == grid
     if not full_grid:  # the block's model inputs use the whole grid's mean temperature
         times, values = recording.temperature()
-        mean = float(np.mean(resample_temperature(
-            temperature_stamps(times) - block.start_time, values)[1]))
-        block = replace(block, grid_mean_temperature=mean)
+        uniform, temp, rate, temp_nan = resample_temperature(
+            temperature_stamps(times) - block.start_time, values
+        )
+        del values
+        grid_temperature = (uniform, temp, rate)
+        block = replace(block, grid_mean_temperature=float(np.mean(temp)))
+        block.dropped["temperature NaN"] = temp_nan
     aligned = choose_stamp_convention(block)
     timings["align"] = time.perf_counter() - clock
 
@@ -272,7 +272,9 @@ def calibrate(
     if full_grid:
         prefix_states = screened
     else:
-        prefix_states, counts = _grid_refit(recording, aligned, screened, tile, run)
+        prefix_states, counts = _grid_refit(
+            recording, aligned, screened, temperature=grid_temperature, tile=tile, run=run
+        )
         aligned = replace(aligned, dropped={**aligned.dropped, **counts})
     timings["grid refit"] = time.perf_counter() - clock
     clock = time.perf_counter()

@@ -34,6 +34,10 @@ DISPLACEMENT_ROLE: Final = "displacement"
 MEMORY_BATCH_ROWS: Final = 4096
 
 
+class RecordingError(ValueError):
+    """A recording that does not hold what it promised (a skipped index, a column not kept)."""
+
+
 class Recording(Protocol):
     """A measured run that the calibration reads block-wise and in one streamed pass."""
 
@@ -116,11 +120,15 @@ class _CommandStream:
     def _consume(self, index: IndexArray, values: FloatArray) -> None:
         """Process the next commands in order (``index`` is consecutive from ``self.next``)."""
         finite = np.isfinite(values)
-        self.nan += int((~finite).sum())
-        last = np.where(finite, np.arange(index.size)[:, None], -1)
-        np.maximum.accumulate(last, axis=0, out=last)
-        held = np.where(last >= 0, values[np.maximum(last, 0), np.arange(values.shape[1])],
-                        self.held)
+        bad = int((~finite).sum())
+        self.nan += bad
+        held = values
+        if bad:
+            last = np.where(finite, np.arange(index.size)[:, None], -1)
+            np.maximum.accumulate(last, axis=0, out=last)
+            held = np.where(
+                last >= 0, values[np.maximum(last, 0), np.arange(values.shape[1])], self.held
+            )
         self.held = held[-1].copy()
         lo, hi = np.searchsorted(self.wanted, [index[0], index[-1] + 1])
         local = self.wanted[lo:hi] - index[0]
@@ -150,6 +158,9 @@ def gather(
         commands: stamp-sorted command indices to keep (ascending, unique).
         thresholds: play thresholds [V] whose operators are wanted at ``commands``.
 
+    Raises:
+        RecordingError: the recording's batches left a command out.
+
     """
     A = recording.grid[0] * recording.grid[1]
     stream = _CommandStream(commands, thresholds, A)
@@ -169,7 +180,7 @@ def gather(
         in_kept[in_kept] = kept_sorted[k[in_kept]] == index[in_kept]
         usable += np.isfinite(values[in_kept]).sum(axis=0)
     if stream.pending:
-        raise ValueError("the recording's command batches skipped an index")
+        raise RecordingError("the recording's command batches skipped an index")
     return Gathered(
         displacement=disp,
         command=stream.command,
