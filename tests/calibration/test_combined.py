@@ -117,11 +117,16 @@ def test_drive_side_hysteresis_with_constant_weight_alone() -> None:
 
 
 @pytest.mark.slow
-def test_three_operator_hysteresis_gets_more_than_one_operator() -> None:
+def test_three_operator_hysteresis_is_recovered_with_non_negative_weights() -> None:
     cal = calibrate(pi_stand((0.1, 0.15, 0.1), (4.0, 20.0, 60.0)))
     assert [e.name for e in cal.effects] == ["hysteresis"], cal.rounds
     p = cal.effects[0].parameters
-    assert "weight_2" in p, p
+    thresholds = [p["threshold_v"], p["threshold_v_2"], p["threshold_v_3"]]
+    weights = [p["weight"], p["weight_2"], p["weight_3"]]
+    assert "weight_4" not in p, p
+    order = np.argsort(thresholds)
+    np.testing.assert_allclose(np.array(thresholds)[order], [4.0, 20.0, 60.0], rtol=0.1)
+    np.testing.assert_allclose(np.array(weights)[order], [0.1, 0.15, 0.1], rtol=0.15)
     assert cal.final.heldout_rms <= 1.2 * NOISE, (cal.final.heldout_rms, p)
 
 

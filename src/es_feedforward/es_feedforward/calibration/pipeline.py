@@ -27,7 +27,13 @@ from es_feedforward.calibration.search import (
     refit_full,
     screen_block,
 )
-from es_feedforward.calibration.selection import RoundRecord, search_effects
+from es_feedforward.calibration.selection import (
+    MIN_RELATIVE_GAIN,
+    RoundRecord,
+    Step,
+    search_effects,
+    subset_state,
+)
 from es_physics.effects import get
 
 #: Actuators whose full-rate held-out residual is analysed (spectra, correlations).
@@ -131,6 +137,43 @@ def _unexplained(after: ResidualStructure, final_rms: float) -> list[str]:
     return unexplained.describe(after, final_rms, NOISE_RATIO_LIMIT)
 
 
+def _screened(
+    aligned: AlignedData, candidates: tuple[str, ...]
+) -> tuple[Workspace, ModelState, ModelState, list[Step], list[RoundRecord]]:
+    """Search the effects on the screening block: (workspace, base, final, steps, rounds)."""
+    idx, grid = screen_block(aligned.grid)
+    screen = Workspace(aligned, idx, grid)
+    base = base_state(screen)
+    final, added, rounds = search_effects(screen, base, candidates)
+    return screen, base, final, added, rounds
+
+
+def _search(
+    aligned: AlignedData, candidates: tuple[str, ...]
+) -> tuple[AlignedData, Workspace, ModelState, ModelState, list[Step], list[RoundRecord]]:
+    """Search the effects; with lock-step stamps, check the stamp convention once more.
+
+    The convention (is a command in effect at its own stamp?) was chosen with the plain law;
+    an effect the law lacks can make that choice wrong, which leaves a one-period timing
+    error. Unless the final model shifts the command itself, it is refitted with the other
+    convention; when that cuts its held-out RMS by ``MIN_RELATIVE_GAIN``, the search runs
+    again with it and the better of the two finals is kept.
+    """
+    screen, base, final, added, rounds = _screened(aligned, candidates)
+    if not aligned.has_same_stamps or not final.model.effects or final.model.shift:
+        return aligned, screen, base, final, added, rounds
+    other = replace(aligned, include_same_stamp=not aligned.include_same_stamp)
+    refit = subset_state(
+        Workspace(other, screen.actuators, screen.grid), final, final.model.effects
+    )
+    if refit.heldout_rms >= (1.0 - MIN_RELATIVE_GAIN) * final.heldout_rms:
+        return aligned, screen, base, final, added, rounds
+    second = _screened(other, candidates)
+    if second[2].heldout_rms < final.heldout_rms:
+        return (other, *second)
+    return aligned, screen, base, final, added, rounds
+
+
 def calibrate(measured: MeasuredData, candidates: tuple[str, ...] = CANDIDATES) -> Calibration:
     """Run the whole calibration on ``measured``; raise CalibrationInputError on bad data."""
     timings: dict[str, float] = {}
@@ -139,10 +182,11 @@ def calibrate(measured: MeasuredData, candidates: tuple[str, ...] = CANDIDATES) 
     timings["align"] = time.perf_counter() - clock
 
     clock = time.perf_counter()
-    idx, grid = screen_block(aligned.grid)
-    screen = Workspace(aligned, idx, grid)
-    base_screen = base_state(screen)
-    full_grid = idx.size == aligned.n_actuators
+    aligned, screen, base_screen, final_screen, added, rounds = _search(aligned, candidates)
+    timings["effect search"] = time.perf_counter() - clock
+
+    clock = time.perf_counter()
+    full_grid = screen.actuators.size == aligned.n_actuators
     if full_grid:
         base_full = base_screen
     else:
@@ -153,10 +197,6 @@ def calibrate(measured: MeasuredData, candidates: tuple[str, ...] = CANDIDATES) 
     analysis = _Analysis(aligned)
     before, resid_before = analysis.analyse(base_screen)
     timings["residual analysis"] = time.perf_counter() - clock
-
-    clock = time.perf_counter()
-    final_screen, added, rounds = search_effects(screen, base_screen, candidates)
-    timings["effect search"] = time.perf_counter() - clock
 
     clock = time.perf_counter()
     prefix_states = [base_full]

@@ -133,11 +133,13 @@ def _rescan_shift(ws: Workspace, state: ModelState) -> ModelState:
 def _shift_states(
     ws: Workspace, state: ModelState, model: CompositeModel, local0: FloatArray
 ) -> list[ModelState]:
-    """Scan command shifts with the current law, then refit around the best one.
+    """Scan command shifts with the current law, then refit along the best period.
 
-    Whole command periods first (1 to ``MAX_DELAY_PERIODS``), then fractions of a period in
-    steps of ``DELAY_STEP`` within a period either side of the best whole shift; the best
-    fractional shift and its two neighbours are refitted.
+    Whole command periods first (1 to ``MAX_DELAY_PERIODS``, the current law held: a cheap
+    way to find the right period); then, within a period either side of the best whole
+    shift, a golden-section search of the training cost with the law refitted at every trial
+    shift (a law fitted without the shift is biased towards whole shifts), on the grid of
+    ``DELAY_STEP`` fractions of a period. Every refitted trial is returned.
     """
     period = ws.aligned.command_period
     thresholds = state.play_thresholds
@@ -151,27 +153,37 @@ def _shift_states(
 
     whole = np.arange(1, n_max + 1, dtype=np.float64)
     best_j = float(whole[int(np.argmin([cost(j) for j in whole]))])
-    steps = round(1.0 / DELAY_STEP)
-    fine = best_j + DELAY_STEP * np.arange(-steps, steps + 1)
-    fine = fine[(fine >= DELAY_STEP) & (fine <= n_max)]
-    fine_costs = [cost(d) for d in fine]
-    i = int(np.argmin(fine_costs))
-    chosen = [float(fine[i])]
-    if fine_costs[i] <= state.fit.total_cost:  # worth refitting the neighbours too
-        chosen = [float(d) for d in fine[max(i - 1, 0) : i + 2]]
-    out = []
-    for d in chosen:
-        train, held = ws.input_pair(d * period, thresholds)
-        out.append(
-            fit_state(
+    tried: dict[int, ModelState] = {}
+
+    def refit(step: int) -> float:
+        if step not in tried:
+            d = step * DELAY_STEP * period
+            train, held = ws.input_pair(d, thresholds)
+            tried[step] = fit_state(
                 model,
                 train,
                 held,
                 local0,
                 extend_global(state, model, {}),
-                delay_s=d * period,
+                delay_s=d,
                 thresholds=state.thresholds,
                 max_iter=15,
             )
-        )
-    return out
+        return tried[step].fit.total_cost
+
+    per_period = round(1.0 / DELAY_STEP)
+    lo = max(round(best_j * per_period) - per_period, 1)
+    hi = min(round(best_j * per_period) + per_period, n_max * per_period)
+    golden = (5.0**0.5 - 1.0) / 2.0
+    while hi - lo > 3:
+        c = round(hi - golden * (hi - lo))
+        d = round(lo + golden * (hi - lo))
+        if c == d:
+            d = c + 1
+        if refit(c) <= refit(d):
+            hi = d
+        else:
+            lo = c
+    for step in range(lo, hi + 1):
+        refit(step)
+    return list(tried.values())
