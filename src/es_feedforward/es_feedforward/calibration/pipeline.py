@@ -18,6 +18,7 @@ from es_feedforward.calibration.align import AlignedData, MeasuredData, align
 from es_feedforward.calibration.model import CANDIDATES, FloatArray
 from es_feedforward.calibration.residual import ResidualStructure, analyse
 from es_feedforward.calibration.search import (
+    MIN_RELATIVE_GAIN,
     ModelState,
     Workspace,
     base_state,
@@ -28,7 +29,6 @@ from es_feedforward.calibration.search import (
     screen_block,
 )
 from es_feedforward.calibration.selection import (
-    MIN_RELATIVE_GAIN,
     RoundRecord,
     Step,
     search_effects,

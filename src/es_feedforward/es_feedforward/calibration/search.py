@@ -33,6 +33,9 @@ FIT_SAMPLES: Final = 6000
 FIT_BUDGET: Final = 2_000_000
 SCORE_SAMPLES: Final = 20000
 SCORE_BUDGET: Final = 3_000_000
+#: Smallest relative cut of the held-out RMS that counts as an improvement (an effect, an
+#: operator, a stamp convention).
+MIN_RELATIVE_GAIN: Final = 0.01
 
 
 @dataclass

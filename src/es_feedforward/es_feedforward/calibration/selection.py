@@ -24,6 +24,7 @@ from typing import Final
 from es_feedforward.calibration.model import CANDIDATES, CompositeModel
 from es_feedforward.calibration.scans import candidate_states
 from es_feedforward.calibration.search import (
+    MIN_RELATIVE_GAIN,
     ModelState,
     Workspace,
     effect_parameters,
@@ -34,8 +35,6 @@ from es_feedforward.calibration.search import (
 )
 from es_physics.effects import Role, get
 
-#: Smallest relative cut of the held-out RMS that counts as an improvement.
-MIN_RELATIVE_GAIN: Final = 0.01
 #: Held-out RMS below which nothing is worth explaining [m] (far below interferometer noise).
 RESOLUTION_FLOOR_M: Final = 1e-12
 
