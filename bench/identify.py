@@ -110,6 +110,7 @@ def run_sweep(cases: Sequence[Case], jobs: int = 1, keep: Path | None = None,
     partial report while a long sweep runs).
     """
     outcomes: list[Outcome] = []
+    order = interleaved(cases)
 
     def report(o: Outcome) -> None:
         if progress is not None:
@@ -122,16 +123,38 @@ def run_sweep(cases: Sequence[Case], jobs: int = 1, keep: Path | None = None,
                   file=sys.stderr, flush=True)
 
     if jobs <= 1:
-        for case in cases:
+        for case in order:
             outcomes.append(run_case(case, keep, keep_bags))
             report(outcomes[-1])
-        return outcomes
-    with ProcessPoolExecutor(max_workers=jobs) as pool:
-        futures = [pool.submit(run_case, case, keep, keep_bags) for case in cases]
-        for future in futures:
-            outcomes.append(future.result())
-            report(outcomes[-1])
-    return outcomes
+    else:
+        with ProcessPoolExecutor(max_workers=jobs) as pool:
+            futures = [pool.submit(run_case, case, keep, keep_bags) for case in order]
+            for future in futures:
+                outcomes.append(future.result())
+                report(outcomes[-1])
+    rank = {c.name: i for i, c in enumerate(cases)}
+    return sorted(outcomes, key=lambda o: rank[o.case])
+
+
+def interleaved(cases: Sequence[Case]) -> list[Case]:
+    """Return ``cases`` taking clean, single-effect and pair cases in turn.
+
+    A sweep cut short (or its partial report) then holds every kind in proportion.
+    """
+    kinds: dict[int, list[Case]] = {}
+    for case in cases:
+        kinds.setdefault(min(len(case.truth), 2), []).append(case)
+    out: list[Case] = []
+    queues = [kinds[k] for k in sorted(kinds)]
+    total = len(cases)
+    taken = [0] * len(queues)
+    while len(out) < total:
+        # the kind furthest behind its share of the sweep goes next
+        k = min((i for i in range(len(queues)) if taken[i] < len(queues[i])),
+                key=lambda i: taken[i] / len(queues[i]))
+        out.append(queues[k][taken[k]])
+        taken[k] += 1
+    return out
 
 
 def _pct(value: float | None) -> str:

@@ -16,7 +16,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
 
-from identify import main, run_case
+from identify import interleaved, main, run_case
 from standgen import StandConfig
 from standgen.effects import Delay, Effects, Hysteresis, ThermalExpansion
 from standgen.ranges import FAMILIES
@@ -80,6 +80,17 @@ def test_full_sweep_covers_families_pairs_and_conditions() -> None:
     assert {t for c in quick for t in c.truth} == set(FAMILIES)
     outcome = Outcome("x", (), (), conditions=cases[0].describe())
     assert by_condition([outcome], "grid") == {"1x1": (1, 1)}
+
+
+def test_cases_run_interleaved_so_a_partial_sweep_holds_every_kind() -> None:
+    cases = build_cases()
+    order = interleaved(cases)
+    assert sorted(c.name for c in order) == sorted(c.name for c in cases)
+    third = order[: len(order) // 3]
+    kinds = [min(len(c.truth), 2) for c in cases]
+    for kind in (0, 1, 2):  # each kind within one case of its share of the first third
+        share = kinds.count(kind) / len(cases) * len(third)
+        assert abs(sum(min(len(c.truth), 2) == kind for c in third) - share) <= 1.0
 
 
 def _case(name: str, effects: Effects, storage: str = "mcap",
