@@ -37,6 +37,18 @@ RESCAN_PERIODS: Final = 2.5
 RESCAN_COARSE: Final = 0.25
 
 
+def lowest_shift(ws: Workspace) -> float:
+    """Return the smallest command shift searched [command periods]: a delay of DELAY_STEP.
+
+    With lock-step stamps and a command not yet in effect at its own stamp, a shift of s is a
+    delay of s + 1 period, so the shift may be down to DELAY_STEP - 1 (a fractional delay
+    below one period).
+    """
+    a = ws.aligned
+    late = a.has_same_stamps and not a.include_same_stamp
+    return DELAY_STEP - (1.0 if late else 0.0)
+
+
 def candidate_states(
     ws: Workspace, state: ModelState, name: str, duration: float
 ) -> list[ModelState]:
@@ -114,7 +126,7 @@ def _rescan_shift(ws: Workspace, state: ModelState) -> ModelState:
     for half_width, step in ((RESCAN_PERIODS, RESCAN_COARSE), (RESCAN_COARSE, DELAY_STEP)):
         steps = round(half_width / step)
         grid = best + step * np.arange(-steps, steps + 1)
-        grid = grid[grid >= DELAY_STEP - 1e-9]
+        grid = grid[grid >= lowest_shift(ws) - 1e-9]
         best = float(grid[int(np.argmin([cost(d) for d in grid]))])
     if abs(best - center) < 0.5 * DELAY_STEP:
         return state
@@ -151,7 +163,8 @@ def _shift_states(
         pred = state.model.evaluate(state.fit.local, state.fit.glob, shifted, False).prediction
         return float(np.sum(np.where(shifted.valid, shifted.displacement - pred, 0.0) ** 2))
 
-    whole = np.arange(1, n_max + 1, dtype=np.float64)
+    lowest = lowest_shift(ws)
+    whole = np.arange(np.ceil(lowest), n_max + 1, dtype=np.float64)
     best_j = float(whole[int(np.argmin([cost(j) for j in whole]))])
     tried: dict[int, ModelState] = {}
 
@@ -172,7 +185,7 @@ def _shift_states(
         return tried[step].fit.total_cost
 
     per_period = round(1.0 / DELAY_STEP)
-    lo = max(round(best_j * per_period) - per_period, 1)
+    lo = max(round(best_j * per_period) - per_period, round(lowest * per_period))
     hi = min(round(best_j * per_period) + per_period, n_max * per_period)
     golden = (5.0**0.5 - 1.0) / 2.0
     while hi - lo > 3:
