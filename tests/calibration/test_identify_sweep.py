@@ -147,18 +147,20 @@ def test_command_line_writes_markdown_and_json(tmp_path: Path) -> None:
 
 
 @pytest.mark.slow
-def test_quick_sweep_pair_hysteresis_and_coupling_is_identified(tmp_path: Path) -> None:
-    # failed before the play operators' unknown start state was left out of the fit (a
-    # spurious drift explained the start) and the thresholds were screened by NNLS
-    case = next(c for c in build_cases(quick=True) if c.name == "hysteresis+coupling")
+@pytest.mark.timeout(900)  # one 2 kHz case; minutes when the machine is shared
+def test_quick_sweep_pair_delay_and_thermal_expansion_is_identified(tmp_path: Path) -> None:
+    # failed before with a spurious small-threshold hysteresis: the fractional delay was
+    # found with a law fitted without it (biased towards whole periods) and the command
+    # period from the median of float-rounded stamps
+    case = next(c for c in build_cases(quick=True) if c.name == "delay+thermal_expansion")
     outcome = run_case(case, keep=tmp_path)
     assert outcome.error == "", outcome.error
     assert outcome.accepted is not None and set(outcome.accepted) == set(case.truth)
     doc = json.loads((tmp_path / f"{case.name}.json").read_text())
     found = {e["name"]: e["parameters"] for e in doc["effects"]}
-    truth = case.config.effects.hysteresis
-    assert truth is not None and len(truth.thresholds_v) == 1
-    assert found["hysteresis"]["threshold_v"] == pytest.approx(truth.thresholds_v[0], rel=0.05)
-    assert found["hysteresis"]["weight"] == pytest.approx(truth.weights[0], rel=0.1)
+    truth = case.config.effects.delay
+    assert truth is not None
+    period = 1.0 / case.config.rate_hz
+    assert abs(found["delay"]["delay_s"] - truth.delay_s) <= 0.1 * period
     assert outcome.heldout_rms_after_m is not None
     assert outcome.heldout_rms_after_m <= 1.2 * case.config.noise_rms_m
