@@ -11,6 +11,7 @@ other effect is fitted from each of its own starting points
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Final
 
 import numpy as np
@@ -33,6 +34,8 @@ MAX_DELAY_PERIODS: Final = 40
 DELAY_STEP: Final = 0.05
 #: A shift found earlier is scanned again this many command periods either side.
 RESCAN_PERIODS: Final = 2.5
+#: An accepted shift is refined (every trial refitted) this many command periods either side.
+REFINE_PERIODS: Final = 0.5
 #: Step of the rescan's first, coarse pass [command periods].
 RESCAN_COARSE: Final = 0.25
 
@@ -187,16 +190,55 @@ def _shift_states(
     per_period = round(1.0 / DELAY_STEP)
     lo = max(round(best_j * per_period) - per_period, round(lowest * per_period))
     hi = min(round(best_j * per_period) + per_period, n_max * per_period)
+    _golden(refit, lo, hi)
+    return list(tried.values())
+
+
+def _golden(cost: Callable[[int], float], lo: int, hi: int) -> int:
+    """Return the step in [lo, hi] of least ``cost`` (golden section, then the last few)."""
     golden = (5.0**0.5 - 1.0) / 2.0
     while hi - lo > 3:
         c = round(hi - golden * (hi - lo))
         d = round(lo + golden * (hi - lo))
         if c == d:
             d = c + 1
-        if refit(c) <= refit(d):
+        if cost(c) <= cost(d):
             hi = d
         else:
             lo = c
-    for step in range(lo, hi + 1):
-        refit(step)
-    return list(tried.values())
+    return min(range(lo, hi + 1), key=cost)
+
+
+def refine_shift(ws: Workspace, state: ModelState) -> ModelState:
+    """Return ``state`` with its shift refined within ``REFINE_PERIODS``, all refitted.
+
+    The shift was found before the effects added after it; a law and effects fitted at the
+    old shift hold a scan with them fixed near it, so here every trial shift is refitted
+    (golden section on ``DELAY_STEP`` steps). Without a shift, or with it alone, ``state``.
+    """
+    if state.model.shift is None or len(state.model.effects) < 2:
+        return state
+    period = ws.aligned.command_period
+    tried: dict[int, ModelState] = {}
+
+    def refit(step: int) -> float:
+        if step not in tried:
+            d = step * DELAY_STEP * period
+            train, held = ws.input_pair(d, state.play_thresholds)
+            tried[step] = fit_state(
+                state.model,
+                train,
+                held,
+                state.fit.local,
+                state.fit.glob,
+                delay_s=d,
+                thresholds=state.thresholds,
+                max_iter=15,
+            )
+        return tried[step].fit.total_cost
+
+    center = round(state.delay_s / period / DELAY_STEP)
+    half = round(REFINE_PERIODS / DELAY_STEP)
+    lowest = round(lowest_shift(ws) / DELAY_STEP)
+    best = tried[_golden(refit, max(center - half, lowest), center + half)]
+    return best if best.fit.total_cost < state.fit.total_cost else state

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 from typing import Final
 
 from es_feedforward.calibration.model import CANDIDATES, CompositeModel
-from es_feedforward.calibration.scans import candidate_states
+from es_feedforward.calibration.scans import candidate_states, refine_shift
 from es_feedforward.calibration.search import (
     MIN_RELATIVE_GAIN,
     ModelState,
@@ -209,6 +209,7 @@ def search_effects(
         rounds.append(record)
         if new is None or record.added is None:
             break
+        new = refine_shift(ws, new)
         added.append((record.added, state, new))
         state = new
     removed = False
