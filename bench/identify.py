@@ -33,7 +33,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any, Final
@@ -102,11 +102,19 @@ def run_case(case: Case, keep: Path | None = None, keep_bag: bool = False) -> Ou
 
 
 def run_sweep(cases: Sequence[Case], jobs: int = 1, keep: Path | None = None,
-              log: bool = True, keep_bags: bool = False) -> list[Outcome]:
-    """Run every case (``jobs`` processes at once); outcomes in the order of ``cases``."""
+              log: bool = True, keep_bags: bool = False, *,
+              progress: Callable[[list[Outcome]], None] | None = None) -> list[Outcome]:
+    """Run every case (``jobs`` processes at once); outcomes in the order of ``cases``.
+
+    ``progress`` is called with the outcomes so far after each case (e.g. to write a
+    partial report while a long sweep runs).
+    """
     outcomes: list[Outcome] = []
+    order = interleaved(cases)
 
     def report(o: Outcome) -> None:
+        if progress is not None:
+            progress(outcomes)
         if log:
             found = "(failed: " + o.error + ")" if o.accepted is None else (
                 "+".join(o.accepted) or "none")
@@ -115,16 +123,38 @@ def run_sweep(cases: Sequence[Case], jobs: int = 1, keep: Path | None = None,
                   file=sys.stderr, flush=True)
 
     if jobs <= 1:
-        for case in cases:
+        for case in order:
             outcomes.append(run_case(case, keep, keep_bags))
             report(outcomes[-1])
-        return outcomes
-    with ProcessPoolExecutor(max_workers=jobs) as pool:
-        futures = [pool.submit(run_case, case, keep, keep_bags) for case in cases]
-        for future in futures:
-            outcomes.append(future.result())
-            report(outcomes[-1])
-    return outcomes
+    else:
+        with ProcessPoolExecutor(max_workers=jobs) as pool:
+            futures = [pool.submit(run_case, case, keep, keep_bags) for case in order]
+            for future in futures:
+                outcomes.append(future.result())
+                report(outcomes[-1])
+    rank = {c.name: i for i, c in enumerate(cases)}
+    return sorted(outcomes, key=lambda o: rank[o.case])
+
+
+def interleaved(cases: Sequence[Case]) -> list[Case]:
+    """Return ``cases`` taking clean, single-effect and pair cases in turn.
+
+    A sweep cut short (or its partial report) then holds every kind in proportion.
+    """
+    kinds: dict[int, list[Case]] = {}
+    for case in cases:
+        kinds.setdefault(min(len(case.truth), 2), []).append(case)
+    out: list[Case] = []
+    queues = [kinds[k] for k in sorted(kinds)]
+    total = len(cases)
+    taken = [0] * len(queues)
+    while len(out) < total:
+        # the kind furthest behind its share of the sweep goes next
+        k = min((i for i in range(len(queues)) if taken[i] < len(queues[i])),
+                key=lambda i: taken[i] / len(queues[i]))
+        out.append(queues[k][taken[k]])
+        taken[k] += 1
+    return out
 
 
 def _pct(value: float | None) -> str:
@@ -205,9 +235,14 @@ def write_results(out: Path, outcomes: Sequence[Outcome], settings: dict[str, An
     document = {"settings": settings, "summary": summary, "goals": goal_lines(summary),
                 "cases": [o.as_dict() for o in outcomes]}
     (out / "identify.json").write_text(json.dumps(document, indent=1) + "\n")
+    done, total = settings.get("cases_done", len(outcomes)), settings.get("cases_total")
+    partial = f" PARTIAL: {done} of {total} cases so far." if total and done < total else ""
+    load = settings.get("load_average")
     header = (f"{settings['date']}, {settings['cores']} cores, jobs {settings['jobs']}, "
-              f"{settings['wall_s']:.0f} s wall. Command: `{settings['command']}`. Bags from "
-              "bench/standgen (independent of es_sim_plant and the calibration).")
+              f"{settings['wall_s']:.0f} s wall"
+              + (f", 1-min load average {load:.1f} at the end" if load is not None else "")
+              + f". Command: `{settings['command']}`. Bags from "
+              "bench/standgen (independent of es_sim_plant and the calibration)." + partial)
     (out / "identify.md").write_text(markdown(summary, outcomes, header))
     return summary
 
@@ -233,19 +268,28 @@ def main(argv: Sequence[str] | None = None) -> int:
             return 2
         cases = [c for c in cases if c.name in set(args.only)]
     start = time.monotonic()
+
+    def settings(done: int) -> dict[str, Any]:
+        return {
+            "date": dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC"),
+            "command": " ".join(["bench/identify.py",
+                                 *(argv if argv is not None else sys.argv[1:])]),
+            "quick": args.quick, "jobs": args.jobs, "seed": args.seed, "cores": os.cpu_count(),
+            "wall_s": time.monotonic() - start, "cases_done": done, "cases_total": len(cases),
+            "load_average": os.getloadavg()[0],
+        }
+
+    def partial(done: list[Outcome]) -> None:
+        if len(done) < len(cases):  # a partial report while the sweep runs
+            write_results(args.output, done, settings(len(done)))
+
     try:
         outcomes = run_sweep(cases, jobs=args.jobs, keep=args.output / "cases",
-                             keep_bags=args.keep_bags)
+                             keep_bags=args.keep_bags, progress=partial)
     except (ValueError, OSError) as err:
         print(f"identify: a case could not be generated: {err}".splitlines()[0], file=sys.stderr)
         return 1
-    settings = {
-        "date": dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC"),
-        "command": " ".join(["bench/identify.py", *(argv if argv is not None else sys.argv[1:])]),
-        "quick": args.quick, "jobs": args.jobs, "seed": args.seed, "cores": os.cpu_count(),
-        "wall_s": time.monotonic() - start,
-    }
-    summary = write_results(args.output, outcomes, settings)
+    summary = write_results(args.output, outcomes, settings(len(outcomes)))
     for line in goal_lines(summary):
         print(f"[identify] {line}", file=sys.stderr)
     print(f"[identify] wrote {args.output / 'identify.md'} and {args.output / 'identify.json'}",

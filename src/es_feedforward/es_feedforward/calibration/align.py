@@ -145,10 +145,17 @@ class AlignedData:
 
     @cached_property
     def command_period(self) -> float:
-        """Return the median command period [s]."""
+        """Return the command period [s]: the mean of the steps within 10 % of the median.
+
+        The mean, not the median: stamps rounded to a float's resolution quantise each step,
+        and a shift of many periods must not add up that rounding. A streamed recording
+        gives it (``command_period_s``) from the whole run's stamps.
+        """
         if self.command_period_s is not None:
             return self.command_period_s
-        return float(np.median(np.diff(self.command_times)))
+        steps = np.diff(self.command_times)
+        median = float(np.median(steps))
+        return float(np.mean(steps[np.abs(steps - median) <= 0.1 * median]))
 
     @cached_property
     def mean_temperature(self) -> float:
@@ -160,7 +167,7 @@ class AlignedData:
     @property
     def stamp_tolerance(self) -> float:
         """Return the distance [s] below which two stamps count as the same instant."""
-        return 1e-3 * self.command_period
+        return 1e-2 * self.command_period
 
     @property
     def has_same_stamps(self) -> bool:

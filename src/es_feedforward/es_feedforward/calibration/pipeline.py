@@ -28,6 +28,7 @@ from es_feedforward.calibration.model import CANDIDATES, FloatArray
 from es_feedforward.calibration.recording import MemoryRecording, Recording, gather
 from es_feedforward.calibration.residual import ResidualStructure, analyse
 from es_feedforward.calibration.search import (
+    MIN_RELATIVE_GAIN,
     ModelState,
     Workspace,
     base_state,
@@ -36,7 +37,7 @@ from es_feedforward.calibration.search import (
     heldout_residual,
     screen_block,
 )
-from es_feedforward.calibration.selection import RoundRecord, search_effects
+from es_feedforward.calibration.selection import RoundRecord, Step, search_effects, subset_state
 from es_feedforward.calibration.tiles import (
     DEFAULT_TILE,
     TileMap,
@@ -209,6 +210,42 @@ def _grid_refit(
     return out, counts
 
 
+def _screened(
+    aligned: AlignedData, block_grid: tuple[int, int], candidates: tuple[str, ...]
+) -> tuple[Workspace, ModelState, ModelState, list[Step], list[RoundRecord]]:
+    """Search the effects on the screening block: (workspace, base, final, steps, rounds)."""
+    screen = Workspace(aligned, np.arange(aligned.n_actuators, dtype=np.intp), block_grid)
+    base = base_state(screen)
+    final, added, rounds = search_effects(screen, base, candidates)
+    return screen, base, final, added, rounds
+
+
+def _search(
+    aligned: AlignedData, block_grid: tuple[int, int], candidates: tuple[str, ...]
+) -> tuple[AlignedData, Workspace, ModelState, ModelState, list[Step], list[RoundRecord]]:
+    """Search the effects; with lock-step stamps, check the stamp convention once more.
+
+    The convention (is a command in effect at its own stamp?) was chosen with the plain law;
+    an effect the law lacks can make that choice wrong, which leaves a one-period timing
+    error. Unless the final model shifts the command itself, it is refitted with the other
+    convention; when that cuts its held-out RMS by ``MIN_RELATIVE_GAIN``, the search runs
+    again with it and the better of the two finals is kept.
+    """
+    screen, base, final, added, rounds = _screened(aligned, block_grid, candidates)
+    if not aligned.has_same_stamps or not final.model.effects or final.model.shift:
+        return aligned, screen, base, final, added, rounds
+    other = replace(aligned, include_same_stamp=not aligned.include_same_stamp)
+    refit = subset_state(
+        Workspace(other, screen.actuators, screen.grid), final, final.model.effects
+    )
+    if refit.heldout_rms >= (1.0 - MIN_RELATIVE_GAIN) * final.heldout_rms:
+        return aligned, screen, base, final, added, rounds
+    second = _screened(other, block_grid, candidates)
+    if second[2].heldout_rms < final.heldout_rms:
+        return (other, *second)
+    return aligned, screen, base, final, added, rounds
+
+
 def calibrate(
     measured: MeasuredData | Recording,
     candidates: tuple[str, ...] = CANDIDATES,
@@ -247,17 +284,9 @@ def calibrate(
     timings["align"] = time.perf_counter() - clock
 
     clock = time.perf_counter()
-    screen = Workspace(aligned, np.arange(idx.size, dtype=np.intp), block_grid)
-    base_screen = base_state(screen)
-    timings["base fit"] = time.perf_counter() - clock
-
-    clock = time.perf_counter()
-    analysis = _Analysis(aligned)
-    before, resid_before = analysis.analyse(base_screen)
-    timings["residual analysis"] = time.perf_counter() - clock
-
-    clock = time.perf_counter()
-    final_screen, added, rounds = search_effects(screen, base_screen, candidates)
+    aligned, screen, base_screen, final_screen, added, rounds = _search(
+        aligned, block_grid, candidates
+    )
     record, refined = per_actuator_round(screen, final_screen)
     if record is not None:
         rounds.append(record)
@@ -266,6 +295,11 @@ def calibrate(
         added[-1] = (name, before_state, refined)
         final_screen = refined
     timings["effect search"] = time.perf_counter() - clock
+
+    clock = time.perf_counter()
+    analysis = _Analysis(aligned)
+    before, resid_before = analysis.analyse(base_screen)
+    timings["residual analysis"] = time.perf_counter() - clock
 
     clock = time.perf_counter()
     screened = [base_screen] + [after_state for _, _, after_state in added]

@@ -21,6 +21,7 @@ import numpy as np
 
 from es_feedforward.calibration.model import CompositeModel, FitInputs, FloatArray
 from es_feedforward.calibration.search import (
+    MIN_RELATIVE_GAIN,
     ModelState,
     Workspace,
     effect_parameters,
@@ -39,8 +40,6 @@ ZOOM_POINTS: Final = 9
 ZOOM_LEVELS: Final = 2
 #: Most (samples x actuators x thresholds) values of one linearised screening.
 SCREEN_BUDGET: Final = 6_000_000
-#: Smallest relative cut of the held-out RMS an extra operator must bring.
-MIN_RELATIVE_GAIN: Final = 0.01
 
 NormalEquations = tuple[FloatArray, FloatArray]
 

@@ -11,6 +11,7 @@ other effect is fitted from each of its own starting points
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Final
 
 import numpy as np
@@ -33,8 +34,22 @@ MAX_DELAY_PERIODS: Final = 40
 DELAY_STEP: Final = 0.05
 #: A shift found earlier is scanned again this many command periods either side.
 RESCAN_PERIODS: Final = 2.5
+#: An accepted shift is refined (every trial refitted) this many command periods either side.
+REFINE_PERIODS: Final = 0.5
 #: Step of the rescan's first, coarse pass [command periods].
 RESCAN_COARSE: Final = 0.25
+
+
+def lowest_shift(ws: Workspace) -> float:
+    """Return the smallest command shift searched [command periods]: a delay of DELAY_STEP.
+
+    With lock-step stamps and a command not yet in effect at its own stamp, a shift of s is a
+    delay of s + 1 period, so the shift may be down to DELAY_STEP - 1 (a fractional delay
+    below one period).
+    """
+    a = ws.aligned
+    late = a.has_same_stamps and not a.include_same_stamp
+    return DELAY_STEP - (1.0 if late else 0.0)
 
 
 def candidate_states(
@@ -114,7 +129,7 @@ def _rescan_shift(ws: Workspace, state: ModelState) -> ModelState:
     for half_width, step in ((RESCAN_PERIODS, RESCAN_COARSE), (RESCAN_COARSE, DELAY_STEP)):
         steps = round(half_width / step)
         grid = best + step * np.arange(-steps, steps + 1)
-        grid = grid[grid >= DELAY_STEP - 1e-9]
+        grid = grid[grid >= lowest_shift(ws) - 1e-9]
         best = float(grid[int(np.argmin([cost(d) for d in grid]))])
     if abs(best - center) < 0.5 * DELAY_STEP:
         return state
@@ -133,11 +148,13 @@ def _rescan_shift(ws: Workspace, state: ModelState) -> ModelState:
 def _shift_states(
     ws: Workspace, state: ModelState, model: CompositeModel, local0: FloatArray
 ) -> list[ModelState]:
-    """Scan command shifts with the current law, then refit around the best one.
+    """Scan command shifts with the current law, then refit along the best period.
 
-    Whole command periods first (1 to ``MAX_DELAY_PERIODS``), then fractions of a period in
-    steps of ``DELAY_STEP`` within a period either side of the best whole shift; the best
-    fractional shift and its two neighbours are refitted.
+    Whole command periods first (1 to ``MAX_DELAY_PERIODS``, the current law held: a cheap
+    way to find the right period); then, within a period either side of the best whole
+    shift, a golden-section search of the training cost with the law refitted at every trial
+    shift (a law fitted without the shift is biased towards whole shifts), on the grid of
+    ``DELAY_STEP`` fractions of a period. Every refitted trial is returned.
     """
     period = ws.aligned.command_period
     thresholds = state.play_thresholds
@@ -149,29 +166,79 @@ def _shift_states(
         pred = state.model.evaluate(state.fit.local, state.fit.glob, shifted, False).prediction
         return float(np.sum(np.where(shifted.valid, shifted.displacement - pred, 0.0) ** 2))
 
-    whole = np.arange(1, n_max + 1, dtype=np.float64)
+    lowest = lowest_shift(ws)
+    whole = np.arange(np.ceil(lowest), n_max + 1, dtype=np.float64)
     best_j = float(whole[int(np.argmin([cost(j) for j in whole]))])
-    steps = round(1.0 / DELAY_STEP)
-    fine = best_j + DELAY_STEP * np.arange(-steps, steps + 1)
-    fine = fine[(fine >= DELAY_STEP) & (fine <= n_max)]
-    fine_costs = [cost(d) for d in fine]
-    i = int(np.argmin(fine_costs))
-    chosen = [float(fine[i])]
-    if fine_costs[i] <= state.fit.total_cost:  # worth refitting the neighbours too
-        chosen = [float(d) for d in fine[max(i - 1, 0) : i + 2]]
-    out = []
-    for d in chosen:
-        train, held = ws.input_pair(d * period, thresholds)
-        out.append(
-            fit_state(
+    tried: dict[int, ModelState] = {}
+
+    def refit(step: int) -> float:
+        if step not in tried:
+            d = step * DELAY_STEP * period
+            train, held = ws.input_pair(d, thresholds)
+            tried[step] = fit_state(
                 model,
                 train,
                 held,
                 local0,
                 extend_global(state, model, {}),
-                delay_s=d * period,
+                delay_s=d,
                 thresholds=state.thresholds,
                 max_iter=15,
             )
-        )
-    return out
+        return tried[step].fit.total_cost
+
+    per_period = round(1.0 / DELAY_STEP)
+    lo = max(round(best_j * per_period) - per_period, round(lowest * per_period))
+    hi = min(round(best_j * per_period) + per_period, n_max * per_period)
+    _golden(refit, lo, hi)
+    return list(tried.values())
+
+
+def _golden(cost: Callable[[int], float], lo: int, hi: int) -> int:
+    """Return the step in [lo, hi] of least ``cost`` (golden section, then the last few)."""
+    golden = (5.0**0.5 - 1.0) / 2.0
+    while hi - lo > 3:
+        c = round(hi - golden * (hi - lo))
+        d = round(lo + golden * (hi - lo))
+        if c == d:
+            d = c + 1
+        if cost(c) <= cost(d):
+            hi = d
+        else:
+            lo = c
+    return min(range(lo, hi + 1), key=cost)
+
+
+def refine_shift(ws: Workspace, state: ModelState) -> ModelState:
+    """Return ``state`` with its shift refined within ``REFINE_PERIODS``, all refitted.
+
+    The shift was found before the effects added after it; a law and effects fitted at the
+    old shift hold a scan with them fixed near it, so here every trial shift is refitted
+    (golden section on ``DELAY_STEP`` steps). Without a shift, or with it alone, ``state``.
+    """
+    if state.model.shift is None or len(state.model.effects) < 2:
+        return state
+    period = ws.aligned.command_period
+    tried: dict[int, ModelState] = {}
+
+    def refit(step: int) -> float:
+        if step not in tried:
+            d = step * DELAY_STEP * period
+            train, held = ws.input_pair(d, state.play_thresholds)
+            tried[step] = fit_state(
+                state.model,
+                train,
+                held,
+                state.fit.local,
+                state.fit.glob,
+                delay_s=d,
+                thresholds=state.thresholds,
+                max_iter=15,
+            )
+        return tried[step].fit.total_cost
+
+    center = round(state.delay_s / period / DELAY_STEP)
+    half = round(REFINE_PERIODS / DELAY_STEP)
+    lowest = round(lowest_shift(ws) / DELAY_STEP)
+    best = tried[_golden(refit, max(center - half, lowest), center + half)]
+    return best if best.fit.total_cost < state.fit.total_cost else state

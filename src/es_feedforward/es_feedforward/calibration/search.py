@@ -35,6 +35,9 @@ FIT_SAMPLES: Final = 6000
 FIT_BUDGET: Final = 2_000_000
 SCORE_SAMPLES: Final = 20000
 SCORE_BUDGET: Final = 3_000_000
+#: Smallest relative cut of the held-out RMS that counts as an improvement (an effect, an
+#: operator, a stamp convention).
+MIN_RELATIVE_GAIN: Final = 0.01
 
 
 @dataclass
@@ -162,15 +165,24 @@ class Workspace:
 
         ``play`` holds the play operators at ``rows``, (len(rows), K, A), or is None.
 
-        A delay of j + f command periods gives the command interpolated between the ones in
-        effect j and j + 1 periods earlier, (1 - f) u_j + f u_(j+1) (fractional delay).
+        A delay of j + f command periods gives the command interpolated at f between the ones
+        in effect j and j + 1 periods earlier (fractional delay), with the cubic convolution
+        kernel (Keys, a = -1/2) over the commands j - 1 .. j + 2: a drive sampled at ten
+        samples a period of its fastest tone is then reproduced to ~0.1 % (linear
+        interpolation: ~5 %, and a bias of the delay towards whole periods).
         """
         a = self.aligned
         static = self._static(rows)
         whole_s, frac = self.split_delay(delay_s)
-        shifts = [(whole_s, 1.0 - frac)]
+        shifts = [(whole_s, 1.0)]
         if frac > 1e-9:
-            shifts.append((whole_s + a.command_period, frac))
+            f, T = frac, a.command_period
+            shifts = [
+                (whole_s - T, (-(f**3) + 2 * f**2 - f) / 2),
+                (whole_s, (3 * f**3 - 5 * f**2 + 2) / 2),
+                (whole_s + T, (-3 * f**3 + 4 * f**2 + f) / 2),
+                (whole_s + 2 * T, (f**3 - f**2) / 2),
+            ]
         voltage: FloatArray = np.zeros(static["displacement"].shape)
         valid: BoolArray = np.array(static["finite"], dtype=bool)
         taps = []

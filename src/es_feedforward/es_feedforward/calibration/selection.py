@@ -24,8 +24,9 @@ from dataclasses import dataclass, field
 from typing import Final
 
 from es_feedforward.calibration.model import CANDIDATES, CompositeModel
-from es_feedforward.calibration.scans import candidate_states
+from es_feedforward.calibration.scans import candidate_states, refine_shift
 from es_feedforward.calibration.search import (
+    MIN_RELATIVE_GAIN,
     ModelState,
     Workspace,
     effect_parameters,
@@ -37,8 +38,6 @@ from es_feedforward.calibration.search import (
 )
 from es_physics.effects import Role, get
 
-#: Smallest relative cut of the held-out RMS that counts as an improvement.
-MIN_RELATIVE_GAIN: Final = 0.01
 #: Held-out RMS below which nothing is worth explaining [m] (far below interferometer noise).
 RESOLUTION_FLOOR_M: Final = 1e-12
 
@@ -217,6 +216,7 @@ def search_effects(
         rounds.append(record)
         if new is None or record.added is None:
             break
+        new = refine_shift(ws, new)
         added.append((record.added, state, new))
         state = new
     removed = False
