@@ -11,17 +11,20 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from es_feedforward.calibration.align import IndexArray, align
+from es_feedforward.calibration.align import AlignedData, IndexArray, align
 from es_feedforward.calibration.bagio import read_measured_bags
 from es_feedforward.calibration.bagstream import BagRecording
-from es_feedforward.calibration.model import FloatArray, play_operator
+from es_feedforward.calibration.model import LINEAR_LAW, FloatArray, play_operator
 from es_feedforward.calibration.pipeline import calibrate
 from es_feedforward.calibration.recording import MemoryRecording, gather
 from es_feedforward.calibration.search import (
+    ModelState,
     Workspace,
     base_state,
     choose_stamp_convention,
-    refit_full,
+    fit_state,
+    initial_law,
+    local_start,
     screen_block,
 )
 from es_msgs_py.bag import read_bag
@@ -31,6 +34,19 @@ from tests.calibration import law_bags as lb
 GRID = (10, 10)  # larger than the 8 x 8 screening block: the grid-wide refit runs
 EXPANSION_M_PER_DEGC = 0.4e-9
 CANDIDATES = ("thermal_expansion",)
+
+
+def refit_full(aligned: AlignedData, screened: ModelState) -> tuple[ModelState, Workspace]:
+    """The in-memory joint refit of a screened model on the whole grid (the reference)."""
+    idx = np.arange(aligned.n_actuators, dtype=np.intp)
+    ws = Workspace(aligned, idx, aligned.grid)
+    train, held = ws.input_pair(screened.delay_s, screened.play_thresholds)
+    local0 = local_start(LINEAR_LAW, initial_law(train), screened.model, screened)
+    state = fit_state(
+        screened.model, train, held, local0, screened.fit.glob,
+        delay_s=screened.delay_s, thresholds=screened.thresholds,
+    )  # fmt: skip
+    return state, ws
 
 
 def _series(duration: float = 12.0) -> lb.Series:

@@ -2,8 +2,8 @@
 
 Candidates are screened on a contiguous block of at most ``SCREEN_SIZE`` x ``SCREEN_SIZE``
 actuators at the grid's corner (edges and interior; the coupling needs neighbours); the
-accepted model is then refitted on the whole grid (:func:`refit_full`). How each candidate
-is fitted: :mod:`.scans`; which are kept: :mod:`.selection`.
+accepted model is then refitted on the whole grid in actuator tiles (:mod:`.tiles`). How each
+candidate is fitted: :mod:`.scans`; which are kept: :mod:`.selection`.
 """
 
 from __future__ import annotations
@@ -18,7 +18,6 @@ from es_feedforward.calibration.align import AlignedData, IndexArray, select_row
 from es_feedforward.calibration.fit import FitResult, levenberg_marquardt
 from es_feedforward.calibration.history import DriveHistory, DriveSamples
 from es_feedforward.calibration.model import (
-    LINEAR_LAW,
     BoolArray,
     CompositeModel,
     FitInputs,
@@ -419,28 +418,3 @@ def choose_stamp_convention(aligned: AlignedData) -> AlignedData:
         trial = replace(aligned, include_same_stamp=include)
         costs[include] = base_state(Workspace(trial, idx, grid)).fit.total_cost
     return replace(aligned, include_same_stamp=min(costs, key=lambda k: costs[k]))
-
-
-def refit_full(
-    aligned: AlignedData, screened: ModelState, start: ModelState | None = None
-) -> tuple[ModelState, Workspace]:
-    """Refit a screened model on the whole grid, starting from its global parameters."""
-    idx = np.arange(aligned.n_actuators, dtype=np.intp)
-    ws = Workspace(aligned, idx, aligned.grid)
-    train, held = ws.input_pair(screened.delay_s, screened.play_thresholds)
-    if start is None:
-        local0 = local_start(LINEAR_LAW, initial_law(train), screened.model, screened)
-    else:
-        local0 = local_start(start.model.local_names, start.fit.local, screened.model, screened)
-    return (
-        fit_state(
-            screened.model,
-            train,
-            held,
-            local0,
-            screened.fit.glob,
-            delay_s=screened.delay_s,
-            thresholds=screened.thresholds,
-        ),
-        ws,
-    )
