@@ -122,13 +122,14 @@ class CompensationParams:
         packages declare (the declared default for any not given).
 
         Raises:
-            ValueError: a name in ``extra`` that no effect declares beyond the typed fields.
+            FeedforwardConfigError: a name in ``extra`` that no effect declares beyond the
+                typed fields.
             TypeError: a name in ``typed`` that is no field.
 
         """
         unknown = set(extra) - set(_EXTRA_DEFAULTS)
         if unknown:
-            raise ValueError(f"unknown compensation parameter(s) {sorted(unknown)}")
+            raise FeedforwardConfigError(f"unknown compensation parameter(s) {sorted(unknown)}")
         params = cls(**typed)
         full = {**_EXTRA_DEFAULTS, **{k: float(v) for k, v in extra.items()}}
         object.__setattr__(params, "_extra", MappingProxyType(full))
@@ -168,13 +169,13 @@ class CompensationParams:
         """Return a copy with the parameters named in ``values`` (no prefix) replaced.
 
         Raises:
-            ValueError: an unknown name.
+            FeedforwardConfigError: an unknown name.
 
         """
         typed = {f.name for f in fields(self)}
         unknown = set(values) - set(RANGES)
         if unknown:
-            raise ValueError(f"unknown compensation parameter(s) {sorted(unknown)}")
+            raise FeedforwardConfigError(f"unknown compensation parameter(s) {sorted(unknown)}")
         kept = {f.name: getattr(self, f.name) for f in fields(self)}
         extra = {k: v for k, v in self.values().items() if k not in typed}
         for name, value in values.items():

@@ -10,7 +10,8 @@ file problem" or "a calibration problem" catches just that.
 - :class:`ParameterError`: parameter values (node parameters or a file's) do not give a
   valid configuration; :class:`ParamsFileError` a ROS 2 parameters file cannot be read.
 - :class:`CalibrationError` and its subclasses: the calibration cannot use its input
-  (:class:`CalibrationInputError`) or cannot fit a model (:class:`CalibrationFitError`).
+  (:class:`CalibrationInputError`) or cannot fit a model (:class:`CalibrationFitError`);
+  a streamed recording does not hold what it promised (:class:`RecordingError`).
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ __all__ = [
     "FeedforwardInputError",
     "ParameterError",
     "ParamsFileError",
+    "RecordingError",
 ]
 
 
@@ -52,3 +54,7 @@ class CalibrationInputError(CalibrationError):
 
 class CalibrationFitError(CalibrationError):
     """A model cannot be fitted to usable data (singular, no convergence, no candidate)."""
+
+
+class RecordingError(CalibrationError):
+    """A recording that does not hold what it promised (a skipped index, a column not kept)."""

@@ -21,19 +21,29 @@ Safety: the output is always finite and within [0, v_limit]. A missing, stale (o
 ``temperature_timeout``) or invalid (non-finite or outside ``PLAUSIBLE_TEMPERATURE``)
 temperature estimate holds the whole last good command; a non-finite set point element holds
 that actuator's last voltage (``Status.INVALID``).
+
+The configuration types (:class:`Mode`, :class:`ObserverGains`, :class:`FeedforwardConfig`)
+live in :mod:`es_feedforward.feedforward_config` and are re-exported here.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields
-from enum import StrEnum
+from dataclasses import dataclass
 from typing import Final
 
 import numpy as np
 import numpy.typing as npt
 
-from es_feedforward.compensation import CompensationParams
 from es_feedforward.errors import FeedforwardConfigError, FeedforwardInputError
+from es_feedforward.feedforward_config import (
+    DEFAULT_REFERENCE_TEMPERATURE,
+    DEFAULT_TEMPERATURE_TIMEOUT,
+    OPERATING_T_STAR,
+    PLAUSIBLE_TEMPERATURE,
+    FeedforwardConfig,
+    Mode,
+    ObserverGains,
+)
 from es_feedforward.kernels import Backend, default_backend, observer_iterations, prepare
 from es_physics.effects import Compensator, in_model_order
 from es_physics.laws import (
@@ -41,7 +51,6 @@ from es_physics.laws import (
     CODE_CLIPPED_LOW,
     CODE_INVALID,
     CODE_OK,
-    DEFAULT_V_LIMIT,
     RATIO_CAP,
     CompiledLaws,
     InverseResult,
@@ -49,98 +58,28 @@ from es_physics.laws import (
     StatusArray,
     limit_voltages,
 )
-from es_physics.params import ActuatorParams, FloatArray
+from es_physics.params import FloatArray
 
-#: Middle of the thesis's 40-52 degC range: where "uncompensated" evaluates the model.
-DEFAULT_REFERENCE_TEMPERATURE: Final = 46.0
-#: T* = T - Tm band [degC] over which a configuration's laws must be positive (40-52 degC
-#: for Tm = 38 degC); beyond it an element whose law is not positive is reported INVALID.
-OPERATING_T_STAR: Final = (2.0, 14.0)
+__all__ = [
+    "DEFAULT_REFERENCE_TEMPERATURE",
+    "DEFAULT_TEMPERATURE_TIMEOUT",
+    "OPERATING_T_STAR",
+    "PLAUSIBLE_TEMPERATURE",
+    "REACH_MARGIN",
+    "SETPOINT_CEILING",
+    "CommandResult",
+    "Feedforward",
+    "FeedforwardConfig",
+    "Mode",
+    "ObserverGains",
+    "linearization_error_bound",
+]
+
 #: Set points above this [m] are far beyond any reach: cut here to keep the arithmetic finite.
 SETPOINT_CEILING: Final = 1.0
-#: Temperatures [degC] outside this band are sensor or estimator faults, not actuator states.
-PLAUSIBLE_TEMPERATURE: Final = (-50.0, 200.0)
-#: Age [s] beyond which a temperature estimate is stale.
-DEFAULT_TEMPERATURE_TIMEOUT: Final = 2.0
 #: Relative margin below the reach of ``v_limit`` under which set points skip the inverse that
 #: only reports their status (far above the inverse's rounding, ~1e-15).
 REACH_MARGIN: Final = 1e-9
-
-
-class Mode(StrEnum):
-    """Feedforward scheme (value of the ``mode`` parameter)."""
-
-    INVERSE_HYPERBOLIC = "inverse_hyperbolic"
-    INVERSE_QUADRATIC = "inverse_quadratic"
-    LINEARIZED_DMAX = "linearized_dmax"
-    OBSERVER = "observer"
-    UNCOMPENSATED = "uncompensated"
-
-
-@dataclass(frozen=True)
-class ObserverGains:
-    """PI gains of the observer loop (dimensionless: normalised by the observer's local gain).
-
-    ``iterations`` loop updates run per set point (the observer has no dynamics, so the loop
-    can run faster than the set points). With kp + ki <= 1 no update overshoots.
-    """
-
-    kp: float = 0.0
-    ki: float = 1.0
-    iterations: int = 6
-
-    def reason_to_reject(self) -> str | None:
-        """Return why these gains are not usable, or ``None``."""
-        if not (self.kp >= 0.0 and self.ki > 0.0 and self.kp + self.ki <= 1.0):
-            return f"observer gains need kp >= 0, ki > 0, kp + ki <= 1 (got {self.kp}, {self.ki})"
-        if not 1 <= self.iterations <= 1000:
-            return f"observer.iterations={self.iterations} is outside [1, 1000]"
-        return None
-
-
-@dataclass(frozen=True)
-class FeedforwardConfig:
-    """Everything the feedforward core is configured with (one consistent set).
-
-    ``params`` fields are scalars or arrays broadcasting to ``shape`` (per-actuator maps).
-    """
-
-    shape: tuple[int, int]
-    params: ActuatorParams = field(default_factory=ActuatorParams)
-    mode: Mode = Mode.INVERSE_HYPERBOLIC
-    v_limit: float = DEFAULT_V_LIMIT
-    reference_temperature: float = DEFAULT_REFERENCE_TEMPERATURE
-    temperature_timeout: float = DEFAULT_TEMPERATURE_TIMEOUT
-    compensation: CompensationParams = field(default_factory=CompensationParams)
-    observer: ObserverGains = field(default_factory=ObserverGains)
-
-    def reason_to_reject(self) -> str | None:
-        """Return why this configuration is not usable, or ``None`` when it is."""
-        rows, cols = self.shape
-        if rows < 1 or cols < 1:
-            return f"grid must be at least 1 x 1, got {rows} x {cols}"
-        if not 0.0 < self.v_limit <= 1000.0:
-            return f"v_limit={self.v_limit} is outside (0, 1000] V"
-        if not np.isfinite(self.reference_temperature):
-            return "reference_temperature must be finite"
-        for f in fields(self.params):
-            value = np.asarray(getattr(self.params, f.name))
-            try:
-                np.broadcast_to(value, self.shape)
-            except ValueError:
-                return f"law.{f.name} of shape {value.shape} does not fit the {rows} x {cols} grid"
-            if not np.all(np.isfinite(value)):
-                return f"law.{f.name} has non-finite values"
-        if np.any(np.asarray(self.params.L) <= 0.0):
-            return "law.L must be > 0"
-        usable = CompiledLaws(self.params, self.shape).positive_between(*OPERATING_T_STAR)
-        if not np.all(usable):
-            worst = np.flatnonzero(~usable.ravel())[:5].tolist()
-            return (
-                f"M(T) or k(T) is not positive over Tm + {OPERATING_T_STAR} degC at "
-                f"{int((~usable).sum())} actuator(s), e.g. index {worst}"
-            )
-        return self.compensation.reason_to_reject() or self.observer.reason_to_reject()
 
 
 @dataclass(frozen=True)

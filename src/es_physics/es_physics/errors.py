@@ -8,12 +8,11 @@ caller that wants "an effect problem" catches just that.
 - :class:`UnknownEffectError`: a name that no registered effect has.
 - :class:`EffectParameterError`: an effect's parameter is out of its range (a corner
   frequency <= 0, a negative gain).
-- :class:`OperatorFitError`: normal equations of play-operator weights that cannot be solved.
 """
 
 from __future__ import annotations
 
-__all__ = ["EffectError", "EffectParameterError", "OperatorFitError", "UnknownEffectError"]
+__all__ = ["EffectError", "EffectParameterError", "UnknownEffectError"]
 
 
 class EffectError(ValueError):
@@ -26,7 +25,3 @@ class UnknownEffectError(EffectError):
 
 class EffectParameterError(EffectError):
     """An effect's parameter is outside its range; the message names it and the bound."""
-
-
-class OperatorFitError(ValueError):
-    """A normal-equation system of play-operator weights that cannot be solved."""

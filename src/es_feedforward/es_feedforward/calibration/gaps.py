@@ -36,6 +36,7 @@ import numpy as np
 
 from es_feedforward.calibration.model import BoolArray, FloatArray
 from es_feedforward.calibration.stamps import repeated, spread_repeated
+from es_feedforward.errors import CalibrationError
 
 #: An interval between consecutive messages longer than this many median periods is a gap.
 GAP_FACTOR: Final = 3.5
@@ -121,11 +122,11 @@ def find_gaps(
     gap starts at the record's start). Needs at least two distinct stamps.
 
     Raises:
-        ValueError: ``role`` is not one of ``ROLES``.
+        CalibrationError: ``role`` is not one of ``ROLES``.
 
     """
     if role not in ROLES:
-        raise ValueError(f"unknown role {role!r} of topic {topic} (expected one of {ROLES})")
+        raise CalibrationError(f"unknown role {role!r} of topic {topic} (expected one of {ROLES})")
     spread = _spread(times)
     period = float(np.median(np.diff(spread)))
     starts, steps, edge = spread[:-1], np.diff(spread), np.zeros(spread.size - 1, dtype=bool)

@@ -24,6 +24,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy.signal import lfilter
 
+from es_feedforward.errors import CalibrationFitError
 from es_physics.effects import Effect
 
 FloatArray = npt.NDArray[np.float64]
@@ -43,11 +44,11 @@ def first_order_lowpass(x: FloatArray, period: float, tau: float) -> tuple[Float
     coefficients' derivatives).
 
     Raises:
-        ValueError: ``period`` or ``tau`` not positive and finite.
+        CalibrationFitError: ``period`` or ``tau`` not positive and finite.
 
     """
     if not (math.isfinite(period) and period > 0.0 and math.isfinite(tau) and tau > 0.0):
-        raise ValueError(f"low-pass needs period > 0 and tau > 0, got {period!r}, {tau!r}")
+        raise CalibrationFitError(f"low-pass needs period > 0 and tau > 0, got {period!r}, {tau!r}")
     if x.shape[0] == 0:
         return np.zeros_like(x), np.zeros_like(x)
     a = period / tau
@@ -90,7 +91,7 @@ class DriveHistory:
         """Return y = LP_tau(signal) and dy / d(log tau), each (N, A).
 
         Raises:
-            ValueError: ``tau`` not positive and finite.
+            CalibrationFitError: ``tau`` not positive and finite.
 
         """
         key = (effect.name, float(tau))
@@ -120,7 +121,7 @@ class DriveSamples:
         """Return :meth:`DriveHistory.lowpass` at the samples, each (A, n).
 
         Raises:
-            ValueError: ``tau`` not positive and finite.
+            CalibrationFitError: ``tau`` not positive and finite.
 
         """
         y, slope = self.history.lowpass(effect, tau)

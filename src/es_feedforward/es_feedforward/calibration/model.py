@@ -41,6 +41,7 @@ import numpy as np
 import numpy.typing as npt
 
 from es_feedforward.calibration.history import DriveSamples
+from es_feedforward.errors import CalibrationError
 from es_physics.effects import Effect, EffectError, Role, candidates, get, with_role
 from es_physics.effects.coupling import neighbour_count, neighbour_laplacian
 from es_physics.effects.drift import DRIFT_LOG_NU_LIMIT
@@ -185,7 +186,7 @@ class CompositeModel:
     ) -> tuple[FloatArray, FloatArray]:
         """Return the effect's filtered drive signal at the samples and its d / d(log tau)."""
         if data.drive is None:
-            raise ValueError(f"{effect.name} needs the command history in the inputs")
+            raise CalibrationError(f"{effect.name} needs the command history in the inputs")
         # a time constant beyond e^+-30 s is no physical one (and would overflow)
         return data.drive.lowpass(effect, float(np.exp(np.clip(log_tau, -30.0, 30.0))))
 
@@ -197,7 +198,7 @@ class CompositeModel:
         With ``jacobian=False`` only the prediction is computed (the Jacobians are empty).
 
         Raises:
-            ValueError: a play effect is on but the inputs carry no play operator, or a
+            CalibrationError: a play effect is on but the inputs carry no play operator, or a
                 heating or relaxation effect is on but they carry no command history.
 
         """
@@ -221,7 +222,7 @@ class CompositeModel:
         dV_dTa: FloatArray | None = None
         if self.play:
             if data.play is None:
-                raise ValueError(f"{self.play.name} needs the play operator in the inputs")
+                raise CalibrationError(f"{self.play.name} needs the play operator in the inputs")
             # the last play parameter is the weights' temperature slope beta [1/degC]
             beta = self._global(g, self.play, self.operators)
             dT = Ta - data.mean_temperature

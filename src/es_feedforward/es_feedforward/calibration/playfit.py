@@ -15,9 +15,11 @@ information criterion and keeps all weights physical.
 from __future__ import annotations
 
 from dataclasses import replace
+from itertools import combinations
 from typing import Final
 
 import numpy as np
+from scipy.optimize import nnls
 
 from es_feedforward.calibration.model import CompositeModel, FitInputs, FloatArray
 from es_feedforward.calibration.search import (
@@ -30,8 +32,9 @@ from es_feedforward.calibration.search import (
     fit_state,
     information_delta,
 )
+from es_feedforward.errors import CalibrationFitError
 from es_physics.effects import Effect, Role, with_role
-from es_physics.effects.hysteresis import best_operators, nonnegative_weights
+from es_physics.effects.hysteresis import MAX_OPERATORS
 
 #: Thresholds screened at once, as fractions of the command's range (low, high, count).
 THRESHOLD_GRID: Final = (0.004, 0.35, 28)
@@ -42,6 +45,65 @@ ZOOM_LEVELS: Final = 2
 SCREEN_BUDGET: Final = 6_000_000
 
 NormalEquations = tuple[FloatArray, FloatArray]
+
+
+
+def nonnegative_weights(gram: FloatArray, rhs: FloatArray) -> tuple[FloatArray, float]:
+    """Return the weights w >= 0 minimising w' G w - 2 b' w, and that minimum.
+
+    ``gram`` (K, K) and ``rhs`` (K,) are the normal equations of a least-squares problem
+    ||C w - r||^2 = ||r||^2 + w' G w - 2 b' w (G = C'C, b = C'r, any units): the minimum is
+    the change of the sum of squares the weights bring (<= 0). Solved as the equivalent
+    K x K non-negative least-squares problem ||R w - R^-T b|| (G = R'R) with scipy's NNLS,
+    so the weights are non-negative by construction.
+
+    Raises:
+        CalibrationFitError: shapes that do not match or values that are not finite.
+
+    """
+    G = np.asarray(gram, np.float64)
+    b = np.asarray(rhs, np.float64)
+    K = b.size
+    if G.shape != (K, K) or K == 0:
+        raise CalibrationFitError(f"gram {G.shape} does not match rhs ({K},)")
+    if not (np.all(np.isfinite(G)) and np.all(np.isfinite(b))):
+        raise CalibrationFitError("normal equations of the play weights are not finite")
+    scale = np.sqrt(np.maximum(np.diag(G), 1e-300))
+    Gs = G / np.outer(scale, scale) + 1e-10 * np.eye(K)
+    R = np.linalg.cholesky(Gs).T  # Gs = R'R
+    d = np.linalg.solve(R.T, b / scale)
+    ws, _ = nnls(R, d)
+    w = ws / scale
+    return np.asarray(w, np.float64), float(w @ G @ w - 2.0 * b @ w)
+
+
+def best_operators(
+    gram: FloatArray, rhs: FloatArray, max_order: int = MAX_OPERATORS
+) -> list[tuple[tuple[int, ...], FloatArray, float]]:
+    """Return, for N = 1 .. ``max_order``, the N columns whose NNLS fit is best.
+
+    ``gram`` and ``rhs`` are the normal equations over K candidate operators (e.g. a grid of
+    thresholds, see :func:`nonnegative_weights`). Every subset of N columns is tried; a
+    subset where NNLS zeroes a weight is a smaller one in disguise and is skipped. Each entry
+    is (column indices, their weights >= 0, change of the sum of squares); an N no subset
+    reaches with all weights positive is left out.
+
+    Raises:
+        CalibrationFitError: as :func:`nonnegative_weights`.
+
+    """
+    K = np.asarray(rhs).size
+    out: list[tuple[tuple[int, ...], FloatArray, float]] = []
+    for order in range(1, min(max_order, K) + 1):
+        best: tuple[tuple[int, ...], FloatArray, float] | None = None
+        for subset in combinations(range(K), order):
+            idx = list(subset)
+            w, change = nonnegative_weights(gram[np.ix_(idx, idx)], rhs[idx])
+            if np.all(w > 0) and (best is None or change < best[2]):
+                best = (subset, w, change)
+        if best is not None:
+            out.append(best)
+    return out
 
 
 def _play_effect() -> Effect:

@@ -26,16 +26,13 @@ import numpy.typing as npt
 
 from es_feedforward.calibration.align import IndexArray, MeasuredData
 from es_feedforward.calibration.model import BoolArray, FloatArray, play_operator
+from es_feedforward.errors import RecordingError
 
 #: Role names of :meth:`Recording.batches`.
 COMMAND_ROLE: Final = "command"
 DISPLACEMENT_ROLE: Final = "displacement"
 #: Rows per batch of :class:`MemoryRecording`.
 MEMORY_BATCH_ROWS: Final = 4096
-
-
-class RecordingError(ValueError):
-    """A recording that does not hold what it promised (a skipped index, a column not kept)."""
 
 
 class Recording(Protocol):

@@ -8,7 +8,7 @@ operator i > 1 ``weight_i``/``threshold_v_i`` (plant parameters, calibration res
 ``compensation.hysteresis_weight[_i]``/``hysteresis_threshold_v[_i]``). The calibration
 chooses N <= MAX_OPERATORS by the information criterion; given thresholds the weights enter
 linearly (to first order in the weights) and are fitted non-negative with scipy's NNLS
-(:func:`nonnegative_weights`, :func:`best_operators`), with beta of
+(``es_feedforward.calibration.playfit``), with beta of
 a_i = weight_i exp(-beta (T_a - T_mean)). Feedforward: the operator's exact inverse, per
 actuator with its play states (:func:`pi_inverse`), the weights taken at each actuator's
 temperature with the fitted beta (``compensation.hysteresis_decay_per_degc``,
@@ -18,15 +18,12 @@ temperature with the fitted beta (``compensation.hysteresis_decay_per_degc``,
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from itertools import combinations
 from typing import ClassVar, Final
 
 import numpy as np
-from scipy.optimize import nnls
 
 from es_physics.effects.base import Effect, FittedEffect, FloatArray, Parameter, Role
 from es_physics.effects.stages import Compensator, PlantContext, PlantStage, StepState
-from es_physics.errors import OperatorFitError
 
 #: Hysteresis weight a = a0 exp(-(T_a - Tm - HYSTERESIS_ONSET) / HYSTERESIS_DECAY) [degC].
 HYSTERESIS_ONSET: Final = 2.0
@@ -252,64 +249,6 @@ def compensated_operators(
     ]
     used = [(w, r) for w, r in pairs if w > 0.0]
     return tuple(w for w, _ in used), tuple(r for _, r in used)
-
-
-def nonnegative_weights(gram: FloatArray, rhs: FloatArray) -> tuple[FloatArray, float]:
-    """Return the weights w >= 0 minimising w' G w - 2 b' w, and that minimum.
-
-    ``gram`` (K, K) and ``rhs`` (K,) are the normal equations of a least-squares problem
-    ||C w - r||^2 = ||r||^2 + w' G w - 2 b' w (G = C'C, b = C'r, any units): the minimum is
-    the change of the sum of squares the weights bring (<= 0). Solved as the equivalent
-    K x K non-negative least-squares problem ||R w - R^-T b|| (G = R'R) with scipy's NNLS,
-    so the weights are non-negative by construction.
-
-    Raises:
-        OperatorFitError: shapes that do not match or values that are not finite.
-
-    """
-    G = np.asarray(gram, np.float64)
-    b = np.asarray(rhs, np.float64)
-    K = b.size
-    if G.shape != (K, K) or K == 0:
-        raise OperatorFitError(f"gram {G.shape} does not match rhs ({K},)")
-    if not (np.all(np.isfinite(G)) and np.all(np.isfinite(b))):
-        raise OperatorFitError("normal equations of the play weights are not finite")
-    scale = np.sqrt(np.maximum(np.diag(G), 1e-300))
-    Gs = G / np.outer(scale, scale) + 1e-10 * np.eye(K)
-    R = np.linalg.cholesky(Gs).T  # Gs = R'R
-    d = np.linalg.solve(R.T, b / scale)
-    ws, _ = nnls(R, d)
-    w = ws / scale
-    return np.asarray(w, np.float64), float(w @ G @ w - 2.0 * b @ w)
-
-
-def best_operators(
-    gram: FloatArray, rhs: FloatArray, max_order: int = MAX_OPERATORS
-) -> list[tuple[tuple[int, ...], FloatArray, float]]:
-    """Return, for N = 1 .. ``max_order``, the N columns whose NNLS fit is best.
-
-    ``gram`` and ``rhs`` are the normal equations over K candidate operators (e.g. a grid of
-    thresholds, see :func:`nonnegative_weights`). Every subset of N columns is tried; a
-    subset where NNLS zeroes a weight is a smaller one in disguise and is skipped. Each entry
-    is (column indices, their weights >= 0, change of the sum of squares); an N no subset
-    reaches with all weights positive is left out.
-
-    Raises:
-        OperatorFitError: as :func:`nonnegative_weights`.
-
-    """
-    K = np.asarray(rhs).size
-    out: list[tuple[tuple[int, ...], FloatArray, float]] = []
-    for order in range(1, min(max_order, K) + 1):
-        best: tuple[tuple[int, ...], FloatArray, float] | None = None
-        for subset in combinations(range(K), order):
-            idx = list(subset)
-            w, change = nonnegative_weights(gram[np.ix_(idx, idx)], rhs[idx])
-            if np.all(w > 0) and (best is None or change < best[2]):
-                best = (subset, w, change)
-        if best is not None:
-            out.append(best)
-    return out
 
 
 def _operator_parameters(prefix: str, high_weight: float, high_r: float) -> tuple[Parameter, ...]:

@@ -5,12 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from es_physics.effects.hysteresis import (
-    OperatorFitError,
-    best_operators,
-    nonnegative_weights,
-    play,
-)
+from es_feedforward.calibration.playfit import best_operators, nonnegative_weights
+from es_feedforward.errors import CalibrationFitError
+from es_physics.effects.hysteresis import play
 
 
 def _plays(V: np.ndarray, thresholds: np.ndarray) -> np.ndarray:
@@ -64,7 +61,7 @@ def test_weights_stay_non_negative_where_least_squares_would_go_negative() -> No
 
 
 def test_bad_normal_equations_raise_one_clear_error() -> None:
-    with pytest.raises(OperatorFitError, match="does not match"):
+    with pytest.raises(CalibrationFitError, match="does not match"):
         nonnegative_weights(np.eye(2), np.ones(3))
-    with pytest.raises(OperatorFitError, match="not finite"):
+    with pytest.raises(CalibrationFitError, match="not finite"):
         nonnegative_weights(np.eye(2), np.array([1.0, np.nan]))
