@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
-from rclpy.node import Node
+from rclpy.executors import Executor, SingleThreadedExecutor
 from std_msgs.msg import Float64MultiArray
 
 from es_msgs_py import topics
@@ -67,7 +67,7 @@ class StormResult:
 
 
 def _wait_ready(
-    node: Node, ready: list[float], started: float, proc: subprocess.Popen[bytes]
+    executor: Executor, ready: list[float], started: float, proc: subprocess.Popen[bytes]
 ) -> None:
     """Spin ``node`` until the recorder started at ``started`` (wall clock, s) says ready.
 
@@ -81,11 +81,11 @@ def _wait_ready(
             raise RuntimeError(f"the recorder exited with {proc.returncode} before it was ready")
         if time.monotonic() > deadline:
             raise RuntimeError(f"the recorder never said ready within {START_LIMIT_S} s")
-        rclpy.spin_once(node, timeout_sec=0.05)
+        executor.spin_once(timeout_sec=0.05)
 
 
 def one_stop(
-    node: Node, publishers: list, ready: list[float], bag: Path, rng: random.Random
+    executor: Executor, publishers: list, ready: list[float], bag: Path, rng: random.Random
 ) -> tuple[float, str]:
     """Run the recorder once, stop it with SIGINT while publishing; return (stop s, crash note)."""
     with tempfile.TemporaryFile() as log:
@@ -94,7 +94,7 @@ def one_stop(
             [str(RECORD), "-o", str(bag), *RECORDED], stdout=log, stderr=subprocess.STDOUT
         )
         try:
-            _wait_ready(node, ready, started, proc)
+            _wait_ready(executor, ready, started, proc)
             msg = grid_to_msg(np.zeros((12, 12)))
             end = time.monotonic() + rng.uniform(0.1, 1.0)
             while time.monotonic() < end:
@@ -133,8 +133,11 @@ def recorder_stops(stops: int, cpu_hogs: int = 0, seed: int = 0) -> StormResult:
     """Run ``stops`` recorder start/publish/SIGINT cycles beside ``cpu_hogs`` CPU hogs."""
     result = StormResult(cpu_hogs=cpu_hogs)
     rng = random.Random(seed)
-    rclpy.init()
-    node = rclpy.create_node("recorder_storm")
+    context = rclpy.Context()  # its own: the benchmark may have initialised rclpy already
+    rclpy.init(context=context)
+    node = rclpy.create_node("recorder_storm", context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
     publishers = [
         node.create_publisher(Float64MultiArray, t, topics.qos_for(t)) for t in RECORDED[:2]
     ]
@@ -151,7 +154,7 @@ def recorder_stops(stops: int, cpu_hogs: int = 0, seed: int = 0) -> StormResult:
     try:
         with load, tempfile.TemporaryDirectory() as scratch:
             for k in range(stops):
-                took, note = one_stop(node, publishers, ready, Path(scratch) / f"bag{k}", rng)
+                took, note = one_stop(executor, publishers, ready, Path(scratch) / f"bag{k}", rng)
                 result.stops += 1
                 result.stop_seconds.append(round(took, 3))
                 if note:
@@ -160,8 +163,9 @@ def recorder_stops(stops: int, cpu_hogs: int = 0, seed: int = 0) -> StormResult:
                     print(f"stop {k}: CRASH {note}", file=sys.stderr, flush=True)
             result.load_average = [round(x, 1) for x in os.getloadavg()]
     finally:
+        executor.shutdown()
         node.destroy_node()
-        rclpy.try_shutdown()
+        context.try_shutdown()
     return result
 
 
