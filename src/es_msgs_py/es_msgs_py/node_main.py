@@ -6,7 +6,7 @@ closed, destroyed and rclpy shut down in that order on the main thread, with the
 valid until the end. rclpy's own handlers shut the context down from a thread of their own
 and trigger the executors' guard conditions there, while the main thread goes on closing
 the node and collecting garbage: that thread crashed the process with SIGSEGV in
-``rcl_trigger_guard_condition`` about once in ten Ctrl-C stops on a loaded machine.
+``rcl_trigger_guard_condition`` in 3 of 133 recorder Ctrl-C stops on a loaded machine.
 
 A node picks its executor with a read-only ``executor`` parameter (see :data:`EXECUTORS`);
 nodes without it get rclpy's ``SingleThreadedExecutor``.
