@@ -164,3 +164,14 @@ def test_quick_sweep_pair_delay_and_thermal_expansion_is_identified(tmp_path: Pa
     assert abs(found["delay"]["delay_s"] - truth.delay_s) <= 0.1 * period
     assert outcome.heldout_rms_after_m is not None
     assert outcome.heldout_rms_after_m <= 1.2 * case.config.noise_rms_m
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(900)  # one 8 x 8 case at 250 Hz; minutes when the machine is shared
+def test_full_sweep_case_with_a_screened_actuator_without_valid_rows_runs(tmp_path: Path) -> None:
+    # crashed with LinAlgError (singular matrix): an actuator whose subsampled rows were all
+    # invalid gave a zero normal matrix in the play-operator screening
+    case = next(c for c in build_cases(quick=False) if c.name == "thermal_expansion-1")
+    outcome = run_case(case, keep=tmp_path)
+    assert outcome.error == "", outcome.error
+    assert outcome.accepted is not None and set(outcome.accepted) == set(case.truth)

@@ -171,7 +171,10 @@ def normal_equations(
     resid = np.where(valid, inputs.displacement - ev.prediction + slope * mix_now, 0.0)
     J = np.where(valid[..., None], ev.jac_local, 0.0)  # (A, n, P)
     U = np.swapaxes(J, 1, 2) @ J
-    U = U + 1e-10 * np.einsum("app->ap", U).max(axis=1)[:, None, None] * np.eye(U.shape[1])
+    # a ridge relative to each actuator's scale; an actuator with no valid row has U = 0
+    scale = np.einsum("app->ap", U).max(axis=1)
+    ridge = np.where(scale > 0.0, 1e-10 * scale, 1.0)
+    U = U + ridge[:, None, None] * np.eye(U.shape[1])
     dT = inputs.temperature - inputs.mean_temperature
     bl = np.einsum("anp,an->ap", J, resid)
     Ui_bl = np.linalg.solve(U, bl[..., None])[..., 0]
