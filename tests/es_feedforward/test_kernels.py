@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from functools import partial
+
 import numpy as np
 import pytest
 
@@ -18,7 +20,7 @@ from es_feedforward.kernels import (
     KernelBackendError,
     default_backend,
     fused_available,
-    observer_iterations,
+    observer_command,
 )
 from es_physics.laws import CODE_CLIPPED_HIGH, CODE_OK, DEFAULT_V_LIMIT, LawsAtTemperature
 from es_physics.params import ActuatorParams
@@ -100,23 +102,46 @@ def test_fused_equals_numpy_over_temperatures_and_set_points(
 
 
 @pytest.mark.parametrize("kp", [0.0, 0.25])
-def test_observer_iterations_backends_agree_on_saturating_voltages(kp: float) -> None:
+def test_observer_command_backends_agree_on_saturating_voltages(kp: float) -> None:
     rng = np.random.default_rng(3)
     shape = (64,)
     q = rng.uniform(0.5e-3, 3e-2, shape)
     n = rng.uniform(1e-10, 2e-9, shape)
     laws = LawsAtTemperature(q=q, n=n, inv_zsat=q * q / n, status=np.zeros(shape, np.int8))
-    target = laws.sqrt_z_sat * rng.uniform(0.0, 1.1, shape)  # some beyond saturation
+    z = laws.z_sat * rng.uniform(-0.1, 1.2, shape)  # some negative, some beyond saturation
     integral = rng.uniform(-10.0, 400.0, shape)  # some to be clipped
     out = {
-        b: observer_iterations(integral, laws, target, v_limit=350.0, kp=kp, ki=1.0 - kp,
-                               iterations=6, backend=b)
+        b: observer_command(integral, laws, z, v_limit=350.0, kp=kp, ki=1.0 - kp,
+                            iterations=6, backend=b)
         for b in Backend
     }
-    for mine, theirs in zip(out[Backend.FUSED], out[Backend.NUMPY], strict=True):
-        np.testing.assert_allclose(mine, theirs, rtol=1e-12, atol=0.0)
-    assert (out[Backend.FUSED][0] is out[Backend.FUSED][1]) == (kp == 0.0)
-    assert np.any(out[Backend.NUMPY][0] == 350.0)
+    fused, numpy_out = out[Backend.FUSED], out[Backend.NUMPY]
+    for name in ("voltage", "integral", "model_error", "tanh_of_voltage"):
+        np.testing.assert_allclose(getattr(fused, name), getattr(numpy_out, name), rtol=1e-12,
+                                   atol=1e-24, err_msg=name)
+    assert (fused.voltage is fused.integral) == (kp == 0.0)
+    assert np.any(numpy_out.voltage == 350.0)
+    np.testing.assert_array_equal(numpy_out.tanh_of_voltage, np.tanh(q * numpy_out.voltage))
+    assert np.all(numpy_out.integral >= 0.0)
+
+
+@pytest.mark.parametrize("backend", list(Backend))
+def test_reused_tanh_gives_the_numbers_of_a_fresh_start(backend: Backend) -> None:
+    rng = np.random.default_rng(11)
+    shape = (8, 8)
+    q = rng.uniform(0.5e-3, 3e-2, shape)
+    n = rng.uniform(1e-10, 2e-9, shape)
+    laws = LawsAtTemperature(q=q, n=n, inv_zsat=q * q / n, status=np.zeros(shape, np.int8))
+    run = partial(observer_command, laws=laws, v_limit=350.0, kp=0.0, ki=1.0, iterations=3,
+                  backend=backend)
+    first = run(np.zeros(shape), z=0.5 * laws.z_sat)
+    z = laws.z_sat * rng.uniform(0.0, 0.9, shape)
+    fresh = run(first.integral, z=z)
+    reused = run(first.integral, z=z, tanh_of_integral=first.tanh_of_voltage)
+    for name in ("voltage", "integral", "model_error", "tanh_of_voltage"):
+        np.testing.assert_array_equal(getattr(reused, name), getattr(fresh, name), err_msg=name)
+    wrong = run(first.integral, z=z, tanh_of_integral=np.zeros(shape))
+    assert not np.array_equal(wrong.voltage, fresh.voltage)  # the given tanh is really used
 
 
 @pytest.mark.parametrize("T0", TEMPERATURES)

@@ -44,7 +44,7 @@ from es_feedforward.feedforward_config import (
     Mode,
     ObserverGains,
 )
-from es_feedforward.kernels import Backend, default_backend, observer_iterations, prepare
+from es_feedforward.kernels import Backend, default_backend, observer_command, prepare
 from es_physics.effects import Compensator, in_model_order
 from es_physics.laws import (
     CODE_CLIPPED_HIGH,
@@ -163,6 +163,8 @@ class Feedforward:
         if config.mode is Mode.OBSERVER:
             prepare(self.backend)  # compile now, not on the first set point
         self._reach: tuple[LawsAtTemperature, tuple[float, FloatArray, FloatArray]] | None = None
+        #: (laws, integral, tanh(q integral)) of the observer's last set point, or None
+        self._observer_tanh: tuple[LawsAtTemperature, FloatArray, FloatArray] | None = None
         shape = config.shape
         comp = config.compensation
         self._laws_compiled = CompiledLaws(config.params, shape)
@@ -319,6 +321,7 @@ class Feedforward:
             voltage, status = self._drive_and_limits(result, t)
         if raw_status is not None:
             np.maximum(status, raw_status, out=status)
+            self._observer_tanh = None
         maybe_invalid = raw_status is not None or laws.flagged or reshaped
         if maybe_invalid and status.size and status.max() >= CODE_INVALID:
             invalid = status == CODE_INVALID
@@ -407,19 +410,27 @@ class Feedforward:
         The loop works on y = sqrt(z) (linear in V at low field: y = sqrt(M/L) V) and its
         gain is scheduled on the observer's local gain dy/dV = sqrt(M/L) sech^2(k V / L),
         so with kp + ki <= 1 it approaches the set point from below without overshoot
-        (:func:`es_feedforward.kernels.observer_iterations`).
+        (:func:`es_feedforward.kernels.observer_command`).
         """
         gains = self.config.observer
         v_limit = self.config.v_limit
         status = self._reach_status(laws, z)
-        target = np.sqrt(np.clip(z, 0.0, None))
-        voltage, self._integral = observer_iterations(
-            self._integral, laws, target, v_limit=v_limit, kp=gains.kp, ki=gains.ki,
+        known = self._observer_tanh
+        out = observer_command(
+            self._integral, laws, z, v_limit=v_limit, kp=gains.kp, ki=gains.ki,
             iterations=gains.iterations, backend=self.backend,
+            tanh_of_integral=known[2] if known and known[0] is laws and known[1] is self._integral
+            else None,
         )  # fmt: skip
-        target *= target
-        model_error = self._model_error(laws, voltage, target)
-        return limit_voltages(voltage, status, v_limit), model_error
+        self._integral = out.integral
+        # tanh(q I) starts the next set point's loop only if nothing changes I in place
+        # (limit_voltages zeroes CLIPPED_LOW/INVALID; command substitutes invalid ones)
+        reusable = gains.kp == 0.0 and not self._stages and not laws.flagged
+        worst = int(status.max()) if status.size else CODE_OK
+        if worst >= CODE_CLIPPED_LOW:
+            reusable = reusable and worst < CODE_INVALID and not np.any(status == CODE_CLIPPED_LOW)
+        self._observer_tanh = (laws, out.integral, out.tanh_of_voltage) if reusable else None
+        return limit_voltages(out.voltage, status, v_limit), out.model_error
 
     def _drive_and_limits(
         self, result: InverseResult, t: float

@@ -3,9 +3,13 @@
 The observer's PI loop runs ``iterations`` updates per set point, each a ``tanh`` and about
 ten element-wise operations over the grid. In numpy every operation is one pass over the
 grid and one call (about 1 us at 4096 actuators); the fused path compiles the arithmetic of
-one update into a single loop (:func:`numba.njit`) and keeps ``np.tanh``, whose SIMD loop is
-faster than the scalar ``tanh`` a compiled loop calls. Both paths do the same IEEE
-operations in the same order (no fast-math), so they give the same numbers.
+one update into a single loop (:func:`numba.njit`), the set-up (sqrt of the set points,
+clipped integrator) and the model error into one loop each, and keeps ``np.tanh``, whose
+SIMD loop is faster than the scalar ``tanh`` a compiled loop calls. Both paths do the same
+IEEE operations in the same order (no fast-math), so they give the same numbers. The tanh of
+the final command is the model error's and, with kp = 0, the next set point's first update
+(the integrator it starts from is that command): a caller that keeps it saves one of the
+``iterations + 1`` tanh passes exactly.
 
 Which path runs (:func:`default_backend`): ``fused`` when numba is importable, else
 ``numpy``; the environment variable ``ES_DM_FEEDFORWARD_KERNELS=numpy`` forces numpy
@@ -19,8 +23,9 @@ from __future__ import annotations
 import importlib.util
 import os
 from collections.abc import Callable
+from dataclasses import dataclass
 from enum import StrEnum
-from functools import cache
+from functools import cache, partial
 from typing import Final
 
 import numpy as np
@@ -78,21 +83,67 @@ ObserverStep = Callable[
      float, float, float],
     None,
 ]
+ObserverPrep = Callable[
+    [FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray,
+     float, bool],
+    None,
+]
+ObserverFinish = Callable[[FloatArray, FloatArray, FloatArray, FloatArray], None]
+
+
+@dataclass(frozen=True)
+class ObserverOutput:
+    """What one set point's observer loop returns (arrays of the grid's shape).
+
+    Attributes:
+        voltage: the command [V]; the same array as ``integral`` when kp == 0.
+        integral: the new integrator state [V].
+        model_error: z_model(voltage) - z [m], with z = sqrt(max(z, 0))^2.
+        tanh_of_voltage: tanh(q voltage): with kp == 0 the next set point's first update
+            can start from it (``tanh_of_integral`` of :func:`observer_command`).
+
+    """
+
+    voltage: FloatArray
+    integral: FloatArray
+    model_error: FloatArray
+    tanh_of_voltage: FloatArray
 
 
 @cache
-def _fused_observer_step() -> ObserverStep:
-    """Compile (or load from numba's cache) the fused observer update."""
+def _fused_observer() -> tuple[ObserverPrep, ObserverStep, ObserverFinish]:
+    """Compile (or load from numba's cache) the fused observer passes."""
     import numba
 
-    @numba.njit(
-        "void(float64[::1], float64[::1], float64[::1], float64[::1], float64[::1], "
-        "float64[::1], float64[::1], float64, float64, float64)",
-        cache=True,
-        nogil=True,
-        error_model="numpy",
-    )
-    def step(  # noqa: PLR0917 (numba calls are positional)
+    vec = numba.float64[::1]
+    # inputs may be frozen arrays (the node's last command is read-only)
+    ro = numba.types.Array(numba.float64, 1, "C", readonly=True)
+    f64 = numba.float64
+    jit = partial(numba.njit, cache=True, nogil=True, error_model="numpy")
+
+    @jit(numba.void(ro, ro, ro, ro, vec, vec, vec, f64, numba.boolean))
+    def prep(  # noqa: PLR0917 (numba calls are positional)
+        z: FloatArray,
+        integral: FloatArray,
+        q: FloatArray,
+        known_tanh: FloatArray,
+        target: FloatArray,
+        state: FloatArray,
+        u: FloatArray,
+        v_limit: float,
+        have_tanh: bool,
+    ) -> None:
+        for i in range(z.size):
+            zi = z[i]
+            if zi < 0.0:  # noqa: PLR1730 (a NaN stays NaN, as in np.clip)
+                zi = 0.0
+            target[i] = np.sqrt(zi)
+            held = min(max(integral[i], 0.0), v_limit)
+            state[i] = held
+            u[i] = known_tanh[i] if have_tanh else q[i] * held
+
+    @jit(numba.void(vec, vec, vec, ro, ro, ro, vec, f64, f64, f64))
+    def step(  # noqa: PLR0917
         u: FloatArray,
         integral: FloatArray,
         voltage: FloatArray,
@@ -114,62 +165,63 @@ def _fused_observer_step() -> ObserverStep:
             voltage[i] = v
             u[i] = q[i] * v
 
-    return step
+    @jit(numba.void(vec, ro, vec, vec))
+    def finish(t: FloatArray, inv_zsat: FloatArray, target: FloatArray, error: FloatArray) -> None:
+        for i in range(t.size):
+            e = t[i] * t[i]
+            error[i] = e / inv_zsat[i] - target[i] * target[i]
+
+    return prep, step, finish
 
 
 def prepare(backend: Backend) -> None:
     """Compile the kernels of ``backend`` now (a no-op for numpy and after the first call)."""
     if backend is Backend.FUSED:
-        _fused_observer_step()
+        _fused_observer()
 
 
-def observer_iterations(
+def observer_command(
     integral: FloatArray,
     laws: LawsAtTemperature,
-    target: FloatArray,
+    z: FloatArray,
     *,
     v_limit: float,
     kp: float,
     ki: float,
     iterations: int,
     backend: Backend = Backend.NUMPY,
-) -> tuple[FloatArray, FloatArray]:
-    """Run the observer's PI loop towards ``target`` = sqrt(z) [sqrt(m)].
+    tanh_of_integral: FloatArray | None = None,
+) -> ObserverOutput:
+    """Run the observer's PI loop towards sqrt(z) and the forward model at its result.
 
-    Per update: t = tanh(q V), gain = max(sqrt_n (1 - t^2), 1e-6 sqrt_n),
-    e = (target - sqrt_z_sat t) / gain, I = clip(I + ki e, 0, v_limit),
-    V = I (kp = 0) or clip(I + kp e, 0, v_limit), with q, sqrt_n and sqrt_z_sat of ``laws``.
+    With target = sqrt(max(z, 0)), per update: t = tanh(q V), gain = max(sqrt_n (1 - t^2),
+    1e-6 sqrt_n), e = (target - sqrt_z_sat t) / gain, I = clip(I + ki e, 0, v_limit),
+    V = I (kp = 0) or clip(I + kp e, 0, v_limit), with q, sqrt_n and sqrt_z_sat of ``laws``;
+    V starts at clip(I, 0, v_limit). The model error takes t = tanh(q V) of the final V,
+    which the next call's first update reuses when kp == 0 (exactly the same number, one
+    tanh pass less per set point).
 
     Args:
         integral: integrator state [V], the grid's shape; not modified.
         laws: the model coefficients at the temperatures (same shape).
-        target: sqrt of the set points [sqrt(m)], same shape.
+        z: free-displacement set points [m], same shape (negative ones count as 0).
         v_limit: largest voltage [V].
         kp: proportional gain (normalised by the local gain).
         ki: integral gain (normalised by the local gain).
         iterations: updates to run (>= 1).
         backend: which implementation runs (same numbers).
+        tanh_of_integral: tanh(q clip(integral, 0, v_limit)) when the caller knows it (the
+            ``tanh_of_voltage`` of the call that returned ``integral`` with kp == 0).
 
     Returns:
-        (voltage, integral): new arrays [V]; with ``kp == 0`` they are the same array.
+        The new arrays (:class:`ObserverOutput`).
 
     """
-    q, sqrt_n, sqrt_z_sat = laws.q, laws.sqrt_n, laws.sqrt_z_sat
     shape = integral.shape
     if backend is Backend.FUSED and integral.size:
-        flat = [np.ascontiguousarray(a, np.float64).ravel()
-                for a in (q, sqrt_n, sqrt_z_sat, target)]
-        state = np.asarray(np.clip(integral, 0.0, v_limit), np.float64).ravel()
-        # its own buffer even for kp = 0 (voltage == integral): a loop whose outputs may
-        # overlap is not vectorised
-        drive = np.empty_like(state)
-        u = np.multiply(flat[0], state)
-        step = _fused_observer_step()
-        for _ in range(iterations):
-            np.tanh(u, out=u)
-            step(u, state, drive, flat[0], flat[1], flat[2], flat[3], v_limit, kp, ki)
-        new_integral = state.reshape(shape)
-        return (new_integral if kp == 0.0 else drive.reshape(shape)), new_integral
+        return _fused_command(integral, laws, z, v_limit, kp, ki, iterations, tanh_of_integral)
+    q, sqrt_n, sqrt_z_sat = laws.q, laws.sqrt_n, laws.sqrt_z_sat
+    target = np.sqrt(np.clip(z, 0.0, None))
     zeros = np.zeros(shape)
     limit = np.full(shape, v_limit)
     floor = 1e-6 * sqrt_n
@@ -178,9 +230,12 @@ def observer_iterations(
     t = np.empty(shape)
     gain = np.empty(shape)
     error = np.empty(shape)
-    for _ in range(iterations):
-        np.multiply(q, voltage, out=t)
-        np.tanh(t, out=t)
+    for k in range(iterations):
+        if k == 0 and tanh_of_integral is not None:
+            t[...] = tanh_of_integral
+        else:
+            np.multiply(q, voltage, out=t)
+            np.tanh(t, out=t)
         # local gain of sqrt(z) over V: sqrt(M/L) sech^2(u)
         np.multiply(t, t, out=gain)
         np.subtract(1.0, gain, out=gain)
@@ -194,4 +249,46 @@ def observer_iterations(
         np.minimum(new_integral, limit, out=new_integral)
         if kp != 0.0:
             voltage = np.minimum(np.maximum(new_integral + kp * error, zeros), limit)
-    return voltage, new_integral
+    np.multiply(q, voltage, out=t)
+    np.tanh(t, out=t)
+    model_error = t * t
+    model_error /= laws.inv_zsat
+    target *= target
+    model_error -= target
+    return ObserverOutput(voltage, new_integral, model_error, t)
+
+
+def _fused_command(  # noqa: PLR0917 (the arguments of observer_command)
+    integral: FloatArray,
+    laws: LawsAtTemperature,
+    z: FloatArray,
+    v_limit: float,
+    kp: float,
+    ki: float,
+    iterations: int,
+    tanh_of_integral: FloatArray | None,
+) -> ObserverOutput:
+    """:func:`observer_command` in numba passes around numpy's SIMD ``tanh``."""
+    shape = integral.shape
+    q, sqrt_n, sqrt_z_sat, inv_zsat, z_flat, state = (
+        np.ascontiguousarray(a, np.float64).ravel()
+        for a in (laws.q, laws.sqrt_n, laws.sqrt_z_sat, laws.inv_zsat, z, integral)
+    )
+    have_tanh = tanh_of_integral is not None
+    known = np.ascontiguousarray(tanh_of_integral, np.float64).ravel() if have_tanh else q
+    prep, step, finish = _fused_observer()
+    target, held, u = np.empty(q.size), np.empty(q.size), np.empty(q.size)
+    prep(z_flat, state, q, known, target, held, u, v_limit, have_tanh)
+    # its own buffer even for kp = 0 (voltage == integral): a loop whose outputs may
+    # overlap is not vectorised
+    drive = np.empty_like(held)
+    for k in range(iterations):
+        if k or not have_tanh:
+            np.tanh(u, out=u)
+        step(u, held, drive, q, sqrt_n, sqrt_z_sat, target, v_limit, kp, ki)
+    np.tanh(u, out=u)
+    error = np.empty_like(u)
+    finish(u, inv_zsat, target, error)
+    new_integral = held.reshape(shape)
+    voltage = new_integral if kp == 0.0 else drive.reshape(shape)
+    return ObserverOutput(voltage, new_integral, error.reshape(shape), u.reshape(shape))

@@ -371,10 +371,11 @@ def limit_voltages(
     """
     if voltage.size and not voltage.max() < v_limit:  # NaN or over the limit
         over = ~(voltage < v_limit)
-        status[over & (status < CODE_CLIPPED_HIGH)] = CODE_CLIPPED_HIGH
-        voltage[over] = v_limit
+        # status = max(status, CLIPPED_HIGH) where over; masked copies beat boolean indexing
+        np.maximum(status, over.view(np.int8) * np.int8(CODE_CLIPPED_HIGH), out=status)
+        np.copyto(voltage, v_limit, where=over)
     if flagged and status.size and status.max() >= CODE_CLIPPED_LOW:
-        voltage[(status == CODE_CLIPPED_LOW) | (status == CODE_INVALID)] = 0.0
+        np.copyto(voltage, 0.0, where=(status == CODE_CLIPPED_LOW) | (status == CODE_INVALID))
     return InverseResult(voltage, status)
 
 
