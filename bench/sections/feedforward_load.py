@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import tempfile
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -36,40 +37,69 @@ class LoadRun:
                 + (c["commands_published"] - c["commands_in_bag"]))
 
 
-def _wait_recorder_has(client: DdsClient, recorder: Process, timeout: float = 60.0) -> None:
-    """Wait until the recorder's /diagnostics report every command the client received.
-
-    Then it matched the node's command publisher before the first command went out: what it
-    misses later is a loss, not start-up.
+def _wait_recorder(client: DdsClient, recorder: Process, ready: Callable[[dict[str, str]], bool],
+                   what: str, timeout: float = 60.0) -> None:
+    """Spin until the recorder's /diagnostics values satisfy ``ready``.
 
     Raises:
-        RuntimeError: the recorder did not report them within ``timeout``.
+        RuntimeError: they did not within ``timeout`` (names ``what`` and the last report).
 
     """
     from diagnostic_msgs.msg import DiagnosticArray
 
-    from es_msgs_py.topics import COMMAND, DIAGNOSTICS, qos_for
+    from es_msgs_py.topics import DIAGNOSTICS, qos_for
 
-    reported = -1
+    values: dict[str, str] = {}
 
     def on_report(msg: Any) -> None:
-        nonlocal reported
         for status in msg.status:
-            for pair in status.values:
-                if pair.key == f"{COMMAND} received" and pair.value.isdigit():
-                    reported = int(pair.value)
+            values.update((pair.key, pair.value) for pair in status.values)
 
     sub = client.node.create_subscription(DiagnosticArray, DIAGNOSTICS, on_report,
                                           qos_for(DIAGNOSTICS))
     deadline = time.monotonic() + timeout
     try:
-        while reported < client.received:
+        while not ready(values):
             if time.monotonic() > deadline or not recorder.running():
-                raise RuntimeError(f"recorder reports {reported} of {client.received} commands "
-                                   f"after {timeout:g} s: it matched the node late")
+                raise RuntimeError(f"recorder: {what} not within {timeout:g} s (last report: "
+                                   f"{ {k: v for k, v in values.items() if k.startswith('/')} })")
             client.executor.spin_once(timeout_sec=0.1)
     finally:
         client.node.destroy_subscription(sub)
+
+
+def _count(values: dict[str, str], key: str) -> int:
+    """Return the integer ``values[key]`` of a recorder report, -1 when absent or not a number."""
+    value = values.get(key, "")
+    return int(value) if value.isdigit() else -1
+
+
+def _wait_recorder_matched(client: DdsClient, recorder: Process) -> None:
+    """Wait until the recorder matched the set-point and command publishers (before any is sent).
+
+    Raises:
+        RuntimeError: it did not within the timeout.
+
+    """
+    from es_msgs_py.topics import COMMAND, SETPOINT
+
+    keys = [f"{topic} publishers" for topic in (SETPOINT, COMMAND)]
+    _wait_recorder(client, recorder, lambda v: all(_count(v, k) >= 1 for k in keys),
+                   "publishers of " + " and ".join(keys))
+
+
+def _wait_recorder_has(client: DdsClient, recorder: Process) -> None:
+    """Wait until the recorder's /diagnostics report every command the client received.
+
+    Raises:
+        RuntimeError: the recorder did not report them within the timeout.
+
+    """
+    from es_msgs_py.topics import COMMAND
+
+    key = f"{COMMAND} received"
+    _wait_recorder(client, recorder, lambda v: _count(v, key) >= client.received,
+                   f"{client.received} commands received")
 
 
 def _load_run(loaded: bool, settings: Settings, log_dir: Path, paced_s: float) -> LoadRun:
@@ -94,6 +124,8 @@ def _load_run(loaded: bool, settings: Settings, log_dir: Path, paced_s: float) -
         try:
             with processes(node, recorder):  # the node stops first, the recorder last
                 client.wait_for_peer(setpoint_readers=2, estimates=True)
+                # matched before the first set point: what it misses later is a loss
+                _wait_recorder_matched(client, recorder)
                 client.use_temperature()
                 _wait_recorder_has(client, recorder)
                 lat = client.latencies(settings.dds_latency_samples)
