@@ -20,6 +20,7 @@ from es_feedforward.kernels import (
     KernelBackendError,
     default_backend,
     fused_available,
+    fused_reach_status,
     observer_command,
 )
 from es_physics.laws import CODE_CLIPPED_HIGH, CODE_OK, DEFAULT_V_LIMIT, LawsAtTemperature
@@ -163,3 +164,28 @@ def test_reach_status_equals_the_inverse_status(T0: float) -> None:
     for z in cases:
         expected = laws.hyperbolic_inverse(z, DEFAULT_V_LIMIT).status
         np.testing.assert_array_equal(ff._reach_status(laws, z), expected)
+
+
+def test_fused_reach_status_takes_clear_set_points_and_leaves_unclear_ones() -> None:
+    rng = np.random.default_rng(5)
+    ff = Feedforward(FeedforwardConfig(shape=SHAPE, params=_params(rng)), backend=Backend.FUSED)
+    ff.update_temperature(np.full(SHAPE, 40.0), 0.0)
+    laws = ff._laws
+    assert laws is not None
+    _, below, beyond = ff._reach_bounds(laws)
+    clear = np.where(rng.random(SHAPE) < 0.5, 0.5 * below, 2.0 * beyond)
+    voltage = rng.uniform(0.0, 400.0, SHAPE)  # some over the limit
+    limited = np.minimum(voltage, DEFAULT_V_LIMIT)
+    status = fused_reach_status(clear, voltage, below, beyond, DEFAULT_V_LIMIT)
+    assert status is not None
+    expected = laws.hyperbolic_inverse(clear, DEFAULT_V_LIMIT).status
+    expected[limited == DEFAULT_V_LIMIT] = CODE_CLIPPED_HIGH
+    np.testing.assert_array_equal(status, expected)
+    np.testing.assert_array_equal(voltage, limited)
+    for bad in (0.5 * (below + beyond), -1e-9, np.nan):
+        z = clear.copy()
+        z.flat[4] = bad if np.isscalar(bad) else bad.flat[4]  # type: ignore[union-attr]
+        before = rng.uniform(0.0, 400.0, SHAPE)
+        voltage = before.copy()
+        assert fused_reach_status(z, voltage, below, beyond, DEFAULT_V_LIMIT) is None
+        np.testing.assert_array_equal(voltage, before)  # untouched: the caller inverts

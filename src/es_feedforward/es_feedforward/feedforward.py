@@ -44,7 +44,13 @@ from es_feedforward.feedforward_config import (
     Mode,
     ObserverGains,
 )
-from es_feedforward.kernels import Backend, default_backend, observer_command, prepare
+from es_feedforward.kernels import (
+    Backend,
+    default_backend,
+    fused_reach_status,
+    observer_command,
+    prepare,
+)
 from es_physics.effects import Compensator, in_model_order
 from es_physics.laws import (
     CODE_CLIPPED_HIGH,
@@ -414,7 +420,6 @@ class Feedforward:
         """
         gains = self.config.observer
         v_limit = self.config.v_limit
-        status = self._reach_status(laws, z)
         known = self._observer_tanh
         out = observer_command(
             self._integral, laws, z, v_limit=v_limit, kp=gains.kp, ki=gains.ki,
@@ -423,6 +428,15 @@ class Feedforward:
             else None,
         )  # fmt: skip
         self._integral = out.integral
+        status = None
+        if self.backend is Backend.FUSED and not laws.flagged and z.size:
+            _, below, beyond = self._reach_bounds(laws)
+            status = fused_reach_status(z, out.voltage, below, beyond, v_limit)
+        if status is None:
+            status = self._reach_status(laws, z)
+            result = limit_voltages(out.voltage, status, v_limit)
+        else:
+            result = InverseResult(out.voltage, status)
         # tanh(q I) starts the next set point's loop only if nothing changes I in place
         # (limit_voltages zeroes CLIPPED_LOW/INVALID; command substitutes invalid ones)
         reusable = gains.kp == 0.0 and not self._stages and not laws.flagged
@@ -430,7 +444,7 @@ class Feedforward:
         if worst >= CODE_CLIPPED_LOW:
             reusable = reusable and worst < CODE_INVALID and not np.any(status == CODE_CLIPPED_LOW)
         self._observer_tanh = (laws, out.integral, out.tanh_of_voltage) if reusable else None
-        return limit_voltages(out.voltage, status, v_limit), out.model_error
+        return result, out.model_error
 
     def _drive_and_limits(
         self, result: InverseResult, t: float

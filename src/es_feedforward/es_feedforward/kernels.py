@@ -30,7 +30,7 @@ from typing import Final
 
 import numpy as np
 
-from es_physics.laws import LawsAtTemperature
+from es_physics.laws import CODE_CLIPPED_HIGH, LawsAtTemperature, StatusArray
 from es_physics.params import FloatArray
 
 #: Environment variable that chooses the kernels (values of :class:`Backend`, or ``auto``).
@@ -89,6 +89,7 @@ ObserverPrep = Callable[
     None,
 ]
 ObserverFinish = Callable[[FloatArray, FloatArray, FloatArray, FloatArray], None]
+ReachLimit = Callable[[FloatArray, FloatArray, FloatArray, FloatArray, StatusArray, float], int]
 
 
 @dataclass(frozen=True)
@@ -174,10 +175,78 @@ def _fused_observer() -> tuple[ObserverPrep, ObserverStep, ObserverFinish]:
     return prep, step, finish
 
 
+@cache
+def _fused_reach_limit() -> ReachLimit:
+    """Compile (or load from numba's cache) the fused reach status and voltage limit."""
+    import numba
+
+    vec = numba.float64[::1]
+    ro = numba.types.Array(numba.float64, 1, "C", readonly=True)
+    high_code = np.int8(CODE_CLIPPED_HIGH)
+
+    @numba.njit(numba.int64(ro, ro, ro, vec, numba.int8[::1], numba.float64), cache=True,
+                nogil=True, error_model="numpy")
+    def reach_limit(  # noqa: PLR0917 (numba calls are positional)
+        z: FloatArray,
+        below: FloatArray,
+        beyond: FloatArray,
+        voltage: FloatArray,
+        status: StatusArray,
+        v_limit: float,
+    ) -> int:
+        unclear = 0
+        for i in range(z.size):
+            zi = z[i]
+            high = zi >= beyond[i]
+            status[i] = high_code if high else np.int8(0)
+            unclear += not (high or zi < below[i]) or not zi >= 0.0
+        if unclear:
+            return unclear
+        for i in range(z.size):
+            if not voltage[i] < v_limit:
+                status[i] = high_code
+                voltage[i] = v_limit
+        return 0
+
+    return reach_limit
+
+
 def prepare(backend: Backend) -> None:
     """Compile the kernels of ``backend`` now (a no-op for numpy and after the first call)."""
     if backend is Backend.FUSED:
         _fused_observer()
+        _fused_reach_limit()
+
+
+def fused_reach_status(
+    z: FloatArray, voltage: FloatArray, below: FloatArray, beyond: FloatArray, v_limit: float
+) -> StatusArray | None:
+    """Return the statuses of set points that are clearly in or beyond reach, and limit.
+
+    One fused pass (numba) for laws that flag no actuator: status CLIPPED_HIGH where
+    z >= ``beyond``, OK where z < ``below``; then, as :func:`es_physics.laws.limit_voltages`,
+    voltages not below ``v_limit`` become ``v_limit`` (CLIPPED_HIGH). Needs the fused backend.
+
+    Args:
+        z: set points [m], the grid's shape.
+        voltage: the command [V], same shape, C-contiguous; limited in place.
+        below: set points [m] that ``v_limit`` surely reaches (same shape).
+        beyond: set points [m] that ``v_limit`` surely does not reach (same shape).
+        v_limit: largest voltage [V].
+
+    Returns:
+        The statuses, or ``None`` (``voltage`` untouched) when a set point is negative, not
+        finite or between ``below`` and ``beyond``: the caller takes the model's inverse.
+
+    """
+    status = np.empty(z.shape, np.int8)
+    z_flat, below_flat, beyond_flat = (
+        np.ascontiguousarray(a, np.float64).ravel() for a in (z, below, beyond)
+    )
+    unclear = _fused_reach_limit()(
+        z_flat, below_flat, beyond_flat, voltage.reshape(-1), status.reshape(-1), v_limit
+    )
+    return None if unclear else status
 
 
 def observer_command(
