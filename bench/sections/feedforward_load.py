@@ -37,9 +37,11 @@ class LoadRun:
                 + (c["commands_published"] - c["commands_in_bag"]))
 
 
-def _wait_recorder(client: DdsClient, recorder: Process, ready: Callable[[dict[str, str]], bool],
+def _wait_diagnostics(client: DdsClient, process: Process, ready: Callable[[dict[str, str]], bool],
                    what: str, timeout: float = 60.0) -> None:
-    """Spin until the recorder's /diagnostics values satisfy ``ready``.
+    """Spin until the /diagnostics values (recorder's counts, ``<node>: ready``) satisfy ``ready``.
+
+    Readiness comes in as ``values["<node>: ready"] == "True"``.
 
     Raises:
         RuntimeError: they did not within ``timeout`` (names ``what`` and the last report).
@@ -52,16 +54,19 @@ def _wait_recorder(client: DdsClient, recorder: Process, ready: Callable[[dict[s
     values: dict[str, str] = {}
 
     def on_report(msg: Any) -> None:
+        from es_msgs_py.diagnostics import ready_nodes
+
         for status in msg.status:
             values.update((pair.key, pair.value) for pair in status.values)
+        values.update((f"{name}: ready", str(ok)) for name, ok in ready_nodes(msg).items())
 
     sub = client.node.create_subscription(DiagnosticArray, DIAGNOSTICS, on_report,
                                           qos_for(DIAGNOSTICS))
     deadline = time.monotonic() + timeout
     try:
         while not ready(values):
-            if time.monotonic() > deadline or not recorder.running():
-                raise RuntimeError(f"recorder: {what} not within {timeout:g} s (last report: "
+            if time.monotonic() > deadline or not process.running():
+                raise RuntimeError(f"{what}: not within {timeout:g} s (last report: "
                                    f"{ {k: v for k, v in values.items() if k.startswith('/')} })")
             client.executor.spin_once(timeout_sec=0.1)
     finally:
@@ -84,8 +89,24 @@ def _wait_recorder_matched(client: DdsClient, recorder: Process) -> None:
     from es_msgs_py.topics import COMMAND, SETPOINT
 
     keys = [f"{topic} publishers" for topic in (SETPOINT, COMMAND)]
-    _wait_recorder(client, recorder, lambda v: all(_count(v, k) >= 1 for k in keys),
+    _wait_diagnostics(client, recorder, lambda v: all(_count(v, k) >= 1 for k in keys),
                    "publishers of " + " and ".join(keys))
+
+
+def _wait_node_ready(client: DdsClient, node: Process) -> None:
+    """Wait until the feedforward says it is ready (no command goes out before).
+
+    With ``ready_subscribers:=2`` its command publisher has matched the client and the
+    recorder then, so neither misses the first command.
+
+    Raises:
+        RuntimeError: it did not within the timeout.
+
+    """
+    from es_feedforward.feedforward_node import NODE_NAME
+
+    key = f"{NODE_NAME}: ready"
+    _wait_diagnostics(client, node, lambda v: v.get(key) == "True", key)
 
 
 def _wait_recorder_has(client: DdsClient, recorder: Process) -> None:
@@ -98,7 +119,7 @@ def _wait_recorder_has(client: DdsClient, recorder: Process) -> None:
     from es_msgs_py.topics import COMMAND
 
     key = f"{COMMAND} received"
-    _wait_recorder(client, recorder, lambda v: _count(v, key) >= client.received,
+    _wait_diagnostics(client, recorder, lambda v: _count(v, key) >= client.received,
                    f"{client.received} commands received")
 
 
@@ -119,13 +140,15 @@ def _load_run(loaded: bool, settings: Settings, log_dir: Path, paced_s: float) -
                                                SETPOINT, COMMAND], log_dir)
         node = Process(f"feedforward_{label}_{rows}x{cols}", [
             launcher("es_feedforward", "feedforward_node"), "--ros-args", "-p", f"rows:={rows}",
-            "-p", f"cols:={cols}", "-p", "temperature_timeout:=0.0"], log_dir)
+            "-p", f"cols:={cols}", "-p", "temperature_timeout:=0.0",
+            "-p", "ready_subscribers:=2"], log_dir)  # the client and the recorder
         client = DdsClient(LOAD_SHAPE)
         try:
             with processes(node, recorder):  # the node stops first, the recorder last
                 client.wait_for_peer(setpoint_readers=2, estimates=True)
                 # matched before the first set point: what it misses later is a loss
                 _wait_recorder_matched(client, recorder)
+                _wait_node_ready(client, node)
                 client.use_temperature()
                 _wait_recorder_has(client, recorder)
                 lat = client.latencies(settings.dds_latency_samples)

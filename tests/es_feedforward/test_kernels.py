@@ -182,6 +182,12 @@ def test_fused_reach_status_takes_clear_set_points_and_leaves_unclear_ones() -> 
     expected[limited == DEFAULT_V_LIMIT] = CODE_CLIPPED_HIGH
     np.testing.assert_array_equal(status, expected)
     np.testing.assert_array_equal(voltage, limited)
+    voltage = rng.uniform(0.0, 300.0, SHAPE)
+    saturated = fused_reach_status(clear, voltage, below, beyond, DEFAULT_V_LIMIT,
+                                   saturate_high=True)
+    assert saturated is not None
+    assert np.all(voltage[saturated == CODE_CLIPPED_HIGH] == DEFAULT_V_LIMIT)
+    assert np.all(voltage[saturated == CODE_OK] <= 300.0)
     for bad in (0.5 * (below + beyond), -1e-9, np.nan):
         z = clear.copy()
         z.flat[4] = bad if np.isscalar(bad) else bad.flat[4]  # type: ignore[union-attr]

@@ -89,7 +89,9 @@ ObserverPrep = Callable[
     None,
 ]
 ObserverFinish = Callable[[FloatArray, FloatArray, FloatArray, FloatArray], None]
-ReachLimit = Callable[[FloatArray, FloatArray, FloatArray, FloatArray, StatusArray, float], int]
+ReachLimit = Callable[
+    [FloatArray, FloatArray, FloatArray, FloatArray, StatusArray, float, bool], int
+]
 
 
 @dataclass(frozen=True)
@@ -184,8 +186,8 @@ def _fused_reach_limit() -> ReachLimit:
     ro = numba.types.Array(numba.float64, 1, "C", readonly=True)
     high_code = np.int8(CODE_CLIPPED_HIGH)
 
-    @numba.njit(numba.int64(ro, ro, ro, vec, numba.int8[::1], numba.float64), cache=True,
-                nogil=True, error_model="numpy")
+    @numba.njit(numba.int64(ro, ro, ro, vec, numba.int8[::1], numba.float64, numba.boolean),
+                cache=True, nogil=True, error_model="numpy")
     def reach_limit(  # noqa: PLR0917 (numba calls are positional)
         z: FloatArray,
         below: FloatArray,
@@ -193,6 +195,7 @@ def _fused_reach_limit() -> ReachLimit:
         voltage: FloatArray,
         status: StatusArray,
         v_limit: float,
+        saturate_high: bool,
     ) -> int:
         unclear = 0
         for i in range(z.size):
@@ -203,7 +206,7 @@ def _fused_reach_limit() -> ReachLimit:
         if unclear:
             return unclear
         for i in range(z.size):
-            if not voltage[i] < v_limit:
+            if not voltage[i] < v_limit or (saturate_high and status[i] == high_code):
                 status[i] = high_code
                 voltage[i] = v_limit
         return 0
@@ -219,13 +222,20 @@ def prepare(backend: Backend) -> None:
 
 
 def fused_reach_status(
-    z: FloatArray, voltage: FloatArray, below: FloatArray, beyond: FloatArray, v_limit: float
+    z: FloatArray,
+    voltage: FloatArray,
+    below: FloatArray,
+    beyond: FloatArray,
+    v_limit: float,
+    *,
+    saturate_high: bool = False,
 ) -> StatusArray | None:
     """Return the statuses of set points that are clearly in or beyond reach, and limit.
 
     One fused pass (numba) for laws that flag no actuator: status CLIPPED_HIGH where
     z >= ``beyond``, OK where z < ``below``; then, as :func:`es_physics.laws.limit_voltages`,
-    voltages not below ``v_limit`` become ``v_limit`` (CLIPPED_HIGH). Needs the fused backend.
+    voltages not below ``v_limit`` become ``v_limit`` (CLIPPED_HIGH), and so do the
+    CLIPPED_HIGH set points' voltages with ``saturate_high``. Needs the fused backend.
 
     Args:
         z: set points [m], the grid's shape.
@@ -233,6 +243,7 @@ def fused_reach_status(
         below: set points [m] that ``v_limit`` surely reaches (same shape).
         beyond: set points [m] that ``v_limit`` surely does not reach (same shape).
         v_limit: largest voltage [V].
+        saturate_high: drive the set points beyond reach at ``v_limit``.
 
     Returns:
         The statuses, or ``None`` (``voltage`` untouched) when a set point is negative, not
@@ -244,7 +255,8 @@ def fused_reach_status(
         np.ascontiguousarray(a, np.float64).ravel() for a in (z, below, beyond)
     )
     unclear = _fused_reach_limit()(
-        z_flat, below_flat, beyond_flat, voltage.reshape(-1), status.reshape(-1), v_limit
+        z_flat, below_flat, beyond_flat, voltage.reshape(-1), status.reshape(-1), v_limit,
+        saturate_high,
     )
     return None if unclear else status
 
