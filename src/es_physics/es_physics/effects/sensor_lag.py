@@ -1,11 +1,15 @@
 """Sensor lag: the temperature sensor sits beside the actuator and lags behind it.
 
 Plant: the sensor reads T_s with dT_s/dt = (T_a - T_s) / tau. Calibration: the actuator
-leads the sensor, T_a = T_s + tau dT_s/dt. Feedforward: the same lead, its derivative
-low-pass filtered (``compensation.temperature_lead_s``, ``temperature_lead_filter_s``); a
-calibration sets the filter to LEAD_FILTER_FRACTION of the lag: the lead must follow changes
-of the actuator's temperature as fast as the lag hides them, and a shorter filter only
-amplifies the sensor's noise (the derivative of a noisy, quantised reading).
+leads the sensor, T_a = T_s + tau dT_s/dt. Feedforward: the lag undone by a Kalman filter
+(:class:`TemperatureLead`, ``compensation.temperature_lead_s``) whose model is that lag behind
+an actuator temperature that moves at a slowly changing rate (it follows ramps without lag)
+and that may jump (a jump is taken where a reading departs from the prediction by more than
+JUMP_GATE standard deviations). A plain lead T_s + tau dT_s/dt differentiates the sensor's
+noise: on a 0.02 degC sensor read every 0.2 tau it amplifies the noise about threefold, while
+the filter, smoothing where nothing jumps, comes close to the lag-free reading. A calibration
+sets the filter's smoothing time (``temperature_lead_filter_s``) to LEAD_FILTER_FRACTION of
+the lag; ``temperature_noise_degc`` is the sensor's noise.
 """
 
 from __future__ import annotations
@@ -18,8 +22,15 @@ import numpy as np
 from es_physics.effects.base import Effect, FittedEffect, FloatArray, Parameter, Role
 from es_physics.effects.stages import Compensator, PlantContext, PlantStage
 
-#: The lead's derivative filter as a fraction of the calibrated lag.
+#: The filter's smoothing time as a fraction of the calibrated lag.
 LEAD_FILTER_FRACTION: Final = 0.5
+#: A reading further than this many standard deviations from the prediction is a jump.
+JUMP_GATE: Final = 3.0
+#: Standard deviation of the actuator temperature's jump assumed at a detected jump, in
+#: sensor noise standard deviations.
+JUMP_SIZE: Final = 15.0
+#: Shortest smoothing time as a fraction of the lag (keeps the process noise finite).
+MIN_FILTER_FRACTION: Final = 1e-3
 
 
 class SensorLagStage(PlantStage):
@@ -34,45 +45,83 @@ class SensorLagStage(PlantStage):
 
 
 class TemperatureLead(Compensator):
-    """T_used = T + tau dT/dt with a first-order low-pass on the finite-difference derivative.
+    """Kalman estimate of the actuator temperature behind a lagging sensor, per actuator.
+
+    State per actuator: actuator temperature T_a [degC], its rate [degC/s] and the sensor's
+    temperature T_s [degC]; T_s follows T_a with the first-order lag ``tau_s`` (exact
+    discretisation for a T_a ramp over each sample interval), the rate changes by white
+    noise of intensity noise^2 / filter^3 [degC^2/s^3], the sensor adds white noise of
+    ``noise_degc``. A reading whose innovation exceeds JUMP_GATE standard deviations adds a
+    jump of JUMP_SIZE noise standard deviations to T_a's uncertainty before the update, so a
+    step is followed within a sample or two while quiet stretches stay smoothed.
 
     Args:
         tau_s: the lag to undo [s] (0 = pass the temperature through).
-        filter_s: time constant of the derivative's low-pass [s].
+        filter_s: smoothing time of the filter [s] (longer: less noise, slower to follow a
+            change of rate).
+        noise_degc: standard deviation of the sensor's noise [degC], > 0.
 
     """
 
-    def __init__(self, tau_s: float, filter_s: float) -> None:
+    def __init__(self, tau_s: float, filter_s: float, noise_degc: float) -> None:
         self.tau_s = tau_s
-        self.filter_s = filter_s
-        self._last: tuple[FloatArray, float] | None = None
-        self._rate: FloatArray | None = None
+        self.filter_s = max(filter_s, MIN_FILTER_FRACTION * tau_s)
+        self.noise_degc = noise_degc
+        self._state: FloatArray | None = None  # (..., 3): T_a, rate, T_s
+        self._cov: FloatArray | None = None  # (..., 3, 3)
+        self._time = 0.0
 
-    def retuned(self, tau_s: float, filter_s: float) -> TemperatureLead:
+    def retuned(self, tau_s: float, filter_s: float, noise_degc: float) -> TemperatureLead:
         """Return a copy with new parameters and this one's state (this one is unchanged)."""
-        other = TemperatureLead(tau_s, filter_s)
-        other._last, other._rate = self._last, self._rate
+        other = TemperatureLead(tau_s, filter_s, noise_degc)
+        other._state, other._cov, other._time = self._state, self._cov, self._time
         return other
 
+    def _start(self, T: FloatArray, t: float) -> FloatArray:
+        self._state = np.stack([T, np.zeros_like(T), T], axis=-1)
+        cov = np.zeros((*T.shape, 3, 3))
+        cov[..., 0, 0] = cov[..., 2, 2] = self.noise_degc**2
+        cov[..., 1, 1] = (self.noise_degc / self.tau_s) ** 2
+        self._cov, self._time = cov, t
+        return T
+
     def __call__(self, T: FloatArray, t: float) -> FloatArray:
-        """Return the lead-corrected temperatures for a sample ``T`` [degC] taken at ``t`` [s]."""
+        """Return the actuator temperatures [degC] estimated from a sample ``T`` taken at ``t``.
+
+        ``T`` holds finite sensor readings [degC] (any shape; a new shape restarts the
+        filter at the readings). A sample not later than the last one changes nothing.
+        """
         if self.tau_s == 0.0:
             return T
-        if self._last is None or self._rate is None or self._last[0].shape != T.shape:
-            self._rate = np.zeros_like(T)
-        else:
-            T_prev, t_prev = self._last
-            dt = t - t_prev
-            if dt > 0.0:
-                raw = (T - T_prev) / dt
-                gain = dt / (dt + self.filter_s)
-                rate = self._rate + gain * (raw - self._rate)
-                self._rate = np.where(np.isfinite(rate), rate, 0.0)
-        self._last = (T, t)
-        return np.asarray(T + self.tau_s * self._rate, np.float64)
+        state, cov = self._state, self._cov
+        if state is None or cov is None or state.shape[:-1] != T.shape:
+            return self._start(T, t)
+        dt = t - self._time
+        if dt <= 0.0:
+            return np.array(state[..., 0])
+        self._time = t
+        lag = np.exp(-dt / self.tau_s)
+        F = np.array(
+            [[1.0, dt, 0.0], [0.0, 1.0, 0.0], [1.0 - lag, dt - self.tau_s * (1.0 - lag), lag]]
+        )
+        r = self.noise_degc**2
+        q = r / self.filter_s**3
+        Q = q * np.array([[dt**3 / 3, dt**2 / 2, 0.0], [dt**2 / 2, dt, 0.0], [0.0, 0.0, 0.0]])
+        state = state @ F.T
+        cov = F @ cov @ F.T + Q
+        innovation = T - state[..., 2]
+        jump = innovation**2 > JUMP_GATE**2 * (cov[..., 2, 2] + r)
+        if np.any(jump):
+            size = (JUMP_SIZE * self.noise_degc) ** 2
+            cov = cov + np.where(jump[..., None, None], size * np.outer(F[:, 0], F[:, 0]), 0.0)
+        gain = cov[..., :, 2] / (cov[..., 2, 2] + r)[..., None]
+        state = state + gain * innovation[..., None]
+        cov = cov - gain[..., :, None] * cov[..., 2, None, :]
+        self._state, self._cov = state, cov
+        return np.array(state[..., 0])
 
     def measured_temperature(self, T: FloatArray, t: float) -> FloatArray:
-        """Return the lead-corrected temperatures (see :meth:`__call__`)."""
+        """Return the estimated actuator temperatures (see :meth:`__call__`)."""
         return self(T, t)
 
 
@@ -93,7 +142,10 @@ class SensorLag(Effect):
     compensation: ClassVar[tuple[Parameter, ...]] = (
         Parameter("temperature_lead_s", "s", 0.0, 3600.0, 0.0, "sensor lag to undo (0 = off)"),
         Parameter(
-            "temperature_lead_filter_s", "s", 0.0, 3600.0, 0.5, "low-pass of the lead's dT/dt"
+            "temperature_lead_filter_s", "s", 0.0, 3600.0, 0.5, "smoothing time of the lead"
+        ),
+        Parameter(
+            "temperature_noise_degc", "degC", 1e-6, 10.0, 0.02, "sensor noise sd (> 0)"
         ),
     )
 
@@ -110,7 +162,7 @@ class SensorLag(Effect):
     def compensation_values(
         self, reported: dict[str, float], start_time: float
     ) -> dict[str, float]:
-        """Lead the measured temperature by the fitted lag, its derivative filtered."""
+        """Undo the fitted lag, smoothing over LEAD_FILTER_FRACTION of it."""
         return {
             "temperature_lead_s": reported["tau_s"],
             "temperature_lead_filter_s": LEAD_FILTER_FRACTION * reported["tau_s"],
@@ -129,8 +181,9 @@ class SensorLag(Effect):
     ) -> Compensator | None:
         """Return the temperature lead, or None when ``temperature_lead_s`` is 0."""
         tau, filter_s = values["temperature_lead_s"], values["temperature_lead_filter_s"]
+        noise = values["temperature_noise_degc"]
         if tau == 0.0:
             return None
         if isinstance(previous, TemperatureLead):
-            return previous.retuned(tau, filter_s)
-        return TemperatureLead(tau, filter_s)
+            return previous.retuned(tau, filter_s, noise)
+        return TemperatureLead(tau, filter_s, noise)
