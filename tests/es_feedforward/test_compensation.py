@@ -174,11 +174,13 @@ def test_temperature_lead_undoes_a_first_order_sensor_lag() -> None:
     assert used[0] == pytest.approx(actuator, abs=0.005)
 
 
-def _lagged_noisy_sensor(seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _lagged_noisy_sensor(
+    seed: int, noise_degc: float = 0.02
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Return times, actuator and sensor temperatures: 2 degC steps, then a ramp.
 
     The actuator follows its base within 0.04 s, the sensor lags it by 0.1 s and is read
-    every 0.02 s with 0.02 degC noise and 0.01 degC resolution (the time-scaled thesis
+    every 0.02 s with ``noise_degc`` noise and 0.01 degC resolution (the time-scaled thesis
     stand of the calibration loop).
     """
     rng = np.random.default_rng(seed)
@@ -192,7 +194,7 @@ def _lagged_noisy_sensor(seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]
             a += dt / 10 / 0.04 * (base[k] - a)
             s += dt / 10 / 0.1 * (a - s)
         actuator[k] = a
-        sensor[k] = np.round((s + rng.normal(0.0, 0.02)) / 0.01) * 0.01
+        sensor[k] = np.round((s + rng.normal(0.0, noise_degc)) / 0.01) * 0.01
     return t, actuator, sensor
 
 
@@ -207,6 +209,15 @@ def test_temperature_lead_follows_steps_without_amplifying_the_noise(seed: int) 
     rms = np.sqrt(np.mean((used - actuator)[50:] ** 2))
     assert rms_raw > 0.15  # the lag is real
     assert rms < 0.08
+
+
+def test_temperature_lead_learns_a_noise_larger_than_assumed() -> None:
+    # 0.05 degC noise, 0.02 assumed: with the noise held at 0.02 the jump gate fires on noise
+    # (0.24 degC rms); the plain lead errs by 0.15 degC rms
+    t, actuator, sensor = _lagged_noisy_sensor(1, noise_degc=0.05)
+    lead = TemperatureLead(0.1, filter_s=0.05, noise_degc=0.02)
+    used = np.array([lead(np.array([T]), tk)[0] for T, tk in zip(sensor, t, strict=True)])
+    assert np.sqrt(np.mean((used - actuator)[50:] ** 2)) < 0.13
 
 
 def test_unknown_or_out_of_range_compensation_parameters_are_rejected() -> None:

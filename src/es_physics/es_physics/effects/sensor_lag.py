@@ -9,7 +9,8 @@ JUMP_GATE standard deviations). A plain lead T_s + tau dT_s/dt differentiates th
 noise: on a 0.02 degC sensor read every 0.2 tau it amplifies the noise about threefold, while
 the filter, smoothing where nothing jumps, comes close to the lag-free reading. A calibration
 sets the filter's smoothing time (``temperature_lead_filter_s``) to LEAD_FILTER_FRACTION of
-the lag; ``temperature_noise_degc`` is the sensor's noise.
+the lag. The sensor's noise is estimated from the readings as they come (their second
+differences, robustly), starting from ``temperature_noise_degc``.
 """
 
 from __future__ import annotations
@@ -31,6 +32,14 @@ JUMP_GATE: Final = 3.0
 JUMP_SIZE: Final = 15.0
 #: Shortest smoothing time as a fraction of the lag (keeps the process noise finite).
 MIN_FILTER_FRACTION: Final = 1e-3
+#: Weight of a new reading in the running mean of the absolute second difference.
+NOISE_WEIGHT: Final = 1.0 / 100.0
+#: A second difference counts at most this many times the running mean (a jump does not
+#: inflate the noise estimate).
+NOISE_CLIP: Final = 2.5
+#: Mean absolute second difference of white noise of standard deviation 1:
+#: sqrt(6) sqrt(2 / pi).
+_MEAN_ABS_D2: Final = float(np.sqrt(6.0) * np.sqrt(2.0 / np.pi))
 
 
 class SensorLagStage(PlantStage):
@@ -50,16 +59,18 @@ class TemperatureLead(Compensator):
     State per actuator: actuator temperature T_a [degC], its rate [degC/s] and the sensor's
     temperature T_s [degC]; T_s follows T_a with the first-order lag ``tau_s`` (exact
     discretisation for a T_a ramp over each sample interval), the rate changes by white
-    noise of intensity noise^2 / filter^3 [degC^2/s^3], the sensor adds white noise of
-    ``noise_degc``. A reading whose innovation exceeds JUMP_GATE standard deviations adds a
-    jump of JUMP_SIZE noise standard deviations to T_a's uncertainty before the update, so a
-    step is followed within a sample or two while quiet stretches stay smoothed.
+    noise of intensity noise^2 / filter^3 [degC^2/s^3], the sensor adds white noise. A
+    reading whose innovation exceeds JUMP_GATE standard deviations adds a jump of JUMP_SIZE
+    noise standard deviations to T_a's uncertainty before the update, so a step is followed
+    within a sample or two while quiet stretches stay smoothed. The noise's standard
+    deviation per actuator starts at ``noise_degc`` and follows the running mean of the
+    readings' absolute second differences (each clipped at NOISE_CLIP times that mean).
 
     Args:
         tau_s: the lag to undo [s] (0 = pass the temperature through).
         filter_s: smoothing time of the filter [s] (longer: less noise, slower to follow a
             change of rate).
-        noise_degc: standard deviation of the sensor's noise [degC], > 0.
+        noise_degc: first estimate of the sensor noise's standard deviation [degC], > 0.
 
     """
 
@@ -70,11 +81,14 @@ class TemperatureLead(Compensator):
         self._state: FloatArray | None = None  # (..., 3): T_a, rate, T_s
         self._cov: FloatArray | None = None  # (..., 3, 3)
         self._time = 0.0
+        self._readings: list[FloatArray] = []  # the last two readings
+        self._mean_abs_d2: FloatArray | None = None  # running mean of |second difference|
 
     def retuned(self, tau_s: float, filter_s: float, noise_degc: float) -> TemperatureLead:
         """Return a copy with new parameters and this one's state (this one is unchanged)."""
         other = TemperatureLead(tau_s, filter_s, noise_degc)
         other._state, other._cov, other._time = self._state, self._cov, self._time
+        other._readings, other._mean_abs_d2 = self._readings, self._mean_abs_d2
         return other
 
     def _start(self, T: FloatArray, t: float) -> FloatArray:
@@ -83,7 +97,20 @@ class TemperatureLead(Compensator):
         cov[..., 0, 0] = cov[..., 2, 2] = self.noise_degc**2
         cov[..., 1, 1] = (self.noise_degc / self.tau_s) ** 2
         self._cov, self._time = cov, t
+        self._readings = [T]
+        self._mean_abs_d2 = np.full(T.shape, self.noise_degc * _MEAN_ABS_D2)
         return T
+
+    def _noise_variance(self, T: FloatArray) -> FloatArray:
+        """Update the noise estimate with reading ``T``; return its variance [degC^2]."""
+        assert self._mean_abs_d2 is not None
+        mean = self._mean_abs_d2
+        if len(self._readings) == 2:
+            d2 = np.abs(T - 2.0 * self._readings[1] + self._readings[0])
+            mean = mean + NOISE_WEIGHT * (np.minimum(d2, NOISE_CLIP * mean) - mean)
+            self._mean_abs_d2 = mean
+        self._readings = [*self._readings[-1:], T]
+        return np.asarray((mean / _MEAN_ABS_D2) ** 2, np.float64)
 
     def __call__(self, T: FloatArray, t: float) -> FloatArray:
         """Return the actuator temperatures [degC] estimated from a sample ``T`` taken at ``t``.
@@ -104,16 +131,15 @@ class TemperatureLead(Compensator):
         F = np.array(
             [[1.0, dt, 0.0], [0.0, 1.0, 0.0], [1.0 - lag, dt - self.tau_s * (1.0 - lag), lag]]
         )
-        r = self.noise_degc**2
-        q = r / self.filter_s**3
-        Q = q * np.array([[dt**3 / 3, dt**2 / 2, 0.0], [dt**2 / 2, dt, 0.0], [0.0, 0.0, 0.0]])
+        r = self._noise_variance(T)
+        shape = np.array([[dt**3 / 3, dt**2 / 2, 0.0], [dt**2 / 2, dt, 0.0], [0.0, 0.0, 0.0]])
         state = state @ F.T
-        cov = F @ cov @ F.T + Q
+        cov = F @ cov @ F.T + (r / self.filter_s**3)[..., None, None] * shape
         innovation = T - state[..., 2]
         jump = innovation**2 > JUMP_GATE**2 * (cov[..., 2, 2] + r)
         if np.any(jump):
-            size = (JUMP_SIZE * self.noise_degc) ** 2
-            cov = cov + np.where(jump[..., None, None], size * np.outer(F[:, 0], F[:, 0]), 0.0)
+            size = np.where(jump, JUMP_SIZE**2 * r, 0.0)
+            cov = cov + size[..., None, None] * np.outer(F[:, 0], F[:, 0])
         gain = cov[..., :, 2] / (cov[..., 2, 2] + r)[..., None]
         state = state + gain * innovation[..., None]
         cov = cov - gain[..., :, None] * cov[..., 2, None, :]
@@ -145,7 +171,7 @@ class SensorLag(Effect):
             "temperature_lead_filter_s", "s", 0.0, 3600.0, 0.5, "smoothing time of the lead"
         ),
         Parameter(
-            "temperature_noise_degc", "degC", 1e-6, 10.0, 0.02, "sensor noise sd (> 0)"
+            "temperature_noise_degc", "degC", 1e-6, 10.0, 0.02, "first sensor noise sd"
         ),
     )
 
