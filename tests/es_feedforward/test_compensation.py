@@ -211,6 +211,19 @@ def test_temperature_lead_follows_steps_without_amplifying_the_noise(seed: int) 
     assert rms < 0.08
 
 
+def test_temperature_lead_stays_finite_on_a_noise_free_sensor() -> None:
+    lead = TemperatureLead(0.1, filter_s=0.05, noise_degc=0.02)
+    T = np.full((2, 3), 45.0)
+    for step in range(10000):  # the noise estimate shrinks towards its floor
+        used = lead(T, step * 0.02)
+    assert np.all(used == pytest.approx(45.0))
+    for step in range(10000, 10050):  # then a 1 degC step, seen through the lag
+        sensor = 46.0 - np.exp(-(step - 10000) * 0.02 / 0.1)
+        used = lead(np.full((2, 3), sensor), step * 0.02)
+    assert np.all(np.isfinite(used))
+    assert np.all(used == pytest.approx(46.0, abs=0.01))
+
+
 def test_temperature_lead_learns_a_noise_larger_than_assumed() -> None:
     # 0.05 degC noise, 0.02 assumed: with the noise held at 0.02 the jump gate fires on noise
     # (0.24 degC rms); the plain lead errs by 0.15 degC rms

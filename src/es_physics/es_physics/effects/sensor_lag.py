@@ -37,6 +37,9 @@ NOISE_WEIGHT: Final = 1.0 / 100.0
 #: A second difference counts at most this many times the running mean (a jump does not
 #: inflate the noise estimate).
 NOISE_CLIP: Final = 2.5
+#: Smallest noise estimate as a fraction of the first (a noise-free sensor keeps the filter
+#: finite).
+NOISE_FLOOR_FRACTION: Final = 1e-3
 #: Mean absolute second difference of white noise of standard deviation 1:
 #: sqrt(6) sqrt(2 / pi).
 _MEAN_ABS_D2: Final = float(np.sqrt(6.0) * np.sqrt(2.0 / np.pi))
@@ -108,7 +111,8 @@ class TemperatureLead(Compensator):
         if len(self._readings) == 2:
             d2 = np.abs(T - 2.0 * self._readings[1] + self._readings[0])
             mean = mean + NOISE_WEIGHT * (np.minimum(d2, NOISE_CLIP * mean) - mean)
-            self._mean_abs_d2 = mean
+            floor = NOISE_FLOOR_FRACTION * self.noise_degc * _MEAN_ABS_D2
+            mean = self._mean_abs_d2 = np.maximum(mean, floor)
         self._readings = [*self._readings[-1:], T]
         return np.asarray((mean / _MEAN_ABS_D2) ** 2, np.float64)
 
@@ -143,6 +147,8 @@ class TemperatureLead(Compensator):
         gain = cov[..., :, 2] / (cov[..., 2, 2] + r)[..., None]
         state = state + gain * innovation[..., None]
         cov = cov - gain[..., :, None] * cov[..., 2, None, :]
+        if not (np.all(np.isfinite(state)) and np.all(np.isfinite(cov))):
+            return self._start(T, t)  # never a non-finite estimate: restart at the readings
         self._state, self._cov = state, cov
         return np.array(state[..., 0])
 
