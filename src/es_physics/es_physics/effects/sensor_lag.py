@@ -81,8 +81,10 @@ class TemperatureLead(Compensator):
         self.tau_s = tau_s
         self.filter_s = max(filter_s, MIN_FILTER_FRACTION * tau_s)
         self.noise_degc = noise_degc
-        self._state: FloatArray | None = None  # (..., 3): T_a, rate, T_s
-        self._cov: FloatArray | None = None  # (..., 3, 3)
+        # per actuator, elementwise (no per-actuator 3 x 3 products): the state T_a, rate,
+        # T_s and the covariance's six distinct entries 00, 01, 02, 11, 12, 22
+        self._state: tuple[FloatArray, ...] | None = None
+        self._cov: tuple[FloatArray, ...] = ()
         self._time = 0.0
         self._readings: list[FloatArray] = []  # the last two readings
         self._mean_abs_d2: FloatArray | None = None  # running mean of |second difference|
@@ -95,11 +97,11 @@ class TemperatureLead(Compensator):
         return other
 
     def _start(self, T: FloatArray, t: float) -> FloatArray:
-        self._state = np.stack([T, np.zeros_like(T), T], axis=-1)
-        cov = np.zeros((*T.shape, 3, 3))
-        cov[..., 0, 0] = cov[..., 2, 2] = self.noise_degc**2
-        cov[..., 1, 1] = (self.noise_degc / self.tau_s) ** 2
-        self._cov, self._time = cov, t
+        zero = np.zeros(T.shape)
+        variance = np.full(T.shape, self.noise_degc**2)
+        self._state = (np.array(T, np.float64), zero, np.array(T, np.float64))
+        self._cov = (variance, zero, zero, variance / self.tau_s**2, zero, variance)
+        self._time = t
         self._readings = [T]
         self._mean_abs_d2 = np.full(T.shape, self.noise_degc * _MEAN_ABS_D2)
         return T
@@ -124,33 +126,43 @@ class TemperatureLead(Compensator):
         """
         if self.tau_s == 0.0:
             return T
-        state, cov = self._state, self._cov
-        if state is None or cov is None or state.shape[:-1] != T.shape:
+        if self._state is None or self._state[0].shape != T.shape:
             return self._start(T, t)
+        a, v, s = self._state
         dt = t - self._time
         if dt <= 0.0:
-            return np.array(state[..., 0])
+            return np.array(a)
         self._time = t
-        lag = np.exp(-dt / self.tau_s)
-        F = np.array(
-            [[1.0, dt, 0.0], [0.0, 1.0, 0.0], [1.0 - lag, dt - self.tau_s * (1.0 - lag), lag]]
-        )
+        # transition F = [[1, dt, 0], [0, 1, 0], [g, h, e]]: T_s over a T_a ramp
+        e = float(np.exp(-dt / self.tau_s))
+        g = 1.0 - e
+        h = dt - self.tau_s * g
         r = self._noise_variance(T)
-        shape = np.array([[dt**3 / 3, dt**2 / 2, 0.0], [dt**2 / 2, dt, 0.0], [0.0, 0.0, 0.0]])
-        state = state @ F.T
-        cov = F @ cov @ F.T + (r / self.filter_s**3)[..., None, None] * shape
-        innovation = T - state[..., 2]
-        jump = innovation**2 > JUMP_GATE**2 * (cov[..., 2, 2] + r)
-        if np.any(jump):
+        q = r / self.filter_s**3  # white noise on the rate
+        p00, p01, p02, p11, p12, p22 = self._cov
+        f2p0 = g * p00 + h * p01 + e * p02  # (P F^T) column 2
+        f2p1 = g * p01 + h * p11 + e * p12
+        f2p2 = g * p02 + h * p12 + e * p22
+        n00 = p00 + 2.0 * dt * p01 + dt * dt * p11 + q * dt**3 / 3.0
+        n01 = p01 + dt * p11 + q * dt**2 / 2.0
+        n02 = f2p0 + dt * f2p1
+        n11 = p11 + q * dt
+        n12 = f2p1
+        n22 = g * f2p0 + h * f2p1 + e * f2p2
+        a, s = a + dt * v, g * a + h * v + e * s
+        innovation = T - s
+        jump = innovation**2 > JUMP_GATE**2 * (n22 + r)
+        if np.any(jump):  # a jump of T_a at the interval's start: variance along (1, 0, g)
             size = np.where(jump, JUMP_SIZE**2 * r, 0.0)
-            cov = cov + size[..., None, None] * np.outer(F[:, 0], F[:, 0])
-        gain = cov[..., :, 2] / (cov[..., 2, 2] + r)[..., None]
-        state = state + gain * innovation[..., None]
-        cov = cov - gain[..., :, None] * cov[..., 2, None, :]
-        if not (np.all(np.isfinite(state)) and np.all(np.isfinite(cov))):
+            n00, n02, n22 = n00 + size, n02 + g * size, n22 + g * g * size
+        k0, k1, k2 = n02 / (n22 + r), n12 / (n22 + r), n22 / (n22 + r)
+        a, v, s = a + k0 * innovation, v + k1 * innovation, s + k2 * innovation
+        cov = (n00 - k0 * n02, n01 - k0 * n12, n02 - k0 * n22, n11 - k1 * n12, n12 - k1 * n22,
+               n22 - k2 * n22)  # fmt: skip
+        if not all(np.all(np.isfinite(x)) for x in (a, v, s, *cov)):
             return self._start(T, t)  # never a non-finite estimate: restart at the readings
-        self._state, self._cov = state, cov
-        return np.array(state[..., 0])
+        self._state, self._cov = (a, v, s), cov
+        return np.array(a)
 
     def measured_temperature(self, T: FloatArray, t: float) -> FloatArray:
         """Return the estimated actuator temperatures (see :meth:`__call__`)."""
