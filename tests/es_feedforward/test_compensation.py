@@ -164,7 +164,7 @@ def test_delay_is_predicted_on_a_ramp() -> None:
 
 def test_temperature_lead_undoes_a_first_order_sensor_lag() -> None:
     tau, dt = 5.0, 0.1
-    lead = TemperatureLead(tau, filter_s=0.5)
+    lead = TemperatureLead(tau, filter_s=0.5, noise_degc=0.02)
     actuator = sensor = 40.0
     for step in range(600):  # actuator heats at 0.02 degC/s; the sensor lags by tau
         actuator = 40.0 + 0.02 * step * dt
@@ -172,6 +172,65 @@ def test_temperature_lead_undoes_a_first_order_sensor_lag() -> None:
         used = lead(np.array([sensor]), step * dt)
     assert abs(sensor - actuator) > 0.08  # the lag is real: about tau * rate
     assert used[0] == pytest.approx(actuator, abs=0.005)
+
+
+def _lagged_noisy_sensor(
+    seed: int, noise_degc: float = 0.02
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Return times, actuator and sensor temperatures: 2 degC steps, then a ramp.
+
+    The actuator follows its base within 0.04 s, the sensor lags it by 0.1 s and is read
+    every 0.02 s with ``noise_degc`` noise and 0.01 degC resolution (the time-scaled thesis
+    stand of the calibration loop).
+    """
+    rng = np.random.default_rng(seed)
+    dt, n = 0.02, 1000
+    t = np.arange(n) * dt
+    base = np.where(t > 15.0, 50.0 + 0.5 * (t - 15.0), 40.0 + 2.0 * np.floor(t / 3.0))
+    actuator, sensor = np.empty(n), np.empty(n)
+    a = s = 40.0
+    for k in range(n):
+        for _ in range(10):
+            a += dt / 10 / 0.04 * (base[k] - a)
+            s += dt / 10 / 0.1 * (a - s)
+        actuator[k] = a
+        sensor[k] = np.round((s + rng.normal(0.0, noise_degc)) / 0.01) * 0.01
+    return t, actuator, sensor
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_temperature_lead_follows_steps_without_amplifying_the_noise(seed: int) -> None:
+    # a plain lead T + tau dT/dt (derivative low-passed over tau / 2) errs by 0.10 degC rms
+    # here: three times the noise where nothing moves, and slow after each step
+    t, actuator, sensor = _lagged_noisy_sensor(seed)
+    lead = TemperatureLead(0.1, filter_s=0.05, noise_degc=0.02)
+    used = np.array([lead(np.array([T]), tk)[0] for T, tk in zip(sensor, t, strict=True)])
+    rms_raw = np.sqrt(np.mean((sensor - actuator)[50:] ** 2))
+    rms = np.sqrt(np.mean((used - actuator)[50:] ** 2))
+    assert rms_raw > 0.15  # the lag is real
+    assert rms < 0.08
+
+
+def test_temperature_lead_stays_finite_on_a_noise_free_sensor() -> None:
+    lead = TemperatureLead(0.1, filter_s=0.05, noise_degc=0.02)
+    T = np.full((2, 3), 45.0)
+    for step in range(10000):  # the noise estimate shrinks towards its floor
+        used = lead(T, step * 0.02)
+    assert np.all(used == pytest.approx(45.0))
+    for step in range(10000, 10050):  # then a 1 degC step, seen through the lag
+        sensor = 46.0 - np.exp(-(step - 10000) * 0.02 / 0.1)
+        used = lead(np.full((2, 3), sensor), step * 0.02)
+    assert np.all(np.isfinite(used))
+    assert np.all(used == pytest.approx(46.0, abs=0.01))
+
+
+def test_temperature_lead_learns_a_noise_larger_than_assumed() -> None:
+    # 0.05 degC noise, 0.02 assumed: with the noise held at 0.02 the jump gate fires on noise
+    # (0.24 degC rms); the plain lead errs by 0.15 degC rms
+    t, actuator, sensor = _lagged_noisy_sensor(1, noise_degc=0.05)
+    lead = TemperatureLead(0.1, filter_s=0.05, noise_degc=0.02)
+    used = np.array([lead(np.array([T]), tk)[0] for T, tk in zip(sensor, t, strict=True)])
+    assert np.sqrt(np.mean((used - actuator)[50:] ** 2)) < 0.13
 
 
 def test_unknown_or_out_of_range_compensation_parameters_are_rejected() -> None:

@@ -3,8 +3,9 @@
 Every effect of :mod:`es_physics.effects` states its ``compensation.*`` parameters and
 builds its compensation stage from them (:meth:`es_physics.effects.Effect.compensator`,
 docs/architecture.md "Effects beyond the basic model"); the feedforward chains the stages
-in model order. Built in: the temperature lead (``sensor_lag``), the set point predicted
-over the delay, thermal expansion subtracted, the drift divided out, the coupling solved,
+in model order. Built in: the temperature lead (``sensor_lag``, a Kalman filter), the set
+point predicted over the delay, thermal expansion subtracted, the drift divided out, the
+coupling solved,
 and the drive's inverses (frequency dispersion, then the Prandtl-Ishlinskii hysteresis),
 self-heating moving the temperature the law is evaluated at.
 
@@ -57,7 +58,8 @@ class CompensationParams:
 
     Attributes:
         temperature_lead_s: sensor lag tau to undo [s] (0 = off).
-        temperature_lead_filter_s: time constant of the derivative's low-pass [s].
+        temperature_lead_filter_s: smoothing time of the lead's Kalman filter [s].
+        temperature_noise_degc: standard deviation of the temperature sensor's noise [degC].
         delay_s: transport delay to predict over [s] (0 = off).
         hysteresis_weight: weight a of the play operator, in [0, 0.9] (0 = off).
         hysteresis_threshold_v: half-width r of the play operator [V].
@@ -88,6 +90,7 @@ class CompensationParams:
 
     temperature_lead_s: float = 0.0
     temperature_lead_filter_s: float = 0.5
+    temperature_noise_degc: float = 0.02
     delay_s: float = 0.0
     hysteresis_weight: float = 0.0
     hysteresis_threshold_v: float = 0.0
