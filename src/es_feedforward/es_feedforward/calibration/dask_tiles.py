@@ -1,8 +1,11 @@
 """Calibration tiles as tasks on Dask (``dask.distributed``): a local cluster or a scheduler.
 
 Imported only when ``calibrate`` is given ``--workers`` or ``--scheduler``: a calibration
-without them never imports Dask. Each tile (tiles.py) is one task; its compact data travel
-with it, and the shared values are combined in this process between the two passes.
+without them never imports Dask. Each tile (tiles.py) is one task that reads its own tile's
+file of the store (tilestore.py): only the store's path and the tiling travel to the
+workers, not arrays, so the work and the memory split between them; the store's directory
+(under ``TMPDIR``) must be one the workers can read. The shared values are combined in this
+process between the two passes.
 """
 
 from __future__ import annotations
@@ -49,9 +52,7 @@ def dask_map(workers: int | None = None, scheduler: str | None = None) -> Iterat
         raise DaskSetupError(f"cannot use Dask ({where}): {err}") from None
 
     def run(fn: Callable[[TileJob], TileFit], jobs: Sequence[TileJob]) -> list[TileFit]:
-        # scatter first: each tile's data go to a worker once, not inside the task graph
-        data = client.scatter(list(jobs))
-        futures = client.map(fn, data, pure=False)
+        futures = client.map(fn, list(jobs), pure=False)
         return list(client.gather(futures))
 
     try:
