@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import pickle
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -27,6 +28,7 @@ from es_feedforward.calibration.search import (
     local_start,
     screen_block,
 )
+from es_feedforward.calibration.tiles import TileJob, compact_grid
 from es_feedforward.calibration.tilestore import TileStore, layout, play_name
 from es_msgs_py.bag import read_bag
 from es_msgs_py.bag.stream import iter_bag
@@ -124,6 +126,11 @@ def test_gather_equals_the_aligned_arrays(tmp_path: Path) -> None:
             np.testing.assert_allclose(play, whole[:, act], rtol=0, atol=1e-12)
     assert got.command_nan == aligned.dropped["command NaN"] == 38
     assert got.usable.sum() == aligned.valid.sum()
+    # a task carries the store's path and the time base, not its tile's arrays
+    header = compact_grid(aligned, rows, commands, temperature_times=aligned.temperature_times,
+                          grid=GRID)
+    job = TileJob(header, store, 0, tuple(thresholds), (), 0, 0.0, (), None, np.zeros(0), False)
+    assert len(pickle.dumps(job)) < store.path(0).stat().st_size / 4
 
 
 def test_one_tile_is_the_joint_grid_refit(bag: Path) -> None:
