@@ -18,7 +18,6 @@ import numpy as np
 from es_feedforward.calibration import unexplained
 from es_feedforward.calibration.align import (
     MIN_SAMPLES,
-    RESAMPLE_COLUMNS,
     AlignedData,
     CalibrationInputError,
     MeasuredData,
@@ -52,8 +51,10 @@ from es_feedforward.calibration.tiles import (
     TEMPERATURE_RATE,
     TileMap,
     compact_grid,
+    grid_temperature_mean,
     refit_tiles,
     serial_map,
+    write_temperature,
 )
 from es_feedforward.calibration.tilestore import TileStore, layout
 from es_physics.effects import get
@@ -167,21 +168,6 @@ def _unexplained(after: ResidualStructure, final_rms: float) -> list[str]:
     return unexplained.describe(after, final_rms, NOISE_RATIO_LIMIT)
 
 
-def _grid_temperature(times: FloatArray, values: FloatArray) -> tuple[float, int]:
-    """Return the grid's mean resampled temperature [degC] and NaN count, block by block.
-
-    ``times`` (Nt,) [s] since the run's start, ``values`` (Nt, A) [degC]: the resampled
-    grid is never held whole (align.resample_temperature, per block of actuators).
-    """
-    total, nan, count = 0.0, 0, 0
-    for lo in range(0, values.shape[1], RESAMPLE_COLUMNS):
-        _, temp, _, bad = resample_temperature(times, values[:, lo : lo + RESAMPLE_COLUMNS])
-        total += float(temp.sum())
-        count += temp.size
-        nan += bad
-    return total / count, nan
-
-
 def _grid_refit(
     recording: Recording,
     aligned: AlignedData,
@@ -223,10 +209,7 @@ def _grid_refit(
         arrays.update({TEMPERATURE: (uniform.size, "float64"),
                        TEMPERATURE_RATE: (uniform.size, "float64")})
         store = TileStore.create(Path(directory), tiles, arrays)
-        for i, t in enumerate(tiles):
-            _, temp, rate, _ = resample_temperature(times, values[:, t.actuators])
-            store.put_tile(i, TEMPERATURE, temp)
-            store.put_tile(i, TEMPERATURE_RATE, rate)
+        write_temperature(store, times, values)
         gathered = gather(recording, aligned.sample_index[rows], aligned.sample_index, commands,
                           thresholds, store=store)
         if gathered.usable.min() < MIN_SAMPLES:
@@ -311,7 +294,7 @@ def calibrate(
     if not full_grid:  # the block's model inputs use the whole grid's mean temperature
         times, values = recording.temperature()
         grid_temperature = (temperature_stamps(times) - block.start_time, values)
-        mean, temp_nan = _grid_temperature(*grid_temperature)
+        mean, temp_nan = grid_temperature_mean(*grid_temperature)
         block = replace(block, grid_mean_temperature=mean)
         block.dropped["temperature NaN"] = temp_nan
     aligned = choose_stamp_convention(block)

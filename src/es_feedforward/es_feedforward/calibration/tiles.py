@@ -26,7 +26,12 @@ from typing import Final
 
 import numpy as np
 
-from es_feedforward.calibration.align import AlignedData, IndexArray
+from es_feedforward.calibration.align import (
+    RESAMPLE_COLUMNS,
+    AlignedData,
+    IndexArray,
+    resample_temperature,
+)
 from es_feedforward.calibration.fit import FitResult, levenberg_marquardt
 from es_feedforward.calibration.model import CompositeModel, Evaluation, FloatArray
 from es_feedforward.calibration.recording import COMMAND_FINITE, COMMAND_ROLE, DISPLACEMENT_ROLE
@@ -197,6 +202,40 @@ def tile_data(
     play = {float(r): np.asarray(arrays[play_name(k)], np.float64)
             for k, r in enumerate(thresholds)}
     return data, play
+
+
+def grid_temperature_mean(times: FloatArray, values: FloatArray) -> tuple[float, int]:
+    """Return the grid's mean resampled temperature [degC] and NaN count, block by block.
+
+    ``times`` (Nt,) [s] since the run's start, ``values`` (Nt, A) [degC]: the resampled
+    grid is never held whole (align.resample_temperature, per block of actuators).
+
+    Raises:
+        CalibrationInputError: an actuator has fewer than 2 finite temperatures.
+
+    """
+    total, nan, count = 0.0, 0, 0
+    for lo in range(0, values.shape[1], RESAMPLE_COLUMNS):
+        _, temp, _, bad = resample_temperature(times, values[:, lo : lo + RESAMPLE_COLUMNS])
+        total += float(temp.sum())
+        count += temp.size
+        nan += bad
+    return total / count, nan
+
+
+def write_temperature(store: TileStore, times: FloatArray, values: FloatArray) -> None:
+    """Write each tile's resampled temperature and rate to ``store`` (arrays ``TEMPERATURE``...).
+
+    ``times`` (Nt,) [s] since the run's start, ``values`` (Nt, A) [degC] of the grid.
+
+    Raises:
+        CalibrationInputError: an actuator has fewer than 2 finite temperatures.
+
+    """
+    for i, tile in enumerate(store.tiles):
+        _, temp, rate, _ = resample_temperature(times, values[:, tile.actuators])
+        store.put_tile(i, TEMPERATURE, temp)
+        store.put_tile(i, TEMPERATURE_RATE, rate)
 
 
 def combine_globals(fits: Sequence[TileFit]) -> tuple[FloatArray, FloatArray]:
