@@ -4,7 +4,11 @@ Cases (issue 18, must-hold 2 and 3): 64 x 64 for 5 min at 500 Hz (goal <= 120 s,
 64 x 64 for 1 min at 5 kHz (goal <= 2 GB), the first with 1 and 2 Dask workers, and
 128 x 128 for 5 min at 500 Hz. Each calibration runs as its own process under
 ``/usr/bin/time -v``: the peak RSS is that process's (with Dask, the driver's; the workers
-are separate processes, their peak is not in it). Bags come from bench_calibrate's generator
+are separate processes, their peak is not in it). The CPU time (user + system, with the
+workers': /usr/bin/time counts the children the process waited for) says what Dask costs
+on a machine where the wall time depends on the other users' load (and on Linux's
+autogroup scheduling, which shares the CPU between sessions, not processes: extra worker
+processes get no extra share on a loaded machine). Bags come from bench_calibrate's generator
 (synthetic law + thermal expansion, 0.5 nm noise), cached in ``--bag-dir`` (they are big:
 about 32 KiB per message at 64 x 64). The load average is printed with every case (a shared
 machine). Run:
@@ -52,6 +56,7 @@ QUICK_CASES: Final = {
     "32x32_30s_500Hz_2workers": (32, 30.0, 500.0, 2),
 }
 _RSS = re.compile(r"Maximum resident set size \(kbytes\): (\d+)")
+_CPU = re.compile(r"(?:User|System) time \(seconds\): ([\d.]+)")
 
 
 @dataclass(frozen=True)
@@ -62,6 +67,7 @@ class StreamRun:
     actuators: int
     wall_s: float
     peak_rss_mb: float
+    cpu_s: float
     bag_gb: float
     load_before: float
     load_after: float
@@ -96,8 +102,10 @@ def measure(name: str, bag: Path, edge: int, workers: int | None, tile: int) -> 
     if proc.returncode != 0:
         print(proc.stderr[-2000:], file=sys.stderr)
     size = sum(f.stat().st_size for f in bag.iterdir()) / 1e9
+    times = _CPU.findall(proc.stderr)
+    cpu = sum(float(v) for v in times) if times else float("nan")
     return StreamRun(name, edge * edge, wall, int(found.group(1)) / 1024 if found else float("nan"),
-                     size, load_before, os.getloadavg()[0], proc.returncode,
+                     cpu, size, load_before, os.getloadavg()[0], proc.returncode,
                      ", ".join(f"{k} {v:.0f} s" for k, v in timings.items()))
 
 
@@ -116,7 +124,8 @@ def run_cases(names: list[str], bag_dir: Path, tile: int, quick: bool = False) -
 
 def line(r: StreamRun) -> str:
     """Return one readable line of a run."""
-    return (f"calibrate {r.name}: {r.wall_s:.1f} s, peak RSS {r.peak_rss_mb:.0f} MB, bag "
+    return (f"calibrate {r.name}: {r.wall_s:.1f} s, CPU {r.cpu_s:.1f} s, peak RSS "
+            f"{r.peak_rss_mb:.0f} MB, bag "
             f"{r.bag_gb:.1f} GB, exit {r.status}, load average {r.load_before:.1f} -> "
             f"{r.load_after:.1f} (2 cores); steps: {r.steps}")
 
@@ -131,6 +140,8 @@ def section_calibrate_stream(settings: Settings, results: Results) -> None:
         for r in run_cases(names, Path(bag_dir), 16, quick):
             results.records.append(Record.of(f"calibrate_stream_time_{r.name}", r.actuators,
                                               [r.wall_s], "s"))
+            results.records.append(Record.of(f"calibrate_stream_cpu_{r.name}", r.actuators,
+                                              [r.cpu_s], "s"))
             results.records.append(Record.of(f"calibrate_stream_rss_{r.name}", r.actuators,
                                               [r.peak_rss_mb], "MB"))
             results.notes.append(line(r))

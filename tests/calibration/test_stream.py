@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import pickle
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -16,7 +17,7 @@ from es_feedforward.calibration.bagio import read_measured_bags
 from es_feedforward.calibration.bagstream import BagRecording
 from es_feedforward.calibration.model import LINEAR_LAW, FloatArray, play_operator
 from es_feedforward.calibration.pipeline import calibrate
-from es_feedforward.calibration.recording import MemoryRecording, gather
+from es_feedforward.calibration.recording import MemoryRecording, gather, gather_arrays
 from es_feedforward.calibration.search import (
     ModelState,
     Workspace,
@@ -27,6 +28,8 @@ from es_feedforward.calibration.search import (
     local_start,
     screen_block,
 )
+from es_feedforward.calibration.tiles import TileJob, compact_grid
+from es_feedforward.calibration.tilestore import TileStore, layout, play_name
 from es_msgs_py.bag import read_bag
 from es_msgs_py.bag.stream import iter_bag
 from tests.calibration import law_bags as lb
@@ -104,16 +107,30 @@ def test_gather_equals_the_aligned_arrays(tmp_path: Path) -> None:
     rows = np.arange(0, aligned.t.size, 7)
     commands = np.unique(np.maximum(aligned.command_index(rows, 0.02), 0))
     thresholds = [5.0, 20.0]
+    tiles = layout(GRID, 4, 1)  # overlapping halos: each tile gets its own columns
+    (tmp_path / "store").mkdir()
+    store = TileStore.create(tmp_path / "store", tiles,
+                             gather_arrays(rows.size, commands.size, len(thresholds)))
     got = gather(_Shuffled(measured), aligned.sample_index[rows], aligned.sample_index,
-                 commands, thresholds)
-    np.testing.assert_array_equal(got.displacement, aligned.displacement[rows])
-    np.testing.assert_array_equal(got.command, aligned.command[commands])
-    np.testing.assert_array_equal(got.command_finite, aligned.command_finite[commands])
-    for r in thresholds:
-        whole = play_operator(aligned.command, r, commands)
-        np.testing.assert_allclose(got.play[r], whole, rtol=0, atol=1e-12)
+                 commands, thresholds, store=store)
+    for i, tile in enumerate(tiles):
+        arrays = store.load(i)
+        act = tile.actuators
+        np.testing.assert_array_equal(arrays["displacement"], aligned.displacement[rows][:, act])
+        np.testing.assert_array_equal(arrays["command"], aligned.command[commands][:, act])
+        np.testing.assert_array_equal(arrays["command_finite"],
+                                      aligned.command_finite[commands][:, act])
+        for k, r in enumerate(thresholds):
+            whole = play_operator(aligned.command, r, commands)
+            play = np.asarray(arrays[play_name(k)], np.float64)
+            np.testing.assert_allclose(play, whole[:, act], rtol=0, atol=1e-12)
     assert got.command_nan == aligned.dropped["command NaN"] == 38
     assert got.usable.sum() == aligned.valid.sum()
+    # a task carries the store's path and the time base, not its tile's arrays
+    header = compact_grid(aligned, rows, commands, temperature_times=aligned.temperature_times,
+                          grid=GRID)
+    job = TileJob(header, store, 0, tuple(thresholds), (), 0, 0.0, (), None, np.zeros(0), False)
+    assert len(pickle.dumps(job)) < store.path(0).stat().st_size / 4
 
 
 def test_one_tile_is_the_joint_grid_refit(bag: Path) -> None:

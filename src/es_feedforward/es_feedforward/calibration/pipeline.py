@@ -7,8 +7,10 @@ schema.py).
 
 from __future__ import annotations
 
+import tempfile
 import time
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import Final
 
 import numpy as np
@@ -25,7 +27,12 @@ from es_feedforward.calibration.align import (
 )
 from es_feedforward.calibration.local import per_actuator_round
 from es_feedforward.calibration.model import CANDIDATES, FloatArray
-from es_feedforward.calibration.recording import MemoryRecording, Recording, gather
+from es_feedforward.calibration.recording import (
+    MemoryRecording,
+    Recording,
+    gather,
+    gather_arrays,
+)
 from es_feedforward.calibration.residual import ResidualStructure, analyse
 from es_feedforward.calibration.search import (
     MIN_RELATIVE_GAIN,
@@ -40,12 +47,16 @@ from es_feedforward.calibration.search import (
 from es_feedforward.calibration.selection import RoundRecord, Step, search_effects, subset_state
 from es_feedforward.calibration.tiles import (
     DEFAULT_TILE,
+    TEMPERATURE,
+    TEMPERATURE_RATE,
     TileMap,
     compact_grid,
-    layout,
+    grid_temperature_mean,
     refit_tiles,
     serial_map,
+    write_temperature,
 )
+from es_feedforward.calibration.tilestore import TileStore, layout
 from es_physics.effects import get
 
 #: Actuators whose full-rate held-out residual is analysed (spectra, correlations).
@@ -162,15 +173,16 @@ def _grid_refit(
     aligned: AlignedData,
     states: list[ModelState],
     *,
-    temperature: tuple[FloatArray, FloatArray, FloatArray],
+    temperature: tuple[FloatArray, FloatArray],
     tile: int,
     run: TileMap,
 ) -> tuple[list[ModelState], dict[str, int]]:
     """Refit each model of ``states`` on the whole grid in tiles; return them and NaN counts.
 
     ``aligned`` is the screening block's alignment (the time base of the whole run),
-    ``temperature`` the grid's (align.resample_temperature). One streamed pass gathers the
-    grid at the refit's samples (recording.py).
+    ``temperature`` the grid's stamps since the run's start (Nt,) [s] and values (Nt, A)
+    [degC]. One streamed pass writes the grid at the refit's samples to one file per tile
+    (recording.gather, tilestore.py), each tile's resampled temperature with it.
 
     Raises:
         CalibrationInputError: an actuator has fewer than ``MIN_SAMPLES`` usable samples.
@@ -188,21 +200,29 @@ def _grid_refit(
     commands = np.unique(np.concatenate(needed))
     commands = commands[commands >= 0]
     thresholds = sorted({r for s in states if s.model.play for r in s.thresholds})
-    gathered = gather(recording, aligned.sample_index[rows], aligned.sample_index, commands,
-                      thresholds)
-    if gathered.usable.min() < MIN_SAMPLES:
-        worst = int(np.argmin(gathered.usable))
-        raise CalibrationInputError(
-            f"too short to fit: actuator {worst} has {int(gathered.usable[worst])} usable "
-            f"samples (need {MIN_SAMPLES})"
-        )
-    compact = compact_grid(aligned, rows, commands, gathered, temperature=temperature, grid=grid)
     halo = 1 if any(s.model.spatial for s in states) else 0
+    times, values = temperature
     tiles = layout(grid, tile, halo)
-    out: list[ModelState] = []
-    for state in states:
-        start = out[-1].fit.local if out else None
-        out.append(refit_tiles(compact, gathered.play, state, start, tiles=tiles, run=run))
+    with tempfile.TemporaryDirectory(prefix="es_calibrate_tiles_") as directory:
+        uniform = resample_temperature(times, values[:, :1])[0]
+        arrays = gather_arrays(rows.size, commands.size, len(thresholds))
+        arrays.update({TEMPERATURE: (uniform.size, "float64"),
+                       TEMPERATURE_RATE: (uniform.size, "float64")})
+        store = TileStore.create(Path(directory), tiles, arrays)
+        write_temperature(store, times, values)
+        gathered = gather(recording, aligned.sample_index[rows], aligned.sample_index, commands,
+                          thresholds, store=store)
+        if gathered.usable.min() < MIN_SAMPLES:
+            worst = int(np.argmin(gathered.usable))
+            raise CalibrationInputError(
+                f"too short to fit: actuator {worst} has {int(gathered.usable[worst])} usable "
+                f"samples (need {MIN_SAMPLES})"
+            )
+        header = compact_grid(aligned, rows, commands, temperature_times=uniform, grid=grid)
+        out: list[ModelState] = []
+        for state in states:
+            start = out[-1].fit.local if out else None
+            out.append(refit_tiles(header, store, thresholds, state, start, run=run))
     counts = {
         "displacement NaN": gathered.displacement_nan,
         "command NaN": gathered.command_nan,
@@ -273,12 +293,9 @@ def calibrate(
     full_grid = block_grid == grid
     if not full_grid:  # the block's model inputs use the whole grid's mean temperature
         times, values = recording.temperature()
-        uniform, temp, rate, temp_nan = resample_temperature(
-            temperature_stamps(times) - block.start_time, values
-        )
-        del values
-        grid_temperature = (uniform, temp, rate)
-        block = replace(block, grid_mean_temperature=float(np.mean(temp)))
+        grid_temperature = (temperature_stamps(times) - block.start_time, values)
+        mean, temp_nan = grid_temperature_mean(*grid_temperature)
+        block = replace(block, grid_mean_temperature=mean)
         block.dropped["temperature NaN"] = temp_nan
     aligned = choose_stamp_convention(block)
     timings["align"] = time.perf_counter() - clock

@@ -8,11 +8,12 @@ record at full rate:
   temperature of the whole grid (at the sensor rate): :meth:`Recording.temperature`;
 - the whole grid at the samples the grid-wide refit uses (a bounded number per actuator,
   search.py's budgets), the commands those samples need, and the play operators of the
-  command: :func:`gather`, one pass over :meth:`Recording.batches`.
+  command: :func:`gather`, one pass over :meth:`Recording.batches` that writes each batch's
+  rows to the tiles' files (tilestore.py).
 
-So memory is bounded by the block, the temperature and the sample budgets, not by the
-record's length. :class:`MemoryRecording` wraps data already in memory (the in-memory path,
-the same code); ``bagio.BagRecording`` streams bags.
+So memory is bounded by the block, the temperature, one batch and one tile, not by the
+record's length nor by the grid's rows. :class:`MemoryRecording` wraps data already in
+memory (the in-memory path, the same code); ``bagio.BagRecording`` streams bags.
 """
 
 from __future__ import annotations
@@ -25,12 +26,15 @@ import numpy as np
 import numpy.typing as npt
 
 from es_feedforward.calibration.align import IndexArray, MeasuredData
-from es_feedforward.calibration.model import BoolArray, FloatArray, play_operator
+from es_feedforward.calibration.model import FloatArray, play_operator
+from es_feedforward.calibration.tilestore import TileStore, play_name
 from es_feedforward.errors import RecordingError
 
 #: Role names of :meth:`Recording.batches`.
 COMMAND_ROLE: Final = "command"
 DISPLACEMENT_ROLE: Final = "displacement"
+#: Store array of whether each gathered command was finite.
+COMMAND_FINITE: Final = "command_finite"
 #: Rows per batch of :class:`MemoryRecording`.
 MEMORY_BATCH_ROWS: Final = 4096
 
@@ -63,42 +67,39 @@ class Recording(Protocol):
 
 @dataclass(frozen=True)
 class Gathered:
-    """What :func:`gather` collected (A actuators, row-major).
+    """What :func:`gather` counted (A actuators, row-major); the arrays are in the store.
 
     Attributes:
-        displacement: (n, A) [m] at the requested displacement messages.
-        command: (m, A) [V] at the requested commands, NaN held from the last finite value
-            (0 before the first), as align.py holds it.
-        command_finite: (m, A) whether each requested command value was finite.
-        play: threshold [V] -> (m, A) play operator of the held command at those commands.
         usable: (A,) finite displacements among the kept samples, per actuator.
         displacement_nan: NaN displacements among the kept samples.
         command_nan: NaN command values in the whole run.
 
     """
 
-    displacement: FloatArray
-    command: FloatArray
-    command_finite: BoolArray
-    play: dict[float, FloatArray]
     usable: npt.NDArray[np.int64]
     displacement_nan: int
     command_nan: int
 
 
+def _runs(positions: IndexArray) -> Iterator[tuple[int, int]]:
+    """Yield (start, stop) of the runs of consecutive values in ascending ``positions``."""
+    breaks = np.flatnonzero(np.diff(positions) != 1) + 1
+    for lo, hi in zip(np.r_[0, breaks], np.r_[breaks, positions.size], strict=True):
+        yield int(lo), int(hi)
+
+
 class _CommandStream:
     """Commands in stamp order (batches reordered), NaN held, with their play operators."""
 
-    def __init__(self, wanted: IndexArray, thresholds: Sequence[float], width: int) -> None:
+    def __init__(self, wanted: IndexArray, thresholds: Sequence[float], width: int,
+                 store: TileStore) -> None:
         self.wanted = wanted
         self.r = np.asarray(thresholds, np.float64)[:, None]
         self.held = np.zeros(width)
         self.state: FloatArray | None = None
         self.next = 0
         self.pending: list[tuple[IndexArray, FloatArray]] = []
-        self.command = np.empty((wanted.size, width))
-        self.finite = np.empty((wanted.size, width), dtype=bool)
-        self.play = np.empty((wanted.size, self.r.shape[0], width))
+        self.store = store
         self.nan = 0
 
     def feed(self, index: IndexArray, values: FloatArray) -> None:
@@ -129,14 +130,28 @@ class _CommandStream:
         self.held = held[-1].copy()
         lo, hi = np.searchsorted(self.wanted, [index[0], index[-1] + 1])
         local = self.wanted[lo:hi] - index[0]
-        self.command[lo:hi] = held[local]
-        self.finite[lo:hi] = finite[local]
+        if hi > lo:
+            self.store.put(COMMAND_ROLE, int(lo), held[local])
+            self.store.put(COMMAND_FINITE, int(lo), finite[local])
         if self.r.size:
             keep = np.append(local, index.size - 1)
             out = play_operator(held, self.r, keep, self.state)
-            self.play[lo:hi] = out[:-1]
+            for k in range(self.r.shape[0]):
+                if hi > lo:
+                    self.store.put(play_name(k), int(lo), out[:-1, k])
             self.state = out[-1]
         self.next = int(index[-1]) + 1
+
+
+def gather_arrays(samples: int, commands: int, thresholds: int) -> dict[str, tuple[int, str]]:
+    """Return the store arrays :func:`gather` fills: name -> (rows, dtype)."""
+    arrays = {
+        DISPLACEMENT_ROLE: (samples, "float64"),
+        COMMAND_ROLE: (commands, "float64"),
+        COMMAND_FINITE: (commands, "bool"),
+    }
+    arrays.update({play_name(k): (commands, "float64") for k in range(thresholds)})
+    return arrays
 
 
 def gather(
@@ -145,8 +160,15 @@ def gather(
     kept: IndexArray,
     commands: IndexArray,
     thresholds: Sequence[float],
+    *,
+    store: TileStore,
 ) -> Gathered:
-    """Collect the whole grid at some samples in one pass over the recording.
+    """Write the whole grid at some samples to ``store``'s tiles in one pass over the recording.
+
+    Written (:func:`gather_arrays`): ``displacement`` (n, A) [m] at ``samples``;
+    ``command`` (m, A) [V] at ``commands``, NaN held from the last finite value (0 before
+    the first), as align.py holds it, and ``command_finite`` (m, A) whether it was finite;
+    ``play<k>`` (m, A) the play operator of the held command for ``thresholds[k]``.
 
     Args:
         recording: the run.
@@ -154,14 +176,14 @@ def gather(
         kept: every displacement index the alignment kept (for the usable counts).
         commands: stamp-sorted command indices to keep (ascending, unique).
         thresholds: play thresholds [V] whose operators are wanted at ``commands``.
+        store: where the rows go (made with at least :func:`gather_arrays`).
 
     Raises:
         RecordingError: the recording's batches left a command out.
 
     """
     A = recording.grid[0] * recording.grid[1]
-    stream = _CommandStream(commands, thresholds, A)
-    disp = np.empty((samples.size, A))
+    stream = _CommandStream(commands, thresholds, A, store)
     usable = np.zeros(A, dtype=np.int64)
     kept_sorted = np.sort(kept)
     for role, index, values in recording.batches():
@@ -171,7 +193,11 @@ def gather(
         pos = np.searchsorted(samples, index)
         hit = pos < samples.size
         hit[hit] = samples[pos[hit]] == index[hit]
-        disp[pos[hit]] = values[hit]
+        if hit.any():
+            order = np.argsort(pos[hit], kind="stable")
+            found, rows = pos[hit][order], values[hit][order]
+            for lo, hi in _runs(found):
+                store.put(DISPLACEMENT_ROLE, int(found[lo]), rows[lo:hi])
         k = np.searchsorted(kept_sorted, index)
         in_kept = k < kept_sorted.size
         in_kept[in_kept] = kept_sorted[k[in_kept]] == index[in_kept]
@@ -179,10 +205,6 @@ def gather(
     if stream.pending:
         raise RecordingError("the recording's command batches skipped an index")
     return Gathered(
-        displacement=disp,
-        command=stream.command,
-        command_finite=stream.finite,
-        play={float(r): stream.play[:, i, :] for i, r in enumerate(stream.r[:, 0])},
         usable=usable,
         displacement_nan=int(kept.size * A - usable.sum()),
         command_nan=stream.nan,

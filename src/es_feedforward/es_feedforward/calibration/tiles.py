@@ -4,8 +4,9 @@ A tile is a block of at most ``tile`` x ``tile`` actuators; with the coupling (a
 effect) it is fitted with a one-actuator halo of its neighbours, whose results are dropped,
 so that every kept actuator sees all its neighbours. Each tile is fitted on the samples of
 the whole grid's refit (:func:`compact_grid`: the rows search.py's budgets choose for the
-grid, gathered in one streamed pass), so a tile's per-actuator fit uses the same samples
-whatever the tiling.
+grid, gathered in one streamed pass into one file per tile, tilestore.py), so a tile's
+per-actuator fit uses the same samples whatever the tiling. A task reads its own tile's file:
+only its tile is in memory, and on Dask only the file's path travels.
 
 Shared (global) parameters: each tile fits them with its actuators (the same joint fit as
 one tile covering the grid), and the tiles' estimates are combined by their information
@@ -25,12 +26,21 @@ from typing import Final
 
 import numpy as np
 
-from es_feedforward.calibration.align import AlignedData, IndexArray
+from es_feedforward.calibration.align import (
+    RESAMPLE_COLUMNS,
+    AlignedData,
+    IndexArray,
+    resample_temperature,
+)
 from es_feedforward.calibration.fit import FitResult, levenberg_marquardt
 from es_feedforward.calibration.model import CompositeModel, Evaluation, FloatArray
-from es_feedforward.calibration.recording import Gathered
+from es_feedforward.calibration.recording import COMMAND_FINITE, COMMAND_ROLE, DISPLACEMENT_ROLE
 from es_feedforward.calibration.search import ModelState, Workspace, initial_law
+from es_feedforward.calibration.tilestore import TileStore, play_name
 
+#: Store arrays of the tiles' resampled temperature [degC] and its rate [degC/s].
+TEMPERATURE: Final = "temperature"
+TEMPERATURE_RATE: Final = "temperature_rate"
 #: Default tile edge [actuators].
 DEFAULT_TILE: Final = 16
 
@@ -63,16 +73,18 @@ class TileWorkspace(Workspace):
 
 @dataclass(frozen=True)
 class TileJob:
-    """One tile's fit: its compact data and where to start (all picklable, for Dask).
+    """One tile's fit: where its data are and where to start (small and picklable, for Dask).
 
-    ``core`` marks the tile's own actuators (the rest is halo); ``local0`` is None for the
-    plain law's first fit (start from the thesis law scaled per actuator); ``fixed`` keeps
-    ``glob0`` fixed.
+    ``header`` is the grid's time base (:func:`compact_grid`), the tile's arrays are read
+    from ``store`` by the task itself; ``gathered_thresholds`` are the play thresholds
+    gathered in the store, in order. ``local0`` is None for the plain law's first fit
+    (start from the thesis law scaled per actuator); ``fixed`` keeps ``glob0`` fixed.
     """
 
-    aligned: AlignedData
-    play: dict[float, FloatArray]
-    core: np.ndarray
+    header: AlignedData
+    store: TileStore
+    index: int
+    gathered_thresholds: tuple[float, ...]
     effects: tuple[str, ...]
     operators: int
     delay_s: float
@@ -100,7 +112,7 @@ class TileFit:
 def fit_tile(job: TileJob) -> TileFit:
     """Fit one tile (module level, so a Dask worker can run it)."""
     model = CompositeModel(job.effects, operators=job.operators)
-    ws = TileWorkspace(job.aligned, job.play)
+    ws = TileWorkspace(*tile_data(job.header, job.store, job.index, job.gathered_thresholds))
     train, held = ws.input_pair(job.delay_s, job.thresholds if model.play else None)
     local0 = initial_law(train) if job.local0 is None else job.local0
     extra = len(model.local_names) - local0.shape[1]
@@ -124,7 +136,7 @@ def fit_tile(job: TileJob) -> TileFit:
     glob = fixed if job.fixed else result.glob
     pred = model.evaluate(result.local, glob, held, jacobian=False).prediction
     resid = np.where(held.valid, held.displacement - pred, 0.0)
-    core = job.core
+    core = job.store.tiles[job.index].core
     return TileFit(
         local=result.local[core],
         cov_local=result.cov_local[core],
@@ -138,79 +150,92 @@ def fit_tile(job: TileJob) -> TileFit:
     )
 
 
-@dataclass(frozen=True)
-class Tile:
-    """Actuators of one tile: all fitted (core + halo, row-major) and which are core."""
-
-    actuators: IndexArray
-    shape: tuple[int, int]
-    core: np.ndarray
-    core_actuators: IndexArray
-
-
-def layout(grid: tuple[int, int], tile: int, halo: int) -> list[Tile]:
-    """Return the tiles of ``grid`` (edge ``tile``), each with ``halo`` neighbours around."""
-    rows, cols = grid
-    tiles = []
-    for r0 in range(0, rows, tile):
-        for c0 in range(0, cols, tile):
-            r1, c1 = min(r0 + tile, rows), min(c0 + tile, cols)
-            hr0, hc0 = max(r0 - halo, 0), max(c0 - halo, 0)
-            hr1, hc1 = min(r1 + halo, rows), min(c1 + halo, cols)
-            rr, cc = np.meshgrid(np.arange(hr0, hr1), np.arange(hc0, hc1), indexing="ij")
-            core = ((rr >= r0) & (rr < r1) & (cc >= c0) & (cc < c1)).ravel()
-            actuators = (rr * cols + cc).ravel().astype(np.intp)
-            tiles.append(Tile(actuators, (hr1 - hr0, hc1 - hc0), core, actuators[core]))
-    return tiles
-
-
 def compact_grid(
     aligned: AlignedData,
     rows: IndexArray,
     commands: IndexArray,
-    gathered: Gathered,
     *,
-    temperature: tuple[FloatArray, FloatArray, FloatArray],
+    temperature_times: FloatArray,
     grid: tuple[int, int],
 ) -> AlignedData:
-    """Return the whole grid at ``rows`` of ``aligned`` (a block's alignment) from ``gathered``.
+    """Return the time base of the grid at ``rows`` of ``aligned`` (a block's alignment).
 
-    ``commands`` are the command indices gathered; ``temperature`` the grid's uniform
-    times, temperature and rate (align.resample_temperature).
+    ``commands`` are the command indices gathered, ``temperature_times`` the uniform times
+    of the resampled temperature (align.resample_temperature). Its per-actuator arrays are
+    empty (no actuator): each tile's come from the store (:func:`tile_data`).
     """
-    uniform, temp, rate = temperature
+    none = np.zeros((0, 0))
     return replace(
         aligned,
         grid=grid,
         t=aligned.t[rows],
-        displacement=gathered.displacement,
-        valid=np.isfinite(gathered.displacement),
+        displacement=none.reshape(rows.size, 0),
+        valid=np.zeros((rows.size, 0), dtype=bool),
         command_times=aligned.command_times[commands],
-        command=gathered.command,
-        command_finite=gathered.command_finite,
-        temperature_times=uniform,
-        temperature=temp,
-        temperature_rate=rate,
+        command=none.reshape(commands.size, 0),
+        command_finite=np.zeros((commands.size, 0), dtype=bool),
+        temperature_times=temperature_times,
+        temperature=none.reshape(temperature_times.size, 0),
+        temperature_rate=none.reshape(temperature_times.size, 0),
         train=aligned.train[rows],
         sample_index=aligned.sample_index[rows],
         command_period_s=aligned.command_period,
     )
 
 
-def _tile_data(compact: AlignedData, play: dict[float, FloatArray], tile: Tile
-               ) -> tuple[AlignedData, dict[float, FloatArray]]:
-    act = tile.actuators
+def tile_data(
+    header: AlignedData, store: TileStore, index: int, thresholds: Sequence[float]
+) -> tuple[AlignedData, dict[float, FloatArray]]:
+    """Return tile ``index``'s compact data and play operators, read from ``store``."""
+    arrays = store.load(index)
+    displacement = np.asarray(arrays[DISPLACEMENT_ROLE], np.float64)
     data = replace(
-        compact,
-        grid=tile.shape,
-        displacement=compact.displacement[:, act],
-        valid=compact.valid[:, act],
-        command=compact.command[:, act],
-        command_finite=compact.command_finite[:, act],
-        temperature=compact.temperature[:, act],
-        temperature_rate=compact.temperature_rate[:, act],
+        header,
+        grid=store.tiles[index].shape,
+        displacement=displacement,
+        valid=np.isfinite(displacement),
+        command=np.asarray(arrays[COMMAND_ROLE], np.float64),
+        command_finite=np.asarray(arrays[COMMAND_FINITE], bool),
+        temperature=np.asarray(arrays[TEMPERATURE], np.float64),
+        temperature_rate=np.asarray(arrays[TEMPERATURE_RATE], np.float64),
     )
-    return data, {r: v[:, act] for r, v in play.items()}
+    play = {float(r): np.asarray(arrays[play_name(k)], np.float64)
+            for k, r in enumerate(thresholds)}
+    return data, play
+
+
+def grid_temperature_mean(times: FloatArray, values: FloatArray) -> tuple[float, int]:
+    """Return the grid's mean resampled temperature [degC] and NaN count, block by block.
+
+    ``times`` (Nt,) [s] since the run's start, ``values`` (Nt, A) [degC]: the resampled
+    grid is never held whole (align.resample_temperature, per block of actuators).
+
+    Raises:
+        CalibrationInputError: an actuator has fewer than 2 finite temperatures.
+
+    """
+    total, nan, count = 0.0, 0, 0
+    for lo in range(0, values.shape[1], RESAMPLE_COLUMNS):
+        _, temp, _, bad = resample_temperature(times, values[:, lo : lo + RESAMPLE_COLUMNS])
+        total += float(temp.sum())
+        count += temp.size
+        nan += bad
+    return total / count, nan
+
+
+def write_temperature(store: TileStore, times: FloatArray, values: FloatArray) -> None:
+    """Write each tile's resampled temperature and rate to ``store`` (arrays ``TEMPERATURE``...).
+
+    ``times`` (Nt,) [s] since the run's start, ``values`` (Nt, A) [degC] of the grid.
+
+    Raises:
+        CalibrationInputError: an actuator has fewer than 2 finite temperatures.
+
+    """
+    for i, tile in enumerate(store.tiles):
+        _, temp, rate, _ = resample_temperature(times, values[:, tile.actuators])
+        store.put_tile(i, TEMPERATURE, temp)
+        store.put_tile(i, TEMPERATURE_RATE, rate)
 
 
 def combine_globals(fits: Sequence[TileFit]) -> tuple[FloatArray, FloatArray]:
@@ -223,30 +248,33 @@ def combine_globals(fits: Sequence[TileFit]) -> tuple[FloatArray, FloatArray]:
 
 
 def refit_tiles(
-    compact: AlignedData,
-    play: dict[float, FloatArray],
+    header: AlignedData,
+    store: TileStore,
+    gathered_thresholds: Sequence[float],
     state: ModelState,
     start: FloatArray | None,
     *,
-    tiles: Sequence[Tile],
     run: TileMap = serial_map,
 ) -> ModelState:
     """Refit ``state``'s model (its shared values the start) on the grid, tile by tile.
 
-    ``start`` is the grid's local start (A, P) or None (the plain law's own start).
+    ``header`` is the grid's time base (:func:`compact_grid`), ``store`` the tiles' data
+    with the play operators of ``gathered_thresholds``; ``start`` is the grid's local
+    start (A, P) or None (the plain law's own start).
     """
     model = state.model
-    A = compact.n_actuators
+    tiles = store.tiles
+    A = header.grid[0] * header.grid[1]
 
     def jobs(glob: FloatArray, fixed: bool, local: FloatArray | None) -> list[TileJob]:
-        out = []
-        for tile in tiles:
-            data, tile_play = _tile_data(compact, play, tile)
-            out.append(TileJob(
-                data, tile_play, tile.core, model.effects, model.operators, state.delay_s,
-                state.thresholds, None if local is None else local[tile.actuators], glob, fixed,
-            ))
-        return out
+        return [
+            TileJob(
+                header, store, i, tuple(gathered_thresholds), model.effects, model.operators,
+                state.delay_s, state.thresholds,
+                None if local is None else local[tile.actuators], glob, fixed,
+            )
+            for i, tile in enumerate(tiles)
+        ]
 
     def assemble(fits: Sequence[TileFit], field: str) -> FloatArray:
         first = getattr(fits[0], field)
