@@ -1,4 +1,8 @@
-"""Section ``teardown``: Ctrl-C stops under ros2 launch and the bring-up (bench_teardown.py)."""
+"""Section ``teardown``: Ctrl-C stops of the graph, and of the recorder alone.
+
+Under ros2 launch and the bring-up (bench_teardown.py); the recorder while messages are in
+flight (bench_recorder_stops.py).
+"""
 
 from __future__ import annotations
 
@@ -27,4 +31,19 @@ def run(context: Context) -> None:
         "dm_exposure 12 x 12 lockstep graph with recorder, each 0.2-2 s after the feedforward "
         "was ready; a crash = a node died or printed a native stack, an unclean exit, a stop "
         "over 90 s or an unclosed bag; stop time = SIGINT to exit (median, min-max)."
+    )
+    from bench_recorder_stops import recorder_stops
+
+    storm = recorder_stops(stops, cpu_hogs=2)
+    results.records.append(Record.of("teardown_crashes_recorder", storm.stops, [storm.crashes],
+                                     "crashes"))  # fmt: skip
+    if storm.stop_seconds:
+        results.records.append(Record.of("teardown_stop_time_recorder", storm.stops,
+                                         storm.stop_seconds, "s"))  # fmt: skip
+    results.notes += [f"teardown recorder {note}" for note in storm.crash_notes]
+    results.notes.append(
+        f"teardown recorder: {stops} SIGINT stops of `record` (3 topics) while publishing at "
+        f"about 1 kHz, 0.1-1 s after it said ready, 2 CPU hogs beside it (load average "
+        f"{storm.load_average} at the end); a crash = exit not 0, a native stack, a stop over "
+        "30 s or an unclosed bag."
     )

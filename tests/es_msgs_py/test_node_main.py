@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -142,6 +143,53 @@ def test_a_stop_while_the_node_is_built_is_a_clean_exit() -> None:
     )
     assert done.returncode == 0, done.stderr
     assert "Traceback" not in done.stderr
+# A node that reports, at close() and destroy_node(), whether its context is still valid.
+STOPPED_BY_SIGNAL = r"""
+import sys
+from rclpy.node import Node
+from es_msgs_py.node_main import run_node
+
+class Reports(Node):
+    def __init__(self):
+        super().__init__("reports_its_stop")
+        self.timer = self.create_timer(0.02, self.spinning)
+
+    def spinning(self):
+        print("spinning", flush=True)
+        self.timer.cancel()
+
+    def close(self):
+        print(f"close: context ok {self.context.ok()}", flush=True)
+
+    def destroy_node(self):
+        print(f"destroy_node: context ok {self.context.ok()}", flush=True)
+        super().destroy_node()
+
+sys.exit(run_node(Reports, []))
+"""
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_a_stop_signal_closes_and_destroys_the_node_before_the_context_shuts_down(
+    sig: int,
+) -> None:
+    # rclpy's own handlers would shut the context down from their thread at the signal,
+    # concurrently with close() (a SIGSEGV now and then): close and destroy see it valid.
+    proc = subprocess.Popen([sys.executable, "-c", STOPPED_BY_SIGNAL], stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True)  # fmt: skip
+    try:
+        assert proc.stdout is not None
+        first = proc.stdout.readline()
+        assert first == "spinning\n", first + proc.stdout.read()
+        proc.send_signal(sig)
+        out, _ = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 0, out
+    said = [line for line in out.splitlines() if line.startswith(("close", "destroy_node"))]
+    assert said == ["close: context ok True", "destroy_node: context ok True"], out
 
 
 @pytest.mark.parametrize(

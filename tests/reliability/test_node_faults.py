@@ -67,7 +67,7 @@ def graph(tmp_path: Path) -> Iterator[tuple[Watcher, dict[str, Proc], Path]]:
         "feedforward": Proc("feedforward", [
             str(executable("es_feedforward", "feedforward_node")),
             *_ros_args("feedforward", rows=3, cols=3, temperature_timeout=TEMPERATURE_TIMEOUT,
-                       diagnostics_period=0.2)]),
+                       diagnostics_period=0.2, ready_subscribers=2)]),
     }
     watcher = Watcher(SHAPE)
     try:
@@ -79,17 +79,24 @@ def graph(tmp_path: Path) -> Iterator[tuple[Watcher, dict[str, Proc], Path]]:
             TEMPERATURE_RAW: (0, 1),  # thermal
             HEAT_LOAD: (0, 1),  # thermal
         }, list(procs.values()))
-        # the recorder reports the publishers it matched: commands published before its
-        # subscription matched the feedforward's would be missing from the bag
+        # Commands published before the recorder's subscription and the feedforward's
+        # publisher have matched each other would be missing from the bag. Matching is
+        # discovered on each side on its own: the recorder reports the publishers its
+        # subscriptions matched, the feedforward is ready once its /dm/command publisher
+        # matched ready_subscribers=2 subscriptions (watcher and recorder).
         wanted = {COMMAND: 1, SETPOINT: 1, TEMPERATURE: 2}
 
         def recorder_matched() -> bool:
             with watcher.lock:
                 status = watcher.diagnostics.get("record: bag")
+                ready = watcher.diagnostics.get("feedforward: ready")
             values = {} if status is None else {kv.key: kv.value for kv in status.values}
-            return all(int(values.get(f"{t} publishers", "0")) >= n for t, n in wanted.items())
+            return ready is not None and ready.message == "ready" and all(
+                int(values.get(f"{t} publishers", "0")) >= n for t, n in wanted.items()
+            )
 
-        poll_until(recorder_matched, f"recorder report of matched publishers {wanted}")
+        poll_until(recorder_matched, f"recorder report of matched publishers {wanted} and "
+                                     "feedforward ready (its /dm/command matched 2 subscribers)")
         yield watcher, procs, bag
     finally:
         watcher.close()
@@ -358,6 +365,11 @@ def test_faults_into_thermal_and_feedforward_nodes(
     # SIGKILL once everything is flushed: then nothing may be missing (a loss counts below)
     with contextlib.suppress(NotReadyError):
         poll_until(lambda: _bag_commands(bag) == published, f"{published} commands flushed")
+    # what the recorder last reported (1 s period): "missed" counts commands published before
+    # its subscription got the first one (or lost in gaps), which a loss at the stop is not
+    with watcher.lock:
+        status = watcher.diagnostics.get("record: bag")
+    report = {} if status is None else {kv.key: kv.value for kv in status.values}
     procs["record"].kill()
     try:
         recorded = len(read_bag(bag, [COMMAND])[COMMAND])
@@ -370,7 +382,9 @@ def test_faults_into_thermal_and_feedforward_nodes(
     lost = (published or 0) - recorded
     fault_cases.expect(area, "every published command in the bag (recorder SIGKILLed)",
                        published is not None and lost == 0,
-                       f"feedforward published {published}, bag holds {recorded}")
+                       f"feedforward published {published}, bag holds {recorded}; the "
+                       f"recorder last reported {report.get(f'{COMMAND} received')} received, "
+                       f"{report.get(f'{COMMAND} missed')} missed")
     fault_cases.lost(max(lost, 0))
     fault_cases.expect(area, "feedforward exits cleanly at the end", ff_exit == 0,
                        f"exit code {ff_exit}")

@@ -1,5 +1,13 @@
 """Run one rclpy node as a process: clean shutdown on SIGINT/SIGTERM, one-line errors.
 
+SIGINT and SIGTERM are taken over from rclpy (:class:`StopSignals`): the handler only
+records the signal, the spin loop sees it within :data:`SPIN_SLICE` and ends, and the node is
+closed, destroyed and rclpy shut down in that order on the main thread, with the context still
+valid until the end. rclpy's own handlers shut the context down from a thread of their own
+and trigger the executors' guard conditions there, while the main thread goes on closing
+the node and collecting garbage: that thread crashed the process with SIGSEGV in
+``rcl_trigger_guard_condition`` in 3 of 133 recorder Ctrl-C stops on a loaded machine.
+
 A node picks its executor with a read-only ``executor`` parameter (see :data:`EXECUTORS`);
 nodes without it get rclpy's ``SingleThreadedExecutor``.
 
@@ -16,9 +24,11 @@ crash (SIGSEGV, SIGABRT) prints the Python stack of every thread (``faulthandler
 from __future__ import annotations
 
 import faulthandler
+import signal
 import sys
 import time
 from collections.abc import Callable, Sequence
+from types import FrameType, TracebackType
 from typing import Final
 
 import rclpy
@@ -28,6 +38,7 @@ from rclpy.context import Context
 from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.publisher import Publisher
+from rclpy.signals import SignalHandlerOptions
 
 from es_msgs_py.errors import ParameterValueError
 from es_msgs_py.param_spec import ParameterSpec
@@ -40,9 +51,11 @@ EXECUTOR_PARAMETER: Final = "executor"
 EXECUTORS: Final = ("single_threaded", "events")
 #: The executor every node spins on unless its ``executor`` parameter says otherwise.
 DEFAULT_EXECUTOR: Final = "events"
-#: Longest time [s] the events executor spins without returning to Python: its own ``spin()``
-#: ignores SIGINT/SIGTERM (rclpy 7.1), so it is spun in slices and the context is checked.
-EVENTS_SPIN_SLICE: Final = 0.1
+#: Longest time [s] an executor waits without returning to Python, where a stop request
+#: (:class:`StopSignals`) and the context are checked: the longest delay of a Ctrl-C.
+SPIN_SLICE: Final = 0.1
+#: The signals that stop a node cleanly.
+STOP_SIGNALS: Final = (signal.SIGINT, signal.SIGTERM)
 #: Longest time [s] the DDS teardown (destroying the node, shutting rclpy down) may take
 #: before the process gives up on it: normally well under a second.
 TEARDOWN_LIMIT: Final = 5.0
@@ -92,6 +105,42 @@ def executor_spec(default: str = DEFAULT_EXECUTOR) -> ParameterSpec:
         choices=EXECUTORS,
         read_only=True,
     )
+class StopSignals:
+    """SIGINT/SIGTERM as a stop request: within ``with``, the handler only records the signal.
+
+    Nothing is shut down or finalised from the handler (Python runs it on the main thread
+    between two bytecodes); whoever spins polls :attr:`received`. A later signal, e.g. the
+    SIGTERM that ``ros2 launch`` sends when a stop takes long, changes nothing: the teardown
+    is bounded by the watchdog of :func:`run_node` instead. The previous handlers are
+    restored on leaving the ``with`` block.
+    """
+
+    def __init__(self) -> None:
+        #: the first stop signal received (``signal.SIGINT``...), ``None`` before any
+        self.received: int | None = None
+        self._previous: dict[int, object] = {}
+
+    def _on_signal(self, signum: int, _frame: FrameType | None) -> None:
+        if self.received is None:
+            self.received = signum
+
+    def __call__(self) -> bool:
+        """Return whether a stop signal has been received."""
+        return self.received is not None
+
+    def __enter__(self) -> StopSignals:
+        for sig in STOP_SIGNALS:
+            self._previous[sig] = signal.signal(sig, self._on_signal)
+        return self
+
+    def __exit__(
+        self,
+        _type: type[BaseException] | None,
+        _value: BaseException | None,
+        _traceback: TracebackType | None,
+    ) -> None:
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)  # type: ignore[arg-type]  # what signal() returned
 
 
 def executor_kind(node: Node) -> str:
@@ -109,15 +158,22 @@ def executor_kind(node: Node) -> str:
     return str(kind)
 
 
-def spin(node: Node, kind: str = EXECUTORS[0], context: Context | None = None) -> None:
+def spin(
+    node: Node,
+    kind: str = EXECUTORS[0],
+    context: Context | None = None,
+    stopped: Callable[[], bool] = lambda: False,
+) -> None:
     """Spin ``node`` with the executor ``kind`` (one of :data:`EXECUTORS`) until shutdown.
 
-    ``events`` falls back to the single-threaded executor, with a warning, on an rclpy
-    without the EventsExecutor. Raises ``KeyboardInterrupt`` or ``ExternalShutdownException``
-    like ``rclpy.spin``.
+    The spin ends when the context shuts down or, at the latest :data:`SPIN_SLICE` seconds
+    after, when ``stopped()`` becomes true (e.g. a :class:`StopSignals`). ``events`` falls
+    back to the single-threaded executor, with a warning, on an rclpy without the
+    EventsExecutor. Raises ``KeyboardInterrupt`` or ``ExternalShutdownException`` like
+    ``rclpy.spin``.
     """
     context = context or node.context
-    executor: Executor
+    executor: Executor | None = None
     if kind == "events":
         try:
             from rclpy.experimental import EventsExecutor
@@ -127,13 +183,11 @@ def spin(node: Node, kind: str = EXECUTORS[0], context: Context | None = None) -
             )
         else:
             executor = EventsExecutor(context=context)
-            executor.add_node(node)
-            while context.ok():
-                executor.spin_once(timeout_sec=EVENTS_SPIN_SLICE)
-            return
-    executor = SingleThreadedExecutor(context=context)
+    if executor is None:
+        executor = SingleThreadedExecutor(context=context)
     executor.add_node(node)
-    executor.spin()
+    while context.ok() and not stopped():
+        executor.spin_once(timeout_sec=SPIN_SLICE)
 
 
 def wants_help(args: Sequence[str]) -> bool:
@@ -186,7 +240,8 @@ def run_node(
 ) -> int:
     """Create the node with ``make_node``, spin it until shutdown and return an exit code.
 
-    SIGINT and SIGTERM end the spin cleanly (rclpy's signal handlers shut the context down);
+    SIGINT and SIGTERM end the spin cleanly (:class:`StopSignals`; rclpy's own handlers are
+    not installed, so the context stays valid until the node is closed and destroyed);
     the node spins on the executor its ``executor`` parameter names (:func:`executor_kind`);
     the node's ``close()`` runs if it has one, then the node logs how many messages it
     published per topic (``published <topic>: <count>``, see :class:`PublishCounter`). An
@@ -201,17 +256,23 @@ def run_node(
         return 0
     # A native crash (e.g. SIGSEGV in a DDS teardown) prints every thread's stack.
     faulthandler.enable()
-    try:
-        rclpy.init(args=argv)
-    except RCLError as err:  # e.g. a --params-file that does not exist or does not parse
-        print(f"error: {str(err).splitlines()[0]}", file=sys.stderr)
-        return 2
+    with StopSignals() as stop:
+        try:
+            rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
+        except RCLError as err:  # e.g. a --params-file that does not exist or does not parse
+            print(f"error: {str(err).splitlines()[0]}", file=sys.stderr)
+            return 2
+        return _run(make_node, stop, teardown_limit)
+
+
+def _run(make_node: Callable[[], Node], stop: StopSignals, teardown_limit: float) -> int:
+    """Create, spin, close and destroy the node, then shut rclpy down (see :func:`run_node`)."""
     node: Node | None = None
     counter: PublishCounter | None = None
     try:
         node = make_node()
         counter = PublishCounter(node)
-        spin(node, executor_kind(node))
+        spin(node, executor_kind(node), stopped=stop)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except RuntimeError:
