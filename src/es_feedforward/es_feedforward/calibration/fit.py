@@ -55,8 +55,12 @@ class FitResult:
 
 #: (local (A, P), glob (G,), with Jacobians?) -> Evaluation
 Evaluate = Callable[[FloatArray, FloatArray, bool], Evaluation]
-#: Rejected steps in a row after which the fit counts as converged.
-MAX_STALLS = 3
+#: Rejected steps in a row after which the fit counts as converged. Each one raises the
+#: damping tenfold: after three (damping ~1 on the scaled system) a fit whose Jacobian is
+#: approximate (the per-actuator law's columns under a neighbour coupling) or strongly
+#: nonlinear (a drift started far from its time constant) stopped where it started; after
+#: eight the step is a short gradient step, and a stall there is convergence.
+MAX_STALLS = 8
 
 
 def _normal_equations(

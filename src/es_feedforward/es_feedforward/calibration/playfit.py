@@ -317,3 +317,35 @@ def _operator_pays(ws: Workspace, fewer: ModelState, more: ModelState) -> bool:
     delta = information_delta(fewer.heldout_sse, more.heldout_sse, n_eff, 2)
     gain = 1.0 - more.heldout_rms / max(fewer.heldout_rms, 1e-300)
     return delta < 0 and gain >= MIN_RELATIVE_GAIN
+
+
+def without_weakest_operator(ws: Workspace, state: ModelState) -> ModelState | None:
+    """Return ``state`` refitted without its least weighted play operator, or None.
+
+    A refit with an effect added later (a drift, a coupling) can take over what an extra
+    operator explained, leaving its weight at or below zero: that operator, not the whole
+    play effect, is then what the data no longer support. None when ``state`` has no play
+    effect or only one operator.
+    """
+    model = state.model
+    play = model.play
+    if play is None or model.operators < 2:
+        return None
+    order = model.operators
+    old = dict(zip(model.global_names, state.fit.glob, strict=True))
+    weakest = int(np.argmin([old[model.key(play, i)] for i in range(order)]))
+    kept = [i for i in range(order) if i != weakest]
+    reduced = CompositeModel(model.effects, operators=order - 1, per_actuator=model.per_actuator)
+    start = {reduced.key(play, j): old[model.key(play, i)] for j, i in enumerate(kept)}
+    start[reduced.key(play, order - 1)] = old[model.key(play, order)]  # the temperature law
+    thresholds = tuple(state.thresholds[i] for i in kept)
+    train, held = ws.input_pair(state.delay_s, thresholds)
+    return fit_state(
+        reduced,
+        train,
+        held,
+        state.fit.local,
+        np.array([start.get(n, old.get(n, 0.0)) for n in reduced.global_names], np.float64),
+        delay_s=state.delay_s,
+        thresholds=thresholds,
+    )

@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 from typing import Final
 
 from es_feedforward.calibration.model import CANDIDATES, CompositeModel
+from es_feedforward.calibration.playfit import without_weakest_operator
 from es_feedforward.calibration.scans import candidate_states, refine_shift
 from es_feedforward.calibration.search import (
     MIN_RELATIVE_GAIN,
@@ -192,6 +193,23 @@ def _backward_round(ws: Workspace, state: ModelState) -> tuple[RoundRecord, Mode
     return RoundRecord(scores, None, step="backward", removed=drop[1]), drop[2]
 
 
+def settle_operators(ws: Workspace, state: ModelState) -> ModelState:
+    """Return ``state`` with play operators dropped while the play's weights are unphysical.
+
+    A joint refit after a later effect can push a play operator's weight to zero or below
+    (the later effect explains what that operator did); the weakest operator goes, not the
+    whole play effect (the backward check would otherwise drop an effect it needs).
+    """
+    while (play := state.model.play) is not None and play.problem(
+        effect_parameters(state, play.name, ws.aligned)
+    ):
+        reduced = without_weakest_operator(ws, state)
+        if reduced is None:
+            break
+        state = reduced
+    return state
+
+
 def _chain(ws: Workspace, base: ModelState, final: ModelState) -> list[Step]:
     """Return the steps base -> final in ``final``'s effect order (prefix models refitted)."""
     steps: list[Step] = []
@@ -216,7 +234,7 @@ def search_effects(
         rounds.append(record)
         if new is None or record.added is None:
             break
-        new = refine_shift(ws, new)
+        new = settle_operators(ws, refine_shift(ws, new))
         added.append((record.added, state, new))
         state = new
     removed = False
