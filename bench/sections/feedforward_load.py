@@ -36,11 +36,32 @@ class LoadRun:
                 + (c["commands_published"] - c["commands_in_bag"]))
 
 
+def _wait_node_ready(client: DdsClient, node: Process, timeout: float = 60.0) -> None:
+    """Wait until the node logs that it is ready (its inputs and outputs matched).
+
+    Started with ``ready_subscribers:=2``, its command publisher has then matched the client
+    and the recorder, so the recorder gets every command from the first on.
+
+    Raises:
+        RuntimeError: the node did not say so within ``timeout``, or it exited first.
+
+    """
+    deadline = time.monotonic() + timeout
+    while "ready: every input matched" not in node.output():
+        if not node.running():
+            raise RuntimeError(f"{node.name} exited {node.popen.returncode} before it was "
+                               f"ready:\n{node.output()}")
+        if time.monotonic() > deadline:
+            raise RuntimeError(f"{node.name} not ready within {timeout:g} s: its command "
+                               "publisher did not match the client and the recorder")
+        client.executor.spin_once(timeout_sec=0.1)
+
+
 def _wait_recorder_has(client: DdsClient, recorder: Process, timeout: float = 60.0) -> None:
     """Wait until the recorder's /diagnostics report every command the client received.
 
-    Then it matched the node's command publisher before the first command went out: what it
-    misses later is a loss, not start-up.
+    The node's command publisher matched the recorder before the first command went out
+    (:func:`_wait_node_ready`): a command the recorder lacks here is lost, not start-up.
 
     Raises:
         RuntimeError: the recorder did not report them within ``timeout``.
@@ -66,7 +87,7 @@ def _wait_recorder_has(client: DdsClient, recorder: Process, timeout: float = 60
         while reported < client.received:
             if time.monotonic() > deadline or not recorder.running():
                 raise RuntimeError(f"recorder reports {reported} of {client.received} commands "
-                                   f"after {timeout:g} s: it matched the node late")
+                                   f"after {timeout:g} s")
             client.executor.spin_once(timeout_sec=0.1)
     finally:
         client.node.destroy_subscription(sub)
@@ -89,11 +110,13 @@ def _load_run(loaded: bool, settings: Settings, log_dir: Path, paced_s: float) -
                                                SETPOINT, COMMAND], log_dir)
         node = Process(f"feedforward_{label}_{rows}x{cols}", [
             launcher("es_feedforward", "feedforward_node"), "--ros-args", "-p", f"rows:={rows}",
-            "-p", f"cols:={cols}", "-p", "temperature_timeout:=0.0"], log_dir)
+            "-p", f"cols:={cols}", "-p", "temperature_timeout:=0.0", "-p",
+            "ready_subscribers:=2"], log_dir)
         client = DdsClient(LOAD_SHAPE)
         try:
             with processes(node, recorder):  # the node stops first, the recorder last
                 client.wait_for_peer(setpoint_readers=2, estimates=True)
+                _wait_node_ready(client, node)
                 client.use_temperature()
                 _wait_recorder_has(client, recorder)
                 lat = client.latencies(settings.dds_latency_samples)
