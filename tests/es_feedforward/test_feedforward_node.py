@@ -263,7 +263,8 @@ def test_node_reports_not_ready_until_its_inputs_are_matched() -> None:
         assert says("ready"), seen
         assert level_of(seen["ready"]) == Level.OK
         # logged just after the status went out
-        assert spin_until(node, lambda: "ready: every input matched" in proc.output(), 10.0)
+        assert spin_until(node, lambda: "ready: every input matched" in proc.output(),
+                          READY_TIMEOUT)
         assert proc.stop() == 0
 
 
