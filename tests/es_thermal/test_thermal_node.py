@@ -219,7 +219,7 @@ def test_timer_mode_publishes_at_its_rate_until_the_input_goes_stale() -> None:
     args = [
         "--ros-args",
         "-p", "rows:=4", "-p", "cols:=4", "-p", "sensor_pitch:=2", "-p", "estimator:=lowpass",
-        "-p", "publish_rate:=20.0", "-p", "fault.stale_timeout:=0.5",
+        "-p", "publish_rate:=20.0", "-p", "fault.stale_timeout:=2.0",
     ]  # fmt: skip
     with (
         node_process("es_thermal", "thermal_node", args) as proc,
@@ -228,9 +228,10 @@ def test_timer_mode_publishes_at_its_rate_until_the_input_goes_stale() -> None:
         h = Harness(node)
         h.wait_connected(proc)
         h.raw.publish(sensors_to_msg(readings()))
-        # One raw message, several estimates at 20 Hz ...
+        # One raw message, several estimates at 20 Hz (40 within the 2 s: 3 even when the
+        # machine is busy) ...
         assert spin_until(node, lambda: len(h.estimates) >= 3, READY_TIMEOUT)
-        # ... until the raw stream is stale (0.5 s): then the estimates stop.
+        # ... until the raw stream is stale (2 s): then the estimates stop.
         deadline = time.monotonic() + READY_TIMEOUT
         stopped = False
         while not stopped and time.monotonic() < deadline:
