@@ -243,8 +243,10 @@ def test_real_time_mode_runs_on_the_wall_clock(tmp_path: Path) -> None:
     # No controller comes: the plant waits start_timeout for one, then runs on its own.
     args = [
         "--ros-args", "-p", f"scenario:={scenario}", "-p", "lockstep:=false",
-        "-p", "exit_when_done:=true", "-p", "start_timeout:=3.0",
+        "-p", "exit_when_done:=true", "-p", "start_timeout:=6.0",
     ]  # fmt: skip
+    # 6 s: the test's /clock subscription matches well before the 2 s run ends, even when
+    # discovery takes seconds on a loaded machine
     with ros.test_node("plant_rt") as node:
         clocks: list[float] = []
         subscription = node.create_subscription(
@@ -259,10 +261,11 @@ def test_real_time_mode_runs_on_the_wall_clock(tmp_path: Path) -> None:
             assert plant.process.returncode == 0, plant.output()
             log = plant.output()
     assert "real time" in log
-    assert "peers not all present after 3 s" in log
-    # Near 1x real time: the wall timer paces it (200 steps of 10 ms), never faster.
+    assert "peers not all present after 6 s" in log
+    # The wall timer paces it (200 steps of 10 ms): never faster than real time (how much
+    # slower depends on the machine's load: no bound here)
     speed = float(log.split("x real time")[0].rsplit("(", 1)[1])
-    assert 0.3 < speed < 1.05
+    assert 0.0 < speed < 1.05
     # A subscriber matched before the plant ended sees the clock advance up to the end (2 s).
     assert clocks, "no /clock message received after the subscription matched"
     assert 1.0 <= max(clocks) <= 2.0 + 1e-9
