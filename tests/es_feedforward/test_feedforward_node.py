@@ -306,7 +306,7 @@ def test_node_rejects_an_invalid_parameters_file_with_one_line(tmp_path: Path) -
     proc = NodeProcess(
         "es_feedforward", "feedforward_node", ["--ros-args", "--params-file", str(path)]
     )
-    assert proc.process.wait(20) == 2
+    assert proc.process.wait(READY_TIMEOUT) == 2
     lines = [line for line in proc.output().splitlines() if line.strip()]
     assert lines[-1].startswith("error: ") and "law.m2" in lines[-1]
     assert "Traceback" not in proc.output()
@@ -345,6 +345,6 @@ def test_node_serves_and_stops_cleanly_on_either_executor(
 
 def test_node_rejects_an_unknown_executor_with_one_line() -> None:
     proc = NodeProcess("es_feedforward", "feedforward_node", ["--ros-args", "-p", "executor:=fast"])
-    assert proc.process.wait(20) == 2
+    assert proc.process.wait(READY_TIMEOUT) == 2
     lines = [line for line in proc.output().splitlines() if line.strip()]
     assert lines[-1].startswith("error: ") and "executor" in lines[-1], proc.output()

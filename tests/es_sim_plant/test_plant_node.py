@@ -277,7 +277,7 @@ def test_real_time_mode_runs_on_the_wall_clock(tmp_path: Path) -> None:
 )
 def test_bad_parameters_exit_2_with_one_line(param: str, reason: str) -> None:
     with ros.node_process("es_sim_plant", "plant_node", ["--ros-args", "-p", param]) as plant:
-        plant.process.wait(30)
+        plant.process.wait(ros.READY_TIMEOUT)
         output = plant.output()
     assert plant.process.returncode == 2
     errors = [line for line in output.splitlines() if line.startswith("error:")]

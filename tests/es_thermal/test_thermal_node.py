@@ -207,7 +207,7 @@ def test_stale_input_is_an_error_until_readings_return() -> None:
 def test_invalid_configuration_exits_with_one_line(args: list[str], reason: str) -> None:
     proc = NodeProcess("es_thermal", "thermal_node", ["--ros-args", *args])
     try:
-        proc.process.wait(30.0)
+        proc.process.wait(READY_TIMEOUT)
     finally:
         code = proc.stop()
     lines = [line for line in proc.output().splitlines() if line.strip()]
