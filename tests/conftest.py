@@ -21,7 +21,15 @@ os.environ.setdefault("PYTHONUNBUFFERED", "1")
 import sys
 from pathlib import Path
 
+from hypothesis import settings
+
 sys.path.insert(0, str(Path(__file__).parent))  # makes tests/support importable as `support`
+
+# No per-example deadline for any property test: on a loaded machine one example can take
+# longer than Hypothesis' 200 ms default, which it reports as a failure (DeadlineExceeded, or
+# Flaky when the re-run is fast). Speed belongs to the benchmarks.
+settings.register_profile("es_dm", deadline=None)
+settings.load_profile("es_dm")
 
 
 def pytest_sessionstart(session: object) -> None:

@@ -67,12 +67,11 @@ def test_every_executable_the_readme_names_is_installed_and_answers_help(
     named = {tuple(m) for m in re.findall(r"ros2 run (\w+) (\w+)", README.read_text())}
     assert named <= installed, f"README names {named - installed}, not installed"
     for line in (c for c in STEPS if c.startswith("ros2 run") and c.endswith("--help")):
-        started = time.monotonic()
-        result = ros2.run(line, tmp_path, timeout=60)
+        # --help must answer and exit, not start a node (which would run until the bound)
+        result = ros2.run(line, tmp_path, timeout=120)
         assert result.returncode == 0, f"{line}: {result.stderr}"
         assert "usage" in result.stdout.lower(), line
         assert "[INFO]" not in result.stdout + result.stderr, f"{line} started a node"
-        assert time.monotonic() - started < 60
 
 
 def test_launch_arguments_are_all_described(ros2: Ros2, tmp_path: Path) -> None:

@@ -39,7 +39,12 @@ while True:
     time.sleep(0.05)
 """
 
-FAST = StopTimeouts(after_sigint=1.0, after_sigterm=1.0)
+# PROMPT: escalation bounds for stand-ins that stop at once: generous, since on a loaded machine a
+# Python process can take seconds to be scheduled and run its handler (a stop well within the
+# bound costs nothing). STUBBORN: for a stand-in that ignores SIGINT, so that its escalation to
+# SIGTERM comes after 1 s instead of 30.
+PROMPT = StopTimeouts(after_sigint=30.0, after_sigterm=30.0)
+STUBBORN = StopTimeouts(after_sigint=1.0, after_sigterm=30.0)
 
 
 def spec(
@@ -58,7 +63,7 @@ def spec(
 def test_primary_finishing_stops_the_others_recorder_last(tmp_path: Path) -> None:
     journal = tmp_path / "journal"
     messages: list[str] = []
-    sup = Supervisor(tmp_path / "logs", timeouts=FAST, announce=messages.append)
+    sup = Supervisor(tmp_path / "logs", timeouts=PROMPT, announce=messages.append)
     sup.start(spec("recorder", journal))
     sup.start(spec("thermal", journal))
     sup.start(spec("plant", journal, "exit0", primary=True, peers=("recorder", "thermal")))
@@ -74,7 +79,7 @@ def test_primary_finishing_stops_the_others_recorder_last(tmp_path: Path) -> Non
 def test_processes_are_stopped_one_at_a_time_last_started_first(tmp_path: Path) -> None:
     # one process's teardown must not overlap the next one's (see StopTimeouts.settle)
     journal = tmp_path / "journal"
-    sup = Supervisor(tmp_path / "logs", timeouts=FAST, announce=lambda _m: None)
+    sup = Supervisor(tmp_path / "logs", timeouts=PROMPT, announce=lambda _m: None)
     sup.start(spec("recorder", journal, "slow"))
     sup.start(spec("thermal", journal, "slow"))
     sup.start(spec("feedforward", journal, "slow"))
@@ -92,7 +97,7 @@ def test_processes_are_stopped_one_at_a_time_last_started_first(tmp_path: Path) 
 def test_a_node_dying_stops_the_rest_with_a_clear_reason(tmp_path: Path) -> None:
     journal = tmp_path / "journal"
     messages: list[str] = []
-    sup = Supervisor(tmp_path / "logs", timeouts=FAST, announce=messages.append)
+    sup = Supervisor(tmp_path / "logs", timeouts=PROMPT, announce=messages.append)
     sup.start(spec("recorder", journal))
     sup.start(spec("thermal", journal, "exit3", peers=("recorder", "plant")))
     sup.start(spec("plant", journal, primary=True))
@@ -104,14 +109,14 @@ def test_a_node_dying_stops_the_rest_with_a_clear_reason(tmp_path: Path) -> None
 
 
 def test_a_failing_primary_is_a_failure(tmp_path: Path) -> None:
-    sup = Supervisor(tmp_path / "logs", timeouts=FAST, announce=lambda _m: None)
+    sup = Supervisor(tmp_path / "logs", timeouts=PROMPT, announce=lambda _m: None)
     sup.start(spec("plant", tmp_path / "journal", "exit2", primary=True))
     outcome = sup.run(wall_timeout=60)
     assert (outcome.exit_code, outcome.reason) == (1, "plant failed with exit code 2")
 
 
 def test_a_process_ignoring_sigint_is_escalated_and_reported(tmp_path: Path) -> None:
-    sup = Supervisor(tmp_path / "logs", timeouts=FAST, announce=lambda _m: None)
+    sup = Supervisor(tmp_path / "logs", timeouts=STUBBORN, announce=lambda _m: None)
     sup.start(spec("stubborn", tmp_path / "journal", "ignore_sigint"))
     sup.start(spec("plant", tmp_path / "journal", "exit0", primary=True, peers=("stubborn",)))
     outcome = sup.run(wall_timeout=60)
@@ -122,7 +127,7 @@ def test_a_process_ignoring_sigint_is_escalated_and_reported(tmp_path: Path) -> 
 
 def test_interrupt_and_wall_timeout_stop_everything(tmp_path: Path) -> None:
     journal = tmp_path / "journal"
-    sup = Supervisor(tmp_path / "logs", timeouts=FAST, announce=lambda _m: None)
+    sup = Supervisor(tmp_path / "logs", timeouts=PROMPT, announce=lambda _m: None)
     sup.start(spec("thermal", journal))
     sup.start(spec("plant", journal, primary=True))
 
@@ -137,7 +142,7 @@ def test_interrupt_and_wall_timeout_stop_everything(tmp_path: Path) -> None:
     assert sup.run(wall_timeout=120).exit_code == EXIT_INTERRUPTED
     assert sorted(journal.read_text().splitlines()) == ["plant stopped", "thermal stopped"]
 
-    sup2 = Supervisor(tmp_path / "logs2", timeouts=FAST, announce=lambda _m: None)
+    sup2 = Supervisor(tmp_path / "logs2", timeouts=PROMPT, announce=lambda _m: None)
     journal2 = tmp_path / "journal2"
     sup2.start(spec("plant", journal2, primary=True))
     deadline = time.monotonic() + 60.0

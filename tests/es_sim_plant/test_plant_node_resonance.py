@@ -44,11 +44,13 @@ def test_plant_publishes_sweeps_only_when_switched_on(tmp_path: Path, switched_o
             topics.qos_for(topics.TEMPERATURE_RAW),
         )  # fmt: skip
         with ros.node_process("es_sim_plant", "plant_node", args) as plant:
-            assert ros.spin_until(node, lambda: raw.get_publisher_count() > 0, 30.0), (
+            assert ros.spin_until(node, lambda: raw.get_publisher_count() > 0,
+                                  ros.READY_TIMEOUT), (
                 "plant never published /dm/temperature/raw"
             )
             if switched_on:
-                assert ros.spin_until(node, lambda: len(sweeps) >= 6, 30.0), plant.output()
+                got = ros.spin_until(node, lambda: len(sweeps) >= 6, ros.READY_TIMEOUT)
+                assert got, plant.output()
             else:  # the plant's publishers are on the graph: none for /dm/resonance
                 assert node.count_publishers(topics.RESONANCE) == 0
                 assert plant.process.poll() is None

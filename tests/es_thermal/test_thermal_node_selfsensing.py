@@ -9,7 +9,7 @@ import pytest
 import yaml
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from std_msgs.msg import Float64MultiArray
-from support.ros import NodeProcess, node_process, spin_until
+from support.ros import READY_TIMEOUT, NodeProcess, node_process, spin_until
 from support.ros import test_node as ros_node
 
 from es_msgs_py import topics
@@ -84,7 +84,8 @@ def test_node_fuses_resonance_and_drops_an_implausible_channel(tmp_path: Path) -
             pubs[topics.RESONANCE].publish(grid_to_msg(freq))
             wanted = len(estimates) + 1
             pubs[topics.TEMPERATURE_RAW].publish(sensors_to_msg(np.array([40.0])))
-            assert spin_until(node, lambda n=wanted: len(estimates) >= n, 5.0), "no estimate"
+            got = spin_until(node, lambda n=wanted: len(estimates) >= n, READY_TIMEOUT)
+            assert got, "no estimate"
         estimate = estimates[-1]
         assert estimate[1, 1] == pytest.approx(41.0, abs=0.05)
         others = np.ones(SHAPE, bool)
@@ -106,7 +107,8 @@ def test_node_fuses_resonance_and_drops_an_implausible_channel(tmp_path: Path) -
                 int(kv.get(k, 0)) for k in fused
             ) >= 38
 
-        assert spin_until(node, reported, 5.0), f"no implausible channel in {diagnostics.get(name)}"
+        assert spin_until(node, reported, READY_TIMEOUT), (
+            f"no implausible channel in {diagnostics.get(name)}")
         status = diagnostics[name]
         values = {kv.key: kv.value for kv in status.values}
         assert level_of(status) == Level.WARN

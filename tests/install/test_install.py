@@ -169,7 +169,7 @@ def test_node_executable_joins_the_graph_and_exits_on_sigint(
             wait_matched(probe, [reports], processes=[proc])
             wait_until(probe, lambda: bool(reporters), f"/diagnostics from {exe}", processes=[proc])
         finally:
-            code = proc.stop(signal.SIGINT, timeout=20.0)
+            code = proc.stop(signal.SIGINT)
     assert code == 0, proc.output()
 
 

@@ -30,7 +30,7 @@ from rclpy.publisher import Publisher
 from rclpy.subscription import Subscription
 from rosgraph_msgs.msg import Clock as ClockMsg
 from std_msgs.msg import Float64MultiArray
-from support.ros import READY_TIMEOUT, NotReadyError, poll_until, unmatched
+from support.ros import READY_TIMEOUT, STOP_TIMEOUT, NotReadyError, poll_until, unmatched
 
 from es_msgs_py import topics
 from es_msgs_py.arrays import LayoutError, msg_to_grid
@@ -70,7 +70,7 @@ class Proc:
             os.kill(self.popen.pid, signal.SIGKILL)
             self.popen.wait(10)
 
-    def stop(self, timeout: float = 10.0) -> int:
+    def stop(self, timeout: float = STOP_TIMEOUT) -> int:
         """SIGINT, then SIGKILL after ``timeout``; return the exit code."""
         if self.alive():
             os.kill(self.popen.pid, signal.SIGINT)

@@ -163,7 +163,7 @@ def test_nodes_killed_and_restarted_in_lockstep(tmp_path: Path, fault_cases: Fau
     fault_cases.assert_held()
 
 
-def _grows(count: Callable[[], int], watcher: Watcher, window: float = 0.3) -> bool:
+def _grows(count: Callable[[], int], watcher: Watcher, window: float = 1.0) -> bool:
     """Whether commands keep arriving: the count rises within ``window`` wall seconds."""
     start = count()
     return watcher.wait_for(lambda: count() > start + 2, window)

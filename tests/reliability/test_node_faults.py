@@ -293,6 +293,11 @@ def test_faults_into_thermal_and_feedforward_nodes(
                                  READY_TIMEOUT)
     fault_cases.expect(area, "stale temperature diagnosed", diagnosed,
                        _message(watcher, "feedforward: temperature"))
+    # from here on an estimate must not go stale between its handshake and the set points
+    # that need it (a burst takes seconds on a loaded machine): a far timeout at run time
+    (fresh,) = watcher.set_parameters("feedforward", [Parameter("temperature_timeout",
+                                                                value=600.0)])
+    assert fresh[0], fresh[1]
 
     # --- burst of set points faster than the node processes ---------------------------------
     temperature = np.full(SHAPE, 46.0)

@@ -35,6 +35,12 @@ PREFIX = Path(sys.prefix)
 READY_TIMEOUT = 60.0
 
 
+#: Wall seconds a node gets from SIGINT to its exit before SIGKILL. Generous: a node's teardown
+#: (executor, DDS participant) takes seconds on a loaded machine, and a test that asserts a
+#: clean exit must not see a SIGKILL of a node that was still stopping cleanly.
+STOP_TIMEOUT = 30.0
+
+
 class NotReadyError(AssertionError):
     """A DDS endpoint never matched, or awaited data never came, within the bounded wait."""
 
@@ -64,7 +70,7 @@ class NodeProcess:
         self._log.seek(0)
         return self._log.read().decode(errors="replace")
 
-    def stop(self, sig: int = signal.SIGINT, timeout: float = 10.0) -> int:
+    def stop(self, sig: int = signal.SIGINT, timeout: float = STOP_TIMEOUT) -> int:
         """Send ``sig`` to this process only, wait for it, and return its exit code."""
         if self.process.poll() is None:
             os.kill(self.process.pid, sig)

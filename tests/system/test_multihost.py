@@ -42,8 +42,11 @@ def _finished_counts(plant_log: str) -> tuple[int, dict[str, int]]:
 @pytest.mark.dds
 def test_plant_on_one_host_controllers_on_the_other(tmp_path: Path) -> None:
     logs = tmp_path / "logs"
+    # the plant's command and sync waits are bounds here, not the scenario (no timeout is
+    # asserted): far beyond one round trip across the link on a loaded machine
     config = GraphConfig(scenario="dm_exposure", bag=tmp_path / "bag", log_dir=logs,
-                         plant={"rows": ROWS, "cols": COLS, "duration": DURATION_S})
+                         plant={"rows": ROWS, "cols": COLS, "duration": DURATION_S,
+                                "command_timeout": 30.0, "sync_timeout": 30.0})
     before, plant = node_specs(config)
     with two_hosts() as (plant_host, control_host):
         supervisor = Supervisor(logs)
