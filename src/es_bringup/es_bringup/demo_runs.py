@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from es_bringup.bringup import Bringup, GraphConfig, ParamValue
-from es_msgs_py.topics import process_domain_id
+from es_msgs_py.topics import reserve_domain_id
 
 
 class Progress:
@@ -127,8 +127,8 @@ class Runner:
 
 
 def demo_domain() -> int:
-    """Return the demo's ROS domain: ROS_DOMAIN_ID if set, else one picked from the PID."""
+    """Return the demo's ROS domain: ROS_DOMAIN_ID if set, else one no other es_dm process holds."""
     given = os.environ.get("ROS_DOMAIN_ID")
     if given:
         return int(given)
-    return process_domain_id()
+    return reserve_domain_id()
