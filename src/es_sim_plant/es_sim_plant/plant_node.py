@@ -136,10 +136,9 @@ class PlantNode(Node):
                 Float64MultiArray, topics.COMMAND, self._on_command, qos
             )
         )
-        # only the arrival counts: raw (serialised bytes), no Python message built per step
         self._temperature_sub = (
             self.create_subscription(
-                Float64MultiArray, topics.TEMPERATURE, self._on_temperature, qos, raw=True
+                Float64MultiArray, topics.TEMPERATURE, self._on_temperature, qos
             )
             if settings.lockstep and settings.sync_temperature
             else None
@@ -180,7 +179,7 @@ class PlantNode(Node):
         """Note what the awaited nodes say about their readiness (only before the start)."""
         self.core.readiness(ready_nodes(msg))
 
-    def _on_temperature(self, _msg: bytes) -> None:
+    def _on_temperature(self, _msg: Float64MultiArray) -> None:
         self.core.temperature()
 
     def _on_kick(self) -> None:
