@@ -197,10 +197,23 @@ def build_graph(config: GraphConfig) -> Graph:
         ),
         # the recorder's subscriptions must match before the first message goes out
         **({"start_subscribers": 1} if config.bag is not None else {}),
+        # the thermal node and the feedforward both count the raw samples
+        **(
+            {"raw_subscribers": 2}
+            if config.with_controllers and _synchronised(plant_values)
+            else {}
+        ),
         **plant_values,
     }
     plant = NodeSpec("es_sim_plant", "plant_node", PLANT, plant_params)
     return Graph(before, plant, config.namespace)
+
+
+def _synchronised(plant_values: Mapping[str, ParamValue]) -> bool:
+    """Return whether the plant waits for each sample's estimate (lockstep, the default)."""
+    return bool(plant_values.get("lockstep", True)) and bool(
+        plant_values.get("sync_temperature", True)
+    )
 
 
 def _controller_specs(
@@ -222,10 +235,12 @@ def _controller_specs(
     # matched it): estimates go to the feedforward, the lockstep plant and the recorder,
     # commands to the plant and the recorder.
     recorder = int(config.bag is not None)
-    synced = int(bool(plant_values.get("lockstep", True))
-                 and bool(plant_values.get("sync_temperature", True)))
+    synced = int(_synchronised(plant_values))
     thermal["ready_subscribers"] = 1 + synced + recorder
     feedforward["ready_subscribers"] = 1 + recorder
+    # In lockstep the feedforward holds a set point until the step's estimate is in (the two
+    # come from different publishers, which DDS does not order).
+    feedforward["sync_temperature"] = bool(synced)
     return [
         NodeSpec(
             "es_thermal", "thermal_node", THERMAL, {**sim_time, **thermal, **config.thermal}

@@ -8,14 +8,19 @@ first), so a lockstep plant never waits; every such held command is counted, rai
 ``feedforward: actuators`` status to WARN and is logged (at most once a second). Until its
 inputs are connected (/dm/setpoint and, except ``uncompensated``, /dm/temperature matched to
 a publisher) ``feedforward: ready`` on /diagnostics says "not ready" (a lockstep plant waits
-for it). Parameters: :mod:`es_feedforward.param_file` names, declared with ranges; a run-time
-change is validated as a whole set and swapped in between two set points. Environment:
-``ES_DM_FEEDFORWARD_KERNELS=numpy`` runs the modes' inner loops in plain numpy instead of the
-fused (numba) ones, same numbers (:mod:`es_feedforward.kernels`).
+for it). With ``sync_temperature`` (lockstep) it also counts /dm/temperature/raw samples and
+holds a set point while the estimate of a sample received before it is owed
+(:mod:`es_feedforward.estimate_sync`). Parameters: :mod:`es_feedforward.param_file` names,
+declared with ranges; a run-time change is validated as a whole set and swapped in between
+two set points. Environment: ``ES_DM_FEEDFORWARD_KERNELS=numpy`` runs the modes' inner
+loops in plain numpy instead of the fused (numba)
+ones, same numbers (:mod:`es_feedforward.kernels`).
 """
 
 from __future__ import annotations
 
+import time
+from collections import deque
 from typing import Final
 
 import numpy as np
@@ -25,9 +30,11 @@ from rclpy.clock import Clock, ClockType
 from rclpy.exceptions import ParameterException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rclpy.timer import Timer
 from std_msgs.msg import Float64MultiArray
 
 from es_feedforward.errors import ParameterError
+from es_feedforward.estimate_sync import EstimateSync
 from es_feedforward.feedforward import (
     CommandResult,
     Feedforward,
@@ -54,6 +61,7 @@ from es_msgs_py.topics import (
     DM_QOS,
     SETPOINT,
     TEMPERATURE,
+    TEMPERATURE_RAW,
     qos_for,
 )
 from es_physics.laws import Status
@@ -114,10 +122,28 @@ class FeedforwardNode(Node):
         self._temperature_sub = self.create_subscription(
             Float64MultiArray, TEMPERATURE, self._on_temperature, qos_for(TEMPERATURE)
         )
+        # Lockstep: the raw samples come from the set points' publisher, before them, so
+        # they say which estimates a set point must wait for (only their arrival matters).
+        self._sync: EstimateSync | None = None
+        self._raw_sub = None
+        if self._values.get_bool("sync_temperature"):
+            self._sync = EstimateSync(self._values.get_float("sync_timeout"))
+            self._raw_sub = self.create_subscription(
+                Float64MultiArray,
+                TEMPERATURE_RAW,
+                self._on_raw_sample,
+                qos_for(TEMPERATURE_RAW),
+                raw=True,
+            )
+        self._deferred: deque[Float64MultiArray] = deque()  # set points waiting for estimates
+        self._sync_timer: Timer | None = None
+        self._reported_sync_timeouts = 0
         self._setpoint_sub = self.create_subscription(
             Float64MultiArray, SETPOINT, self._on_setpoint, qos_for(SETPOINT)
         )
-        self._counts = {"setpoints": 0, "commands": 0, "held": 0, "temperatures": 0}
+        self._counts = {
+            "setpoints": 0, "commands": 0, "held": 0, "temperatures": 0, "waited": 0
+        }
         self._hold_reason: str | None = None  # why the last command was held, None: it was not
         self._waiting_for = self._unconnected_inputs()
         self._ready_timer = self.create_timer(
@@ -144,6 +170,16 @@ class FeedforwardNode(Node):
 
     def _on_setpoint(self, msg: Float64MultiArray) -> None:
         self._counts["setpoints"] += 1
+        sync = self._sync
+        if sync is not None and (self._deferred or sync.owed(time.monotonic())):
+            self._deferred.append(msg)  # after any earlier one: commands keep their order
+            self._counts["waited"] += 1
+            self._arm_sync_timer()
+            return
+        self._command_for(msg)
+
+    def _command_for(self, msg: Float64MultiArray) -> None:
+        """Compute and publish the command of one set point (or hold the last good one)."""
         try:
             # a view of the received message (not reused by rclpy, never written by the core)
             setpoint = msg_to_grid(msg, self._core.config.shape, copy=False)
@@ -177,6 +213,12 @@ class FeedforwardNode(Node):
 
     def _on_temperature(self, msg: Float64MultiArray) -> None:
         self._counts["temperatures"] += 1
+        self._take_temperature(msg)
+        if self._sync is not None:
+            self._sync.estimate()  # a rejected estimate answers its sample too
+            self._release_deferred()
+
+    def _take_temperature(self, msg: Float64MultiArray) -> None:
         try:
             temperature = msg_to_grid(msg, self._core.config.shape, copy=False)
         except LayoutError as err:
@@ -188,6 +230,44 @@ class FeedforwardNode(Node):
         if problem is not None:
             self.get_logger().error(problem, throttle_duration_sec=1.0)
         self._publish_diagnostics_on_change(now)
+
+    # --- lockstep: set points wait for their step's estimate --------------------------------
+
+    def _on_raw_sample(self, _msg: bytes) -> None:
+        assert self._sync is not None  # subscribed only with it
+        self._sync.sample(time.monotonic())
+
+    def _release_deferred(self) -> None:
+        """Compute the waiting set points, oldest first, once no estimate is owed."""
+        sync = self._sync
+        assert sync is not None
+        while self._deferred and not sync.owed(time.monotonic()):
+            self._command_for(self._deferred.popleft())
+        if sync.timed_out > self._reported_sync_timeouts:
+            self.get_logger().warning(
+                f"no /dm/temperature within sync_timeout of a /dm/temperature/raw sample: "
+                f"used the newest estimate ({sync.timed_out} timed out so far)",
+                throttle_duration_sec=1.0,
+            )
+            self._publish_diagnostics()  # WARN once per new timeout, then OK again
+        if self._deferred:
+            self._arm_sync_timer()
+
+    def _arm_sync_timer(self) -> None:
+        """Make sure a one-shot wall timer ends the wait at the oldest owed estimate's deadline."""
+        if self._sync_timer is not None:
+            return
+        deadline = self._sync.deadline if self._sync is not None else None
+        delay = 0.0 if deadline is None else max(deadline - time.monotonic(), 0.0)
+        self._sync_timer = self.create_timer(
+            delay, self._on_sync_timer, clock=Clock(clock_type=ClockType.STEADY_TIME)
+        )
+
+    def _on_sync_timer(self) -> None:
+        timer, self._sync_timer = self._sync_timer, None
+        if timer is not None:
+            self.destroy_timer(timer)
+        self._release_deferred()
 
     def _publish_command(self, voltage: np.ndarray) -> None:
         # publish() serialises synchronously, so one message (layout fixed by the read-only
@@ -201,6 +281,8 @@ class FeedforwardNode(Node):
         needed = [self._setpoint_sub]
         if self._core.needs_temperature:
             needed.insert(0, self._temperature_sub)
+        if self._raw_sub is not None:
+            needed.insert(0, self._raw_sub)
         wanted = int(self._values["ready_subscribers"])  # type: ignore[call-overload]
         return [*unmatched(needed), *unreached(self._command_pub, wanted)]
 
@@ -273,6 +355,7 @@ class FeedforwardNode(Node):
                         "received": self._counts["temperatures"],
                         "rejected": self._rejected[TEMPERATURE],
                         "timeout_s": config.temperature_timeout,
+                        **self._sync_values(),
                     },
                 )
             )
@@ -305,6 +388,15 @@ class FeedforwardNode(Node):
             )
         )
         return out
+
+    def _sync_values(self) -> dict[str, object]:
+        """Return the lockstep wait's counts (empty without ``sync_temperature``)."""
+        if self._sync is None:
+            return {}
+        return {
+            "setpoints_waited_for_estimate": self._counts["waited"],
+            "estimates_timed_out": self._sync.timed_out,
+        }
 
     def _actuator_status(self) -> DiagnosticStatus:
         name = f"{NODE_NAME}: actuators"
@@ -341,6 +433,8 @@ class FeedforwardNode(Node):
 
     def _publish_diagnostics(self) -> None:
         statuses = self._statuses()
+        if self._sync is not None:
+            self._reported_sync_timeouts = self._sync.timed_out
         self._published_levels = tuple(s.level[0] for s in statuses)
         self._diag_pub.publish(make_array(self.get_clock().now().to_msg(), statuses))
 
@@ -349,7 +443,8 @@ class FeedforwardNode(Node):
             return Level.OK
         if problem:
             return Level.ERROR
-        return Level.WARN if self._last_rejection[TEMPERATURE] else Level.OK
+        late = self._sync is not None and self._sync.timed_out > self._reported_sync_timeouts
+        return Level.WARN if self._last_rejection[TEMPERATURE] or late else Level.OK
 
     def _current_levels(self, now: float) -> tuple[int, ...]:
         """Cheap level summary to detect changes (same order as :meth:`_statuses`).

@@ -118,6 +118,23 @@ def parameter_specs() -> list[ParameterSpec]:
             read_only=True,
         ),
         ParameterSpec(
+            "sync_temperature",
+            False,
+            "Lockstep: also count /dm/temperature/raw samples and compute a set point only "
+            "once the estimate of every sample received before it has arrived (the estimate "
+            "and the set point come from different publishers, which DDS does not order).",
+            read_only=True,
+        ),
+        ParameterSpec(
+            "sync_timeout",
+            1.0,
+            "Lockstep with sync_temperature: wall seconds after a raw sample's arrival that a "
+            "set point waits for its estimate before using the newest one (counted, WARN).",
+            0.001,
+            60.0,
+            read_only=True,
+        ),
+        ParameterSpec(
             OBSERVER_PREFIX + "kp",
             observer_defaults.kp,
             "Observer PI proportional gain (normalised by the observer gain).",

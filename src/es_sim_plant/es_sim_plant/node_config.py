@@ -163,6 +163,16 @@ SPECS: tuple[ParameterSpec, ...] = (
         read_only=True,
     ),
     ParameterSpec(
+        "raw_subscribers",
+        1,
+        "Lockstep with sync_temperature: controller subscriptions /dm/temperature/raw must "
+        "have matched before the first step, besides start_subscribers (1: the thermal "
+        "node; 2 when the feedforward also counts the samples, sync_temperature there).",
+        1,
+        100,
+        read_only=True,
+    ),
+    ParameterSpec(
         "max_speed",
         0.0,
         "Lockstep: run at most this many times faster than real time (0: no limit). A test "
@@ -274,6 +284,7 @@ class LockstepSettings:
     start_timeout: float = 10.0
     wait_ready: tuple[str, ...] = ()
     start_subscribers: int = 0
+    raw_subscribers: int = 1
     max_speed: float = 0.0
     exit_when_done: bool = False
 
@@ -295,6 +306,7 @@ def settings_from_parameters(values: ParameterValues) -> LockstepSettings:
         start_timeout=values.get_float("start_timeout"),
         wait_ready=tuple(values.get_strs("wait_ready")),
         start_subscribers=values.get_int("start_subscribers"),
+        raw_subscribers=values.get_int("raw_subscribers"),
         max_speed=values.get_float("max_speed"),
         exit_when_done=values.get_bool("exit_when_done"),
     )

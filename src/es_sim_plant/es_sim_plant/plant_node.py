@@ -190,7 +190,7 @@ class PlantNode(Node):
         thermal = controlled and settings.sync_temperature
         needed = [
             (self._pub_displacement, extra),
-            (self._pub_raw, extra + thermal),
+            (self._pub_raw, extra + thermal * settings.raw_subscribers),
             (self._pub_heat, extra + thermal),
             # a test stand publishes no set points
             (self._pub_setpoint, extra + 1 if controlled and settings.publish_setpoints else 0),
