@@ -49,6 +49,10 @@ def test_every_node_gets_the_scenario_grid_sensors_lag_and_time_scale() -> None:
     assert nodes[PLANT]["start_subscribers"] == 1
     # first estimate to feedforward, plant and recorder; first command to plant and recorder
     assert (nodes[THERMAL]["ready_subscribers"], nodes[FEEDFORWARD]["ready_subscribers"]) == (3, 2)
+    # in lockstep the feedforward waits for each raw sample's estimate, so it counts the raw
+    # samples too, and the plant waits for both controllers' raw subscriptions
+    assert nodes[FEEDFORWARD]["sync_temperature"] is True
+    assert nodes[PLANT]["raw_subscribers"] == 2
     assert all(nodes[n]["use_sim_time"] is True for n in (RECORDER, THERMAL, FEEDFORWARD))
 
 
@@ -71,6 +75,9 @@ def test_a_real_time_plant_is_no_subscriber_the_thermal_node_waits_for() -> None
     nodes = by_name(GraphConfig(scenario="dm_exposure", bag=Path("b"),
                                 plant={"lockstep": False}))  # fmt: skip
     assert (nodes[THERMAL]["ready_subscribers"], nodes[FEEDFORWARD]["ready_subscribers"]) == (2, 2)
+    # nothing to wait for: the plant does not wait for the estimates either
+    assert nodes[FEEDFORWARD]["sync_temperature"] is False
+    assert "raw_subscribers" not in nodes[PLANT]
 
 
 def test_a_test_stand_is_plant_and_recorder_only() -> None:
