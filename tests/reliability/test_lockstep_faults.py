@@ -83,7 +83,7 @@ def test_nodes_killed_and_restarted_in_lockstep(tmp_path: Path, fault_cases: Fau
             topics.TEMPERATURE: (2, 3),  # thermal, watcher; feedforward, recorder, watcher
             topics.DIAGNOSTICS: (3, 0),  # recorder, thermal, feedforward
             topics.SETPOINT: (1, 3),  # watcher; feedforward, recorder, watcher
-            topics.TEMPERATURE_RAW: (1, 3),  # watcher; thermal, recorder, watcher
+            topics.TEMPERATURE_RAW: (1, 4),  # watcher; thermal, feedforward, recorder, watcher
         }, list(procs.values()))
         # the plant matches the rest itself before its first step (matched command and
         # temperature sources, start_subscribers subscriptions of each of its outputs)
