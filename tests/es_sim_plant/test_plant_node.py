@@ -181,6 +181,44 @@ def test_sync_temperature_barrier_orders_setpoints_after_estimates(tmp_path: Pat
     assert "sync_timeouts 0" in log and "command_timeouts 0" in log
 
 
+def test_first_step_waits_for_raw_subscribers_controller_subscriptions(tmp_path: Path) -> None:
+    # In lockstep the feedforward counts the raw samples too: the graph asks for two.
+    scenario = tmp_path / "node_test.yaml"
+    scenario.write_text(SCENARIO.replace("duration: 1.0", "duration: 0.1"))
+    args = ["--ros-args", "-p", f"scenario:={scenario}", "-p", "exit_when_done:=true",
+            "-p", "start_timeout:=60.0", "-p", "command_timeout:=30.0",
+            "-p", "sync_timeout:=30.0", "-p", "raw_subscribers:=2"]  # fmt: skip
+    with ros.test_node("plant_raw_subs") as node:
+        qos = topics.DM_QOS
+        publishers: dict[str, Publisher] = {}
+        setpoints: list[int] = []
+
+        def on_raw(msg: Float64MultiArray) -> None:
+            publishers[topics.TEMPERATURE].publish(grid_to_msg(np.full((2, 2), msg.data[0])))
+
+        def on_setpoint(msg: Float64MultiArray) -> None:
+            setpoints.append(1)
+            publishers[topics.COMMAND].publish(grid_to_msg(msg_to_grid(msg, (2, 2)) * 1.0e9))
+
+        listeners = [
+            node.create_subscription(Float64MultiArray, topics.TEMPERATURE_RAW, on_raw, qos),
+            node.create_subscription(Float64MultiArray, topics.SETPOINT, on_setpoint, qos),
+            node.create_subscription(Float64MultiArray, topics.HEAT_LOAD, lambda _m: None, qos),
+        ]
+        with ros.node_process("es_sim_plant", "plant_node", args) as plant:
+            ros.wait_matched(node, listeners, processes=[plant])
+            for topic in (topics.TEMPERATURE, topics.COMMAND):
+                publishers[topic] = node.create_publisher(Float64MultiArray, topic, qos)
+            ros.wait_matched(node, list(publishers.values()), processes=[plant])
+            ros.spin_until(node, lambda: False, 1.5)  # the scenario: one raw subscriber only
+            assert not setpoints, plant.output()
+            node.create_subscription(Float64MultiArray, topics.TEMPERATURE_RAW,
+                                     lambda _m: None, qos)  # fmt: skip
+            assert ros.spin_until(node, lambda: plant.process.poll() is not None, 60.0)
+            assert plant.process.returncode == 0, plant.output()
+    assert len(setpoints) == 10
+
+
 def test_first_step_waits_for_the_nodes_it_is_told_to_wait_for(tmp_path: Path) -> None:
     scenario = tmp_path / "node_test.yaml"
     scenario.write_text(SCENARIO.replace("duration: 1.0", "duration: 0.2"))
