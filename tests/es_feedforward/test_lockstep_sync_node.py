@@ -63,7 +63,9 @@ class PlantLike(Harness):
 
 
 @contextmanager
-def _start(tmp_path: Path, executor: str, sync_timeout: float) -> Iterator[PlantLike]:
+def _start(
+    tmp_path: Path, executor: str, sync_timeout: float
+) -> Iterator[tuple[PlantLike, NodeProcess]]:
     path = tmp_path / "feedforward.yaml"
     write_params_file(path, FeedforwardConfig(shape=SHAPE, params=PARAMS,
                                               temperature_timeout=FRESH_S))
@@ -78,8 +80,7 @@ def _start(tmp_path: Path, executor: str, sync_timeout: float) -> Iterator[Plant
     ):
         h = PlantLike(node)
         h.wait_connected(proc)
-        yield h
-        assert proc.stop() == 0
+        yield h, proc
 
 
 def _hit(command: np.ndarray, estimate: np.ndarray) -> bool:
@@ -91,7 +92,7 @@ def test_set_point_waits_for_the_estimate_of_an_earlier_raw_sample(
     tmp_path: Path, executor: str
 ) -> None:
     # a wait that cannot time out on a loaded machine: only the ordering is under test
-    with _start(tmp_path, executor, sync_timeout=60.0) as h:
+    with _start(tmp_path, executor, sync_timeout=60.0) as (h, proc):
         assert _hit(h.step(TEMPERATURE), TEMPERATURE)
         before = len(h.commands)
         # the bad order: the step's raw sample, its set point, and only then its estimate
@@ -110,10 +111,12 @@ def test_set_point_waits_for_the_estimate_of_an_earlier_raw_sample(
         # in order again: no wait, one command per set point
         assert _hit(h.step(TEMPERATURE), TEMPERATURE)
         assert len(h.commands) == before + 2
+        assert proc.stop() == 0
+    assert "set points that waited for their estimate 1, estimates timed out 0" in proc.output()
 
 
 def test_an_estimate_that_never_comes_ends_the_wait_after_sync_timeout(tmp_path: Path) -> None:
-    with _start(tmp_path, "events", sync_timeout=0.5) as h:
+    with _start(tmp_path, "events", sync_timeout=0.5) as (h, proc):
         assert _hit(h.step(TEMPERATURE), TEMPERATURE)
         h.raw.publish(grid_to_msg(np.zeros(SHAPE)))  # e.g. a sample the thermal node rejected
         started = time.monotonic()
@@ -124,3 +127,8 @@ def test_an_estimate_that_never_comes_ends_the_wait_after_sync_timeout(tmp_path:
             "temperature", lambda s: values_of(s).get("estimates_timed_out") == "1"
         )
         assert values_of(status)["setpoints_waited_for_estimate"] == "1"
+        assert proc.stop() == 0
+    assert "no /dm/temperature within sync_timeout" in proc.output()
+    assert "estimates timed out 1, set points still waiting at the stop (no command) 0" in (
+        proc.output()
+    )

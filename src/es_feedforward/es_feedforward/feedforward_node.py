@@ -53,7 +53,7 @@ from es_msgs_py.diagnostics import (
     unmatched,
     unreached,
 )
-from es_msgs_py.node_main import run_node, usage_text
+from es_msgs_py.node_main import run_node, summary_line, usage_text
 from es_msgs_py.params import ParameterValues, declare_parameters
 from es_msgs_py.topics import (
     COMMAND,
@@ -241,14 +241,16 @@ class FeedforwardNode(Node):
         """Compute the waiting set points, oldest first, once no estimate is owed."""
         sync = self._sync
         assert sync is not None
+        timed_out = sync.timed_out
         while self._deferred and not sync.owed(time.monotonic()):
             self._command_for(self._deferred.popleft())
-        if sync.timed_out > self._reported_sync_timeouts:
+        if sync.timed_out > timed_out:
             self.get_logger().warning(
                 f"no /dm/temperature within sync_timeout of a /dm/temperature/raw sample: "
                 f"used the newest estimate ({sync.timed_out} timed out so far)",
                 throttle_duration_sec=1.0,
             )
+        if sync.timed_out > self._reported_sync_timeouts:
             self._publish_diagnostics()  # WARN once per new timeout, then OK again
         if self._deferred:
             self._arm_sync_timer()
@@ -468,6 +470,17 @@ class FeedforwardNode(Node):
         levels = self._current_levels(self._now() if now is None else now)
         if levels != self._published_levels:
             self._publish_diagnostics()
+
+    def close(self) -> None:
+        """Print the run's counts at exit, the lockstep waits included (nothing goes unsaid)."""
+        c = self._counts
+        text = (f"set points {c['setpoints']}, commands {c['commands']} (held {c['held']}), "
+                f"temperatures {c['temperatures']}")
+        if self._sync is not None:
+            text += (f"; set points that waited for their estimate {c['waited']}, estimates "
+                     f"timed out {self._sync.timed_out}, set points still waiting at the stop "
+                     f"(no command) {len(self._deferred)}")
+        summary_line(self.get_name(), text)
 
 
 def main() -> int:
