@@ -35,6 +35,7 @@ from __future__ import annotations
 import time
 from collections.abc import Sequence
 
+import numpy as np
 import rclpy
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray
@@ -104,6 +105,12 @@ class PlantNode(Node):
         self._command_topic = self.resolve_topic_name(topics.COMMAND)
         self._temperature_topic = self.resolve_topic_name(topics.TEMPERATURE)
         qos = topics.DM_QOS  # deep history: a lagging recorder loses nothing
+        # publish() serialises synchronously: one message per grid topic, refilled in place
+        # each step (no message, layout and buffer built per step)
+        self._grid_out = {
+            topic: grid_to_msg(np.zeros(scenario.shape))
+            for topic in (topics.DISPLACEMENT, topics.HEAT_LOAD, topics.SETPOINT)
+        }
         self._pub_clock = self.create_publisher(ClockMsg, topics.CLOCK, topics.CLOCK_QOS)
         self._pub_displacement = self.create_publisher(Float64MultiArray, topics.DISPLACEMENT, qos)
         self._pub_raw = self.create_publisher(Float64MultiArray, topics.TEMPERATURE_RAW, qos)
@@ -129,9 +136,10 @@ class PlantNode(Node):
                 Float64MultiArray, topics.COMMAND, self._on_command, qos
             )
         )
+        # only the arrival counts: raw (serialised bytes), no Python message built per step
         self._temperature_sub = (
             self.create_subscription(
-                Float64MultiArray, topics.TEMPERATURE, self._on_temperature, qos
+                Float64MultiArray, topics.TEMPERATURE, self._on_temperature, qos, raw=True
             )
             if settings.lockstep and settings.sync_temperature
             else None
@@ -172,7 +180,7 @@ class PlantNode(Node):
         """Note what the awaited nodes say about their readiness (only before the start)."""
         self.core.readiness(ready_nodes(msg))
 
-    def _on_temperature(self, _msg: Float64MultiArray) -> None:
+    def _on_temperature(self, _msg: bytes) -> None:
         self.core.temperature()
 
     def _on_kick(self) -> None:
@@ -224,10 +232,11 @@ class PlantNode(Node):
         """Publish /clock, /dm/displacement and a due sensor sample; return if one was due."""
         plant = self.plant
         self._pub_clock.publish(ClockMsg(clock=_stamp(plant.time)))
-        self._pub_displacement.publish(grid_to_msg(plant.measured_displacement()))
+        self._pub_displacement.publish(self._filled(topics.DISPLACEMENT,
+                                                    plant.measured_displacement()))
         if plant.done or not plant.sensor_due():
             return False
-        self._pub_heat.publish(grid_to_msg(plant.heat_load()))
+        self._pub_heat.publish(self._filled(topics.HEAT_LOAD, plant.heat_load()))
         swept = plant.read_resonance()
         if self._pub_resonance is not None and swept is not None:
             self._pub_resonance.publish(grid_to_msg(swept))
@@ -236,7 +245,13 @@ class PlantNode(Node):
 
     def publish_setpoint(self) -> None:
         """Publish the scenario's set point of the current step on /dm/setpoint."""
-        self._pub_setpoint.publish(grid_to_msg(self.plant.setpoint()))
+        self._pub_setpoint.publish(self._filled(topics.SETPOINT, self.plant.setpoint()))
+
+    def _filled(self, topic: str, grid: FloatArray) -> Float64MultiArray:
+        """Return the reused message of ``topic`` holding ``grid`` (the plant's shape)."""
+        msg = self._grid_out[topic]
+        np.frombuffer(msg.data, np.float64).reshape(self.plant.shape)[...] = grid
+        return msg
 
     def publish_command(self, command: FloatArray) -> None:
         """Publish the test stand's own command on /dm/command."""
