@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
@@ -141,6 +142,43 @@ def test_lockstep_run_with_echo_source_rejects_and_holds(tmp_path: Path) -> None
     assert "rejected 39" in log
 
 
+class StandIns:
+    """Thermal node and feedforward stand-ins: an estimate per raw sample, a command per set
+    point (10^9 V per m), noting how many estimates had gone out at each set point."""
+
+    def __init__(self, node: Node) -> None:
+        qos = topics.DM_QOS
+        self.node = node
+        self.publishers: dict[str, Publisher] = {}  # created once the listeners have matched
+        self.replies = 0
+        self.replies_seen_at_setpoint: list[int] = []
+        self.listeners = [
+            node.create_subscription(Float64MultiArray, topics.TEMPERATURE_RAW, self._on_raw, qos),
+            node.create_subscription(Float64MultiArray, topics.SETPOINT, self._on_setpoint, qos),
+            # the plant waits for a thermal node's heat-load subscription as well
+            node.create_subscription(Float64MultiArray, topics.HEAT_LOAD, lambda _m: None, qos),
+        ]
+
+    def _on_raw(self, msg: Float64MultiArray) -> None:
+        estimate = grid_to_msg(np.full((2, 2), float(msg.data[0])))
+        self.publishers[topics.TEMPERATURE].publish(estimate)
+        self.replies += 1
+
+    def _on_setpoint(self, msg: Float64MultiArray) -> None:
+        self.replies_seen_at_setpoint.append(self.replies)
+        command = grid_to_msg(msg_to_grid(msg, (2, 2)) * 1.0e9)
+        self.publishers[topics.COMMAND].publish(command)
+
+    def connect(self, plant: ros.NodeProcess) -> None:
+        """Wait for the plant's outputs to match, then publish estimates and commands."""
+        ros.wait_matched(self.node, self.listeners, processes=[plant])
+        for topic in (topics.TEMPERATURE, topics.COMMAND):
+            self.publishers[topic] = self.node.create_publisher(
+                Float64MultiArray, topic, topics.DM_QOS
+            )
+        ros.wait_matched(self.node, list(self.publishers.values()), processes=[plant])
+
+
 def test_sync_temperature_barrier_orders_setpoints_after_estimates(tmp_path: Path) -> None:
     scenario = tmp_path / "node_test.yaml"
     scenario.write_text(SCENARIO.replace("duration: 1.0", "duration: 0.3"))
@@ -149,35 +187,14 @@ def test_sync_temperature_barrier_orders_setpoints_after_estimates(tmp_path: Pat
             "-p", "start_timeout:=60.0", "-p", "command_timeout:=30.0",
             "-p", "sync_timeout:=30.0"]  # fmt: skip
     with ros.test_node("plant_sync") as node:
-        qos = topics.DM_QOS
-        publishers: dict[str, Publisher] = {}  # created once the listeners have matched
-        replies: list[int] = []
-        replies_seen_at_setpoint: list[int] = []
-
-        def on_raw(msg: Float64MultiArray) -> None:
-            estimate = grid_to_msg(np.full((2, 2), float(msg.data[0])))
-            publishers[topics.TEMPERATURE].publish(estimate)
-            replies.append(1)
-
-        def on_setpoint(msg: Float64MultiArray) -> None:
-            replies_seen_at_setpoint.append(len(replies))
-            publishers[topics.COMMAND].publish(grid_to_msg(msg_to_grid(msg, (2, 2)) * 1.0e9))
-
-        listeners = [
-            node.create_subscription(Float64MultiArray, topics.TEMPERATURE_RAW, on_raw, qos),
-            node.create_subscription(Float64MultiArray, topics.SETPOINT, on_setpoint, qos),
-            # the plant waits for a thermal node's heat-load subscription as well
-            node.create_subscription(Float64MultiArray, topics.HEAT_LOAD, lambda _m: None, qos),
-        ]
+        stand_ins = StandIns(node)
         with ros.node_process("es_sim_plant", "plant_node", args) as plant:
-            ros.wait_matched(node, listeners, processes=[plant])
-            for topic in (topics.TEMPERATURE, topics.COMMAND):
-                publishers[topic] = node.create_publisher(Float64MultiArray, topic, qos)
+            stand_ins.connect(plant)
             ros.spin_until(node, lambda: plant.process.poll() is not None, timeout=60.0)
             assert plant.process.returncode == 0, plant.output()
             log = plant.output()
     # Step k's set point comes only after the estimate answering step k's sample (k = 0, 10, 20).
-    assert replies_seen_at_setpoint == [k // 10 + 1 for k in range(30)]
+    assert stand_ins.replies_seen_at_setpoint == [k // 10 + 1 for k in range(30)]
     assert "sync_timeouts 0" in log and "command_timeouts 0" in log
 
 
@@ -189,34 +206,16 @@ def test_first_step_waits_for_raw_subscribers_controller_subscriptions(tmp_path:
             "-p", "start_timeout:=60.0", "-p", "command_timeout:=30.0",
             "-p", "sync_timeout:=30.0", "-p", "raw_subscribers:=2"]  # fmt: skip
     with ros.test_node("plant_raw_subs") as node:
-        qos = topics.DM_QOS
-        publishers: dict[str, Publisher] = {}
-        setpoints: list[int] = []
-
-        def on_raw(msg: Float64MultiArray) -> None:
-            publishers[topics.TEMPERATURE].publish(grid_to_msg(np.full((2, 2), msg.data[0])))
-
-        def on_setpoint(msg: Float64MultiArray) -> None:
-            setpoints.append(1)
-            publishers[topics.COMMAND].publish(grid_to_msg(msg_to_grid(msg, (2, 2)) * 1.0e9))
-
-        listeners = [
-            node.create_subscription(Float64MultiArray, topics.TEMPERATURE_RAW, on_raw, qos),
-            node.create_subscription(Float64MultiArray, topics.SETPOINT, on_setpoint, qos),
-            node.create_subscription(Float64MultiArray, topics.HEAT_LOAD, lambda _m: None, qos),
-        ]
+        stand_ins = StandIns(node)
         with ros.node_process("es_sim_plant", "plant_node", args) as plant:
-            ros.wait_matched(node, listeners, processes=[plant])
-            for topic in (topics.TEMPERATURE, topics.COMMAND):
-                publishers[topic] = node.create_publisher(Float64MultiArray, topic, qos)
-            ros.wait_matched(node, list(publishers.values()), processes=[plant])
+            stand_ins.connect(plant)
             ros.spin_until(node, lambda: False, 1.5)  # the scenario: one raw subscriber only
-            assert not setpoints, plant.output()
+            assert not stand_ins.replies_seen_at_setpoint, plant.output()
             node.create_subscription(Float64MultiArray, topics.TEMPERATURE_RAW,
-                                     lambda _m: None, qos)  # fmt: skip
+                                     lambda _m: None, topics.DM_QOS)  # fmt: skip
             assert ros.spin_until(node, lambda: plant.process.poll() is not None, 60.0)
             assert plant.process.returncode == 0, plant.output()
-    assert len(setpoints) == 10
+    assert len(stand_ins.replies_seen_at_setpoint) == 10
 
 
 def test_first_step_waits_for_the_nodes_it_is_told_to_wait_for(tmp_path: Path) -> None:
