@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import subprocess
 import sys
 from pathlib import Path
 
@@ -95,3 +96,12 @@ def test_identification_sweep_recordings_are_within_the_budget() -> None:
         c = case.config
         block = min(c.rows, SCREEN_SIZE) * min(c.cols, SCREEN_SIZE)
         assert c.duration_s * c.rate_hz * block <= SEARCH_BUDGET, case.name
+
+
+def test_cli_refuses_a_search_budget_below_one(tmp_path: Path) -> None:
+    cmd = [sys.executable, "-m", "es_feedforward.calibrate", str(tmp_path / "none"), "-o",
+           str(tmp_path / "out"), "--search-budget", "0"]
+    proc = subprocess.run(cmd, capture_output=True, text=True, check=False, timeout=120)
+    assert proc.returncode == 2
+    assert proc.stderr.strip().splitlines() == [
+        "calibrate: --tile, --search-budget and --workers must be at least 1"]
