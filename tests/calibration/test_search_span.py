@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from es_feedforward.calibration.align import MeasuredData, align
+from es_feedforward.calibration.align import AlignedData, MeasuredData, align
 from es_feedforward.calibration.bagio import read_measured_bags
 from es_feedforward.calibration.gaps import COMMAND_SETTLING_S
 from es_feedforward.calibration.pipeline import calibrate
@@ -39,19 +39,35 @@ def measured(tmp_path_factory: pytest.TempPathFactory) -> MeasuredData:
     return read_measured_bags([lb.write(series, tmp_path_factory.mktemp("span") / "bag")])
 
 
+def _blocks(aligned: AlignedData, windows: list[tuple[int, int]]) -> list[int]:
+    """Return the block of each window, checking that the window lies inside it."""
+    found = []
+    for a, b in windows:
+        k = int(np.searchsorted(aligned.block_edges, aligned.t[a], side="right")) - 1
+        assert aligned.t[b - 1] <= aligned.block_edges[k + 1]
+        assert bool(aligned.train[a]) == (k % 2 == 0)
+        found.append(k)
+    return found
+
+
 def test_windows_cover_the_run_one_per_block(measured: MeasuredData) -> None:
     aligned = align(measured)
     A = aligned.n_actuators
-    budget = int(0.6 * aligned.t.size) * A
-    windows = search_windows(aligned, budget)
     blocks = aligned.block_edges.size - 1
-    assert len(windows) == blocks
+    budget = int(0.8 * aligned.t.size) * A  # windows of 1.2 s: one in every block
+    windows = search_windows(aligned, budget)
+    assert _blocks(aligned, windows) == list(range(blocks))
     rows = sum(b - a for a, b in windows)
     assert 0.9 * budget // A <= rows <= budget // A
-    for k, (a, b) in enumerate(windows):
-        lo, hi = aligned.block_edges[k : k + 2]
-        assert lo <= aligned.t[a] and aligned.t[b - 1] <= hi  # each window inside its block
-        assert bool(aligned.train[a]) == (k % 2 == 0)
+    # 4 s of samples: windows shorter than their 1 s lead-in would cost more commands than
+    # samples, so two pairs (train + held out), at the run's start and end
+    short = search_windows(aligned, int(4.0 * aligned.sample_rate) * A)
+    assert _blocks(aligned, short) == [0, 1, blocks - 2, blocks - 1]
+    budget = int(0.6 * aligned.t.size) * A  # 14.4 s of samples: 7 pairs of 8
+    windows = search_windows(aligned, budget)
+    chosen = _blocks(aligned, windows)
+    assert len(chosen) == 14 and chosen[:2] == [0, 1] and chosen[-2:] == [blocks - 2, blocks - 1]
+    rows = sum(b - a for a, b in windows)
     span = search_span(aligned, budget)
     assert span.t.size == rows and span.displacement.shape == (rows, A)
     assert span.train.any() and (~span.train).any()

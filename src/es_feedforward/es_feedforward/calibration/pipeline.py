@@ -325,6 +325,7 @@ def calibrate(
     elif searched.include_same_stamp != aligned.include_same_stamp:
         aligned = replace(aligned, include_same_stamp=searched.include_same_stamp)
     record, refined = per_actuator_round(screen, final_screen)
+    del screen, searched  # their caches (filtered drives, play operators) are done with
     if record is not None:
         rounds.append(record)
     if refined is not final_screen:

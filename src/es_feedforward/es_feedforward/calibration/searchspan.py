@@ -7,7 +7,9 @@ of thousands of samples per actuator decide the search, so a record longer than 
 is cut, for the search only, into one contiguous window per training / held-out block of
 the alignment (align.py: even blocks train, odd blocks are held out), centred in its block:
 the windows cover the whole run, so slow effects (drift, the temperature's course) still see
-its full time span, and every window is scored held-out or trained on as its block is.
+its full time span, and every window is scored held-out or trained on as its block is. At a
+high sample rate, where such windows would be shorter than their lead-in (below), fewer
+pairs of adjacent blocks are taken, spread evenly from the run's start to its end.
 
 Each window keeps ``COMMAND_SETTLING_S`` of commands before its first sample, the margin
 gaps.py gives after a command hole: the longest delay searched and the play operator's
@@ -19,7 +21,8 @@ draws its samples from the whole record, never from these windows.
 actuators), like search.py's fit and score budgets. The identification sweep's recordings
 (bench/standgen/sweep.py: at most 36 s at 500 Hz on 8 x 8, 1.15 M; 24 s at 5 kHz on 4
 actuators, 0.48 M) and the demo's test stand (43.2 s at 250 Hz on the 8 x 8 block, 0.69 M)
-stay whole; 5 minutes at 500 Hz on the 8 x 8 block (9.6 M) is searched on 62.5 s.
+stay whole; 5 minutes at 500 Hz on the 8 x 8 block (9.6 M) is searched on 16 windows of
+3.9 s (62.5 s), 1 minute at 5 kHz (19.2 M) on 6 windows of 1.04 s.
 """
 
 from __future__ import annotations
@@ -43,8 +46,12 @@ class SearchBudgetError(ValueError):
 def search_windows(aligned: AlignedData, budget: int) -> list[tuple[int, int]]:
     """Return the (start, stop) sample rows of the search's windows, or [] when all fit.
 
-    One window per block of ``aligned.block_edges``, centred in it, each of at most
-    ``budget // (actuators * blocks)`` samples.
+    One window per block of ``aligned.block_edges``, centred in it, together at most
+    ``budget // actuators`` samples. When that would make the windows shorter than their
+    ``COMMAND_SETTLING_S`` lead-in (a high sample rate), fewer of them: pairs of adjacent
+    blocks (one trained on, one held out; at least two pairs) spread evenly from the run's
+    first pair to its last, so that the lead-ins cost at most as many commands as the
+    windows. A window is never longer than its block.
 
     Raises:
         SearchBudgetError: ``budget`` is not positive.
@@ -57,9 +64,14 @@ def search_windows(aligned: AlignedData, budget: int) -> list[tuple[int, int]]:
         return []
     edges = aligned.block_edges
     blocks = edges.size - 1
-    rows = max(per_actuator // blocks, 1)
-    half = 0.5 * rows / aligned.sample_rate
-    centres = 0.5 * (edges[:-1] + edges[1:])
+    pairs = max(int(per_actuator / aligned.sample_rate / (2.0 * COMMAND_SETTLING_S)), 2)
+    chosen = np.arange(blocks)
+    if pairs < blocks // 2:
+        first = np.unique(np.round(np.linspace(0, blocks // 2 - 1, pairs)).astype(np.intp))
+        chosen = np.sort(np.concatenate([2 * first, 2 * first + 1]))
+    rows = max(per_actuator // chosen.size, 1)
+    half = 0.5 * min(rows / aligned.sample_rate, float(np.min(np.diff(edges))))
+    centres = 0.5 * (edges[chosen] + edges[chosen + 1])
     starts = np.searchsorted(aligned.t, centres - half)
     stops = np.minimum(np.searchsorted(aligned.t, centres + half), starts + rows)
     return [(int(a), int(b)) for a, b in zip(starts, stops, strict=True) if b > a]
