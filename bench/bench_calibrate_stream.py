@@ -2,7 +2,9 @@
 
 Cases (issue 18, must-hold 2 and 3): 64 x 64 for 5 min at 500 Hz (goal <= 120 s, <= 2 GB),
 64 x 64 for 1 min at 5 kHz (goal <= 2 GB), the first with 1 and 2 Dask workers, and
-128 x 128 for 5 min at 500 Hz. Each calibration runs as its own process under
+128 x 128 for 5 min at 500 Hz; the first once more with the effect search on the whole
+record (``--search-budget`` above the record's size; the default searches windows of it,
+calibration/searchspan.py). Each calibration runs as its own process under
 ``/usr/bin/time -v``: the peak RSS is that process's (with Dask, the driver's; the workers
 are separate processes, their peak is not in it). The CPU time (user + system, with the
 workers': /usr/bin/time counts the children the process waited for) says what Dask costs
@@ -31,29 +33,43 @@ import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Final
+from typing import TYPE_CHECKING, Final, NamedTuple
 
 from bench_calibrate import write_measured_bag
 
 if TYPE_CHECKING:
     from benchlib import Results, Settings
 
-#: name -> (edge, duration [s], rate [Hz], Dask workers or None for serial).
+#: Search budget of the case that searches the whole record (more than any case's values).
+WHOLE: Final = 10**12
+
+
+class Case(NamedTuple):
+    """A case: grid edge, duration [s], rate [Hz], Dask workers (None: serial), budget."""
+
+    edge: int
+    duration: float
+    rate: float
+    workers: int | None = None
+    search_budget: int | None = None  # None: the tool's default (calibration/searchspan.py)
+
+
 CASES: Final = {
-    "64x64_5min_500Hz": (64, 300.0, 500.0, None),
-    "64x64_1min_5kHz": (64, 60.0, 5000.0, None),
-    "64x64_5min_500Hz_1worker": (64, 300.0, 500.0, 1),
-    "64x64_5min_500Hz_2workers": (64, 300.0, 500.0, 2),
-    "128x128_5min_500Hz": (128, 300.0, 500.0, None),
-    "64x64_1min_500Hz_serial": (64, 60.0, 500.0, None),
-    "64x64_1min_500Hz_1worker": (64, 60.0, 500.0, 1),
-    "64x64_1min_500Hz_2workers": (64, 60.0, 500.0, 2),
-    "128x128_1min_500Hz": (128, 60.0, 500.0, None),
+    "64x64_5min_500Hz": Case(64, 300.0, 500.0),
+    "64x64_5min_500Hz_whole_search": Case(64, 300.0, 500.0, search_budget=WHOLE),
+    "64x64_1min_5kHz": Case(64, 60.0, 5000.0),
+    "64x64_5min_500Hz_1worker": Case(64, 300.0, 500.0, 1),
+    "64x64_5min_500Hz_2workers": Case(64, 300.0, 500.0, 2),
+    "128x128_5min_500Hz": Case(128, 300.0, 500.0),
+    "64x64_1min_500Hz_serial": Case(64, 60.0, 500.0),
+    "64x64_1min_500Hz_1worker": Case(64, 60.0, 500.0, 1),
+    "64x64_1min_500Hz_2workers": Case(64, 60.0, 500.0, 2),
+    "128x128_1min_500Hz": Case(128, 60.0, 500.0),
 }
 #: Smaller cases for a quick run (same shapes of work).
 QUICK_CASES: Final = {
-    "32x32_30s_500Hz": (32, 30.0, 500.0, None),
-    "32x32_30s_500Hz_2workers": (32, 30.0, 500.0, 2),
+    "32x32_30s_500Hz": Case(32, 30.0, 500.0),
+    "32x32_30s_500Hz_2workers": Case(32, 30.0, 500.0, 2),
 }
 _RSS = re.compile(r"Maximum resident set size \(kbytes\): (\d+)")
 _CPU = re.compile(r"(?:User|System) time \(seconds\): ([\d.]+)")
@@ -85,13 +101,19 @@ def bag_for(bag_dir: Path, edge: int, duration: float, rate: float) -> Path:
     return bag
 
 
-def measure(name: str, bag: Path, edge: int, workers: int | None, tile: int) -> StreamRun:
-    """Run ``calibrate`` on ``bag`` in a child under /usr/bin/time -v; return its figures."""
+def measure(name: str, bag: Path, edge: int, workers: int | None, tile: int, *,
+            search_budget: int | None = None) -> StreamRun:
+    """Run ``calibrate`` on ``bag`` in a child under /usr/bin/time -v; return its figures.
+
+    ``search_budget`` None: the tool's default (calibration/searchspan.py).
+    """
     exe = Path(sys.executable).with_name("es_feedforward-calibrate")
     with tempfile.TemporaryDirectory(prefix="bench_stream_") as out:
         cmd = ["/usr/bin/time", "-v", str(exe), str(bag), "-o", out, "-q", "--tile", str(tile)]
         if workers:
             cmd += ["--workers", str(workers)]
+        if search_budget is not None:
+            cmd += ["--search-budget", str(search_budget)]
         load_before = os.getloadavg()[0]
         start = time.perf_counter()
         proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
@@ -114,9 +136,9 @@ def run_cases(names: list[str], bag_dir: Path, tile: int, quick: bool = False) -
     table = QUICK_CASES if quick else CASES
     runs = []
     for name in names:
-        edge, duration, rate, workers = table[name]
-        bag = bag_for(bag_dir, edge, duration, rate)
-        result = measure(name, bag, edge, workers, tile)
+        case = table[name]
+        bag = bag_for(bag_dir, case.edge, case.duration, case.rate)
+        result = measure(name, bag, case.edge, case.workers, tile, search_budget=case.search_budget)
         print(line(result), flush=True)
         runs.append(result)
     return runs

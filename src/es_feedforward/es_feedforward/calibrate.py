@@ -21,7 +21,10 @@ length is the 8 x 8 screening block at full rate and the grid's temperature at t
 (1/64 of a 64 x 64 record, and less), not the grid at full rate. The grid-wide refit runs in
 actuator tiles (:mod:`es_feedforward.calibration.tiles`), serially or as tasks on Dask:
 ``--workers N`` starts a local cluster, ``--scheduler tcp://host:port`` uses a running one
-(Dask is imported only then).
+(Dask is imported only then). On a long record the effect search sees at most
+``--search-budget`` sample-actuator values of the screening block, in windows spread over the
+whole run (:mod:`es_feedforward.calibration.searchspan`); the grid-wide refit draws from the
+whole record.
 
 The tool is told nothing about how the data were made. Bad input (missing or empty topics,
 a single message, mismatched grids, too short, all-NaN, corrupt, a bag given twice, bags
@@ -67,6 +70,7 @@ from es_feedforward.calibration.bagstream import BagRecording
 from es_feedforward.calibration.gaps import GAP_FACTOR
 from es_feedforward.calibration.model import CANDIDATES
 from es_feedforward.calibration.pipeline import Calibration, calibrate
+from es_feedforward.calibration.searchspan import SEARCH_BUDGET
 from es_feedforward.calibration.tiles import DEFAULT_TILE, DaskSetupError
 from es_msgs_py.labimport import LabImportError, import_recording, load_map
 
@@ -113,6 +117,13 @@ def _parser() -> argparse.ArgumentParser:
         default=DEFAULT_TILE,
         help="edge of the actuator tiles of the grid-wide refit (default %(default)s); "
         "a tile as large as the grid is one joint fit",
+    )
+    parser.add_argument(
+        "--search-budget",
+        type=int,
+        default=SEARCH_BUDGET,
+        help="sample-actuator values the effect search sees at most (default %(default)s); "
+        "a longer record is searched on windows spread over it",
     )
     parser.add_argument(
         "--workers",
@@ -173,11 +184,12 @@ def _calibrate(
 
     """
     if args.workers is None and args.scheduler is None:
-        return calibrate(recording, candidates, tile=args.tile)
+        return calibrate(recording, candidates, tile=args.tile, search_budget=args.search_budget)
     from es_feedforward.calibration.dask_tiles import dask_map  # Dask only when asked for
 
     with dask_map(args.workers, args.scheduler) as run_tiles:
-        return calibrate(recording, candidates, tile=args.tile, run=run_tiles)
+        return calibrate(recording, candidates, tile=args.tile, run=run_tiles,
+                         search_budget=args.search_budget)
 
 
 def run(argv: Sequence[str] | None = None) -> int:
@@ -191,8 +203,9 @@ def run(argv: Sequence[str] | None = None) -> int:
             file=sys.stderr,
         )
         return EXIT_BAD_INPUT
-    if args.tile < 1 or (args.workers is not None and args.workers < 1):
-        print("calibrate: --tile and --workers must be at least 1", file=sys.stderr)
+    if args.tile < 1 or args.search_budget < 1 or (args.workers is not None and args.workers < 1):
+        print("calibrate: --tile, --search-budget and --workers must be at least 1",
+              file=sys.stderr)
         return EXIT_BAD_INPUT
     try:
         args.output.mkdir(parents=True, exist_ok=True)  # fail before a long calibration

@@ -44,6 +44,7 @@ from es_feedforward.calibration.search import (
     heldout_residual,
     screen_block,
 )
+from es_feedforward.calibration.searchspan import SEARCH_BUDGET, search_span
 from es_feedforward.calibration.selection import RoundRecord, Step, search_effects, subset_state
 from es_feedforward.calibration.tiles import (
     DEFAULT_TILE,
@@ -230,6 +231,12 @@ def _grid_refit(
     return out, counts
 
 
+def _grid_temperature(recording: Recording, start: float) -> tuple[FloatArray, FloatArray]:
+    """Return the grid's temperature stamps since ``start`` (Nt,) [s] and values (Nt, A)."""
+    times, values = recording.temperature()
+    return temperature_stamps(times) - start, values
+
+
 def _screened(
     aligned: AlignedData, block_grid: tuple[int, int], candidates: tuple[str, ...]
 ) -> tuple[Workspace, ModelState, ModelState, list[Step], list[RoundRecord]]:
@@ -272,6 +279,7 @@ def calibrate(
     *,
     tile: int = DEFAULT_TILE,
     run: TileMap = serial_map,
+    search_budget: int = SEARCH_BUDGET,
 ) -> Calibration:
     """Run the whole calibration; raise CalibrationInputError on bad data.
 
@@ -282,6 +290,13 @@ def calibrate(
             large as the grid is the in-memory joint fit.
         run: how tiles run (:func:`~es_feedforward.calibration.tiles.serial_map`, or a Dask
             client's map, see dask_tiles.py).
+        search_budget: sample-actuator values the effect search sees at most; a longer
+            record is searched on windows spread over it (searchspan.py), and then refitted
+            on the grid from the whole record even when the grid is the screening block.
+
+    Raises:
+        CalibrationInputError: the data cannot be calibrated (too short, wrong layout...).
+        SearchBudgetError: ``search_budget`` is not positive.
 
     """
     recording = MemoryRecording(measured) if isinstance(measured, MeasuredData) else measured
@@ -292,19 +307,25 @@ def calibrate(
     block = align(recording.block(idx, block_grid))
     full_grid = block_grid == grid
     if not full_grid:  # the block's model inputs use the whole grid's mean temperature
-        times, values = recording.temperature()
-        grid_temperature = (temperature_stamps(times) - block.start_time, values)
+        grid_temperature = _grid_temperature(recording, block.start_time)
         mean, temp_nan = grid_temperature_mean(*grid_temperature)
         block = replace(block, grid_mean_temperature=mean)
         block.dropped["temperature NaN"] = temp_nan
     aligned = choose_stamp_convention(block)
+    searched = search_span(aligned, search_budget)
+    windowed = searched is not aligned
     timings["align"] = time.perf_counter() - clock
 
     clock = time.perf_counter()
-    aligned, screen, base_screen, final_screen, added, rounds = _search(
-        aligned, block_grid, candidates
+    searched, screen, base_screen, final_screen, added, rounds = _search(
+        searched, block_grid, candidates
     )
+    if not windowed:
+        aligned = searched
+    elif searched.include_same_stamp != aligned.include_same_stamp:
+        aligned = replace(aligned, include_same_stamp=searched.include_same_stamp)
     record, refined = per_actuator_round(screen, final_screen)
+    del screen, searched  # their caches (filtered drives, play operators) are done with
     if record is not None:
         rounds.append(record)
     if refined is not final_screen:
@@ -320,9 +341,11 @@ def calibrate(
 
     clock = time.perf_counter()
     screened = [base_screen] + [after_state for _, _, after_state in added]
-    if full_grid:
+    if full_grid and not windowed:
         prefix_states = screened
     else:
+        if full_grid:
+            grid_temperature = _grid_temperature(recording, aligned.start_time)
         prefix_states, counts = _grid_refit(
             recording, aligned, screened, temperature=grid_temperature, tile=tile, run=run
         )
