@@ -104,6 +104,9 @@ def test_budget_gives_the_same_calibration(measured: MeasuredData) -> None:
         whole.effects[0].uncertainties["alpha_m_per_degc"])
     assert cut.final.heldout_count == whole.final.heldout_count  # the final fit: whole record
     assert cut.aligned.t.size == whole.aligned.t.size
+    # the report and calibration.json say what the search saw
+    assert whole.search_span == ""
+    assert "windows" in cut.search_span and "whole record" in cut.search_span
 
 
 def test_identification_sweep_recordings_are_within_the_budget() -> None:

@@ -44,7 +44,7 @@ from es_feedforward.calibration.search import (
     heldout_residual,
     screen_block,
 )
-from es_feedforward.calibration.searchspan import SEARCH_BUDGET, search_span
+from es_feedforward.calibration.searchspan import SEARCH_BUDGET, search_span, search_windows
 from es_feedforward.calibration.selection import RoundRecord, Step, search_effects, subset_state
 from es_feedforward.calibration.tiles import (
     DEFAULT_TILE,
@@ -109,6 +109,8 @@ class Calibration:
     analysis_inputs: dict[str, FloatArray]
     unexplained: list[str]
     timings_s: dict[str, float] = field(default_factory=dict)
+    #: What of the record the effect search saw ("" : all of it; else the windows, in words).
+    search_span: str = ""
 
     @property
     def noise_floor_m(self) -> float:
@@ -314,6 +316,14 @@ def calibrate(
     aligned = choose_stamp_convention(block)
     searched = search_span(aligned, search_budget)
     windowed = searched is not aligned
+    span_note = (
+        f"{len(search_windows(aligned, search_budget))} windows, "
+        f"{searched.t.size / aligned.sample_rate:.1f} s of the record's "
+        f"{aligned.t.size / aligned.sample_rate:.1f} s (search budget {search_budget} "
+        "sample-actuator values); the grid refit and its scores use the whole record"
+        if windowed
+        else ""
+    )
     timings["align"] = time.perf_counter() - clock
 
     clock = time.perf_counter()
@@ -401,6 +411,7 @@ def calibrate(
         analysis_inputs=inputs,
         unexplained=_unexplained(after, final.heldout_rms),
         timings_s=timings,
+        search_span=span_note,
     )
 
 

@@ -207,6 +207,7 @@ def write_report(cal: Calibration, out: Path, notes: list[str]) -> Path:
         f"- {a.block_edges.size - 1} interleaved blocks of {a.block_edges[1]:.2f} s: "
         f"{int(a.train.sum())} training and {int((~a.train).sum())} held-out samples",
         "- dropped values: " + (", ".join(f"{k}: {v}" for k, v in a.dropped.items()) or "none"),
+        "- effect search on " + (cal.search_span or "the whole record"),
         *([f"- {a.repeated_stamps}"] if a.repeated_stamps else []),
         *_gap_lines(a),
         "",

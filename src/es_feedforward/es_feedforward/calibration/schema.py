@@ -30,7 +30,9 @@ residual's autocorrelation)::
       "heldout_max_before_m", "heldout_max_after_m",         # analysed actuators, full rate
       "noise_floor_m": white measurement noise estimated from the final residual,
       "unexplained": ["remaining structure, in words", ...],
-      "timings_s": {step: seconds}
+      "timings_s": {step: seconds},
+      "search_span": what of the record the effect search saw ("whole record", or its
+                     windows on a record longer than the search budget)
     }
 
 Effect parameters use the names the effects declare (:mod:`es_physics.effects`); the YAML
@@ -181,6 +183,7 @@ def calibration_document(cal: Calibration) -> dict[str, Any]:
         "noise_floor_m": cal.noise_floor_m,
         "unexplained": cal.unexplained,
         "timings_s": cal.timings_s,
+        "search_span": cal.search_span or "whole record",
     }
     return dict(_float(doc))
 
