@@ -7,7 +7,9 @@ time), so that a correlated residual cannot buy a spurious effect; of the residu
 and after the candidate, the less correlated one counts (a candidate that explains the
 structure which made the residual correlated is not discounted by it). A candidate passes only
 when it lowers that criterion, cuts the held-out RMS by at least ``MIN_RELATIVE_GAIN`` and has
-physical parameter values; the best passing candidate is added and the round repeats.
+physical parameter values. Of the passing candidates, the one with the lowest criterion at a
+common effective count (the largest of theirs) is added, and the round repeats: a candidate
+is not preferred for leaving a whiter but larger residual than a rival.
 
 Backward: with two or more effects accepted, each is taken out in turn (the rest refitted
 from the current values) and scored the same way; an effect whose removal the criterion
@@ -127,7 +129,7 @@ def _forward_round(
     _, held = ws.input_pair(state.delay_s, state.play_thresholds)
     n_eff = effective_count(ws, state, held)
     scores: list[CandidateScore] = []
-    best: tuple[float, str, ModelState] | None = None
+    passing: list[tuple[str, ModelState, float]] = []
     for name in (c for c in candidates if not state.model.has(c)):
         effect = get(name)
         if effect.role is Role.SPATIAL and A < 2:
@@ -146,13 +148,22 @@ def _forward_round(
         scores.append(
             CandidateScore(name, state.heldout_rms, new.heldout_rms, delta, ok, reason, params)
         )
-        if ok and (best is None or delta < best[0]):
-            best = (delta, name, new)
-    if best is None:
+        if ok:
+            passing.append((name, new, n_new))
+    if not passing:
         return RoundRecord(scores, None), None
+    # rivals are ranked on one footing: each one's criterion at the same (the largest)
+    # effective count, so a rival is not preferred for leaving a whiter but larger residual
+    n_common = max(n for _, _, n in passing)
+    name, new, _ = min(
+        passing,
+        key=lambda p: information_delta(
+            state.heldout_sse, p[1].heldout_sse, n_common, _unknowns(p[1], p[0], A)
+        ),
+    )
     for s in scores:
-        s.accepted = s.name == best[1]
-    return RoundRecord(scores, best[1]), best[2]
+        s.accepted = s.name == name
+    return RoundRecord(scores, name), new
 
 
 def _backward_round(ws: Workspace, state: ModelState) -> tuple[RoundRecord, ModelState | None]:
