@@ -29,7 +29,11 @@ from es_feedforward.calibration.search import (
     extend_local,
     fit_state,
 )
-from es_feedforward.calibration.selection import _backward_round, settle_operators
+from es_feedforward.calibration.selection import (
+    _backward_round,
+    search_effects,
+    settle_operators,
+)
 
 
 def _workspace(config: StandConfig) -> tuple[Workspace, float]:
@@ -122,3 +126,28 @@ def test_an_unphysical_extra_play_operator_is_dropped_not_the_hysteresis() -> No
     assert settled.heldout_rms < 1.2 * noise
     record, reduced = _backward_round(ws, settled)
     assert reduced is None and record.removed is None  # both effects are needed
+
+
+def test_a_rival_with_a_whiter_but_larger_residual_does_not_take_the_place() -> None:
+    # sweep case sensor_lag+coupling: drift's own criterion beat sensor_lag's in the first
+    # round (its residual whiter, so counted as more independent samples) though sensor_lag
+    # left the smaller held-out residual; drift+coupling was accepted (2.0x the noise left)
+    case = next(c for c in build_cases() if c.name == "sensor_lag+coupling")
+    config = replace(case.config, rate_hz=1000.0, temperature_kind="grid")
+    ws, noise = _workspace(config)
+    base = base_state(ws)
+    candidates = ("sensor_lag", "drift", "coupling")
+    final, _, rounds = search_effects(ws, base, candidates)
+    first = {s.name: s for s in rounds[0].scores}
+    assert all(s.reason == "passes" for s in first.values())
+    # the situation of the sweep: drift has the lowest criterion of its own, not the
+    # lowest held-out RMS
+    assert first["drift"].delta_ic < first["sensor_lag"].delta_ic
+    assert first["sensor_lag"].rms_after_m < first["drift"].rms_after_m
+    assert rounds[0].added == "sensor_lag"
+    assert set(final.model.effects) == {"sensor_lag", "coupling"}
+    assert final.heldout_rms < 1.2 * noise
+    found = effect_parameters(final, "sensor_lag", ws.aligned)
+    truth = config.effects.sensor_lag
+    assert truth is not None
+    assert abs(found["tau_s"] - truth.tau_s) < 0.2 * truth.tau_s
