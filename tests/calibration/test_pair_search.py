@@ -15,11 +15,12 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
 
 from standgen import StandConfig, simulate
-from standgen.effects import Drift, Effects, Hysteresis
+from standgen.effects import Drift, Effects, FrequencyDispersion, Hysteresis
 from standgen.sweep import build_cases
 
 from es_feedforward.calibration.align import MeasuredData, align
 from es_feedforward.calibration.model import CompositeModel
+from es_feedforward.calibration.pipeline import _search
 from es_feedforward.calibration.scans import candidate_states
 from es_feedforward.calibration.search import (
     Workspace,
@@ -151,3 +152,27 @@ def test_a_rival_with_a_whiter_but_larger_residual_does_not_take_the_place() -> 
     truth = config.effects.sensor_lag
     assert truth is not None
     assert abs(found["tau_s"] - truth.tau_s) < 0.2 * truth.tau_s
+
+
+def test_a_sub_period_delay_that_only_undoes_a_wrong_stamp_convention_is_not_kept() -> None:
+    # sweep cases frequency_dispersion+drift, frequency_dispersion+coupling, hysteresis-2:
+    # command and displacement share stamps; the plain law took the command as not yet in
+    # effect at its own stamp (wrong: the stand applies it at once), then a "delay" of 0.05
+    # of a period (a shift of -0.95) undid that, and was reported as an effect
+    config = StandConfig(
+        rows=1,
+        cols=1,
+        rate_hz=2000.0,
+        duration_s=8.0,
+        temperature_kind="grid",
+        effects=Effects(frequency_dispersion=FrequencyDispersion(0.12, 3.3)),
+        seed=1,
+    )
+    ws, noise = _workspace(config)
+    assert ws.aligned.has_same_stamps and not ws.aligned.include_same_stamp  # the wrong guess
+    aligned, _, _, final, _, _ = _search(ws.aligned, ws.grid, ("frequency_dispersion", "delay"))
+    assert aligned.include_same_stamp
+    assert final.model.effects == ("frequency_dispersion",)
+    assert final.heldout_rms < 1.2 * noise
+    found = effect_parameters(final, "frequency_dispersion", aligned)
+    assert abs(found["fraction"] - 0.12) < 0.02

@@ -258,3 +258,18 @@ def search_effects(
     if removed:
         added = _chain(ws, base, state)
     return state, added, rounds
+
+
+def preferred_final(new: ModelState, old: ModelState) -> bool:
+    """Return whether the final model ``new`` is preferred to ``old`` (held-out RMS, parsimony).
+
+    With fewer effects, ``new`` is preferred unless its held-out RMS is more than
+    ``MIN_RELATIVE_GAIN`` above ``old``'s; with as many, when its held-out RMS is lower; with
+    more, when it is lower by at least ``MIN_RELATIVE_GAIN``.
+    """
+    n_new, n_old = len(new.model.effects), len(old.model.effects)
+    if n_new < n_old:
+        return new.heldout_rms <= (1.0 + MIN_RELATIVE_GAIN) * old.heldout_rms
+    if n_new == n_old:
+        return new.heldout_rms < old.heldout_rms
+    return new.heldout_rms < (1.0 - MIN_RELATIVE_GAIN) * old.heldout_rms
