@@ -7,9 +7,9 @@ time), so that a correlated residual cannot buy a spurious effect; of the residu
 and after the candidate, the less correlated one counts (a candidate that explains the
 structure which made the residual correlated is not discounted by it). A candidate passes only
 when it lowers that criterion, cuts the held-out RMS by at least ``MIN_RELATIVE_GAIN`` and has
-physical parameter values. Of the passing candidates, the one with the lowest criterion at a
-common effective count (the largest of theirs) is added, and the round repeats: a candidate
-is not preferred for leaving a whiter but larger residual than a rival.
+physical parameter values. Of the passing candidates, the one with the lowest held-out RMS
+is added, and the round repeats (the criterion's effective counts differ between candidates,
+so it would prefer a candidate that leaves a whiter but larger residual than a rival).
 
 Backward: with two or more effects accepted, each is taken out in turn (the rest refitted
 from the current values) and scored the same way; an effect whose removal the criterion
@@ -129,7 +129,7 @@ def _forward_round(
     _, held = ws.input_pair(state.delay_s, state.play_thresholds)
     n_eff = effective_count(ws, state, held)
     scores: list[CandidateScore] = []
-    passing: list[tuple[str, ModelState, float]] = []
+    passing: list[tuple[str, ModelState]] = []
     for name in (c for c in candidates if not state.model.has(c)):
         effect = get(name)
         if effect.role is Role.SPATIAL and A < 2:
@@ -149,18 +149,13 @@ def _forward_round(
             CandidateScore(name, state.heldout_rms, new.heldout_rms, delta, ok, reason, params)
         )
         if ok:
-            passing.append((name, new, n_new))
+            passing.append((name, new))
     if not passing:
         return RoundRecord(scores, None), None
-    # rivals are ranked on one footing: each one's criterion at the same (the largest)
-    # effective count, so a rival is not preferred for leaving a whiter but larger residual
-    n_common = max(n for _, _, n in passing)
-    name, new, _ = min(
-        passing,
-        key=lambda p: information_delta(
-            state.heldout_sse, p[1].heldout_sse, n_common, _unknowns(p[1], p[0], A)
-        ),
-    )
+    # the criterion admits; of the admitted rivals, the one that predicts the held-out rows
+    # best is added (its own criterion also counts how white its residual is, so it can
+    # prefer a rival that leaves a whiter but larger residual)
+    name, new = min(passing, key=lambda p: p[1].heldout_rms)
     for s in scores:
         s.accepted = s.name == name
     return RoundRecord(scores, name), new
