@@ -45,7 +45,13 @@ from es_feedforward.calibration.search import (
     screen_block,
 )
 from es_feedforward.calibration.searchspan import SEARCH_BUDGET, search_span, search_windows
-from es_feedforward.calibration.selection import RoundRecord, Step, search_effects, subset_state
+from es_feedforward.calibration.selection import (
+    RoundRecord,
+    Step,
+    preferred_final,
+    search_effects,
+    subset_state,
+)
 from es_feedforward.calibration.tiles import (
     DEFAULT_TILE,
     TEMPERATURE,
@@ -256,23 +262,27 @@ def _search(
 
     The convention (is a command in effect at its own stamp?) was chosen with the plain law;
     an effect the law lacks can make that choice wrong, which leaves a one-period timing
-    error. Unless the final model shifts the command itself, it is refitted with the other
-    convention; when that cuts its held-out RMS by ``MIN_RELATIVE_GAIN``, the search runs
-    again with it and the better of the two finals is kept.
+    error. A final model without a command shift is refitted with the other convention; when
+    that cuts its held-out RMS by ``MIN_RELATIVE_GAIN``, the search runs again with it. A
+    final shift within a period of none may be that timing error taken up by a delay: the
+    search runs again with the other convention. The preferred final is kept
+    (:func:`~es_feedforward.calibration.selection.preferred_final`).
     """
     screen, base, final, added, rounds = _screened(aligned, block_grid, candidates)
-    if not aligned.has_same_stamps or not final.model.effects or final.model.shift:
-        return aligned, screen, base, final, added, rounds
+    first = (aligned, screen, base, final, added, rounds)
+    if not aligned.has_same_stamps or not final.model.effects:
+        return first
     other = replace(aligned, include_same_stamp=not aligned.include_same_stamp)
-    refit = subset_state(
-        Workspace(other, screen.actuators, screen.grid), final, final.model.effects
-    )
-    if refit.heldout_rms >= (1.0 - MIN_RELATIVE_GAIN) * final.heldout_rms:
-        return aligned, screen, base, final, added, rounds
+    if final.model.shift is None:
+        refit = subset_state(
+            Workspace(other, screen.actuators, screen.grid), final, final.model.effects
+        )
+        if refit.heldout_rms >= (1.0 - MIN_RELATIVE_GAIN) * final.heldout_rms:
+            return first
+    elif abs(final.delay_s) > aligned.command_period * (1.0 + 1e-6):
+        return first
     second = _screened(other, block_grid, candidates)
-    if second[2].heldout_rms < final.heldout_rms:
-        return (other, *second)
-    return aligned, screen, base, final, added, rounds
+    return (other, *second) if preferred_final(second[2], final) else first
 
 
 def calibrate(

@@ -7,7 +7,9 @@ time), so that a correlated residual cannot buy a spurious effect; of the residu
 and after the candidate, the less correlated one counts (a candidate that explains the
 structure which made the residual correlated is not discounted by it). A candidate passes only
 when it lowers that criterion, cuts the held-out RMS by at least ``MIN_RELATIVE_GAIN`` and has
-physical parameter values; the best passing candidate is added and the round repeats.
+physical parameter values. Of the passing candidates, the one with the lowest held-out RMS
+is added, and the round repeats (the criterion's effective counts differ between candidates,
+so it would prefer a candidate that leaves a whiter but larger residual than a rival).
 
 Backward: with two or more effects accepted, each is taken out in turn (the rest refitted
 from the current values) and scored the same way; an effect whose removal the criterion
@@ -127,7 +129,7 @@ def _forward_round(
     _, held = ws.input_pair(state.delay_s, state.play_thresholds)
     n_eff = effective_count(ws, state, held)
     scores: list[CandidateScore] = []
-    best: tuple[float, str, ModelState] | None = None
+    passing: list[tuple[str, ModelState]] = []
     for name in (c for c in candidates if not state.model.has(c)):
         effect = get(name)
         if effect.role is Role.SPATIAL and A < 2:
@@ -146,13 +148,17 @@ def _forward_round(
         scores.append(
             CandidateScore(name, state.heldout_rms, new.heldout_rms, delta, ok, reason, params)
         )
-        if ok and (best is None or delta < best[0]):
-            best = (delta, name, new)
-    if best is None:
+        if ok:
+            passing.append((name, new))
+    if not passing:
         return RoundRecord(scores, None), None
+    # the criterion admits; of the admitted rivals, the one that predicts the held-out rows
+    # best is added (its own criterion also counts how white its residual is, so it can
+    # prefer a rival that leaves a whiter but larger residual)
+    name, new = min(passing, key=lambda p: p[1].heldout_rms)
     for s in scores:
-        s.accepted = s.name == best[1]
-    return RoundRecord(scores, best[1]), best[2]
+        s.accepted = s.name == name
+    return RoundRecord(scores, name), new
 
 
 def _backward_round(ws: Workspace, state: ModelState) -> tuple[RoundRecord, ModelState | None]:
@@ -247,3 +253,18 @@ def search_effects(
     if removed:
         added = _chain(ws, base, state)
     return state, added, rounds
+
+
+def preferred_final(new: ModelState, old: ModelState) -> bool:
+    """Return whether the final model ``new`` is preferred to ``old`` (held-out RMS, parsimony).
+
+    With fewer effects, ``new`` is preferred unless its held-out RMS is more than
+    ``MIN_RELATIVE_GAIN`` above ``old``'s; with as many, when its held-out RMS is lower; with
+    more, when it is lower by at least ``MIN_RELATIVE_GAIN``.
+    """
+    n_new, n_old = len(new.model.effects), len(old.model.effects)
+    if n_new < n_old:
+        return new.heldout_rms <= (1.0 + MIN_RELATIVE_GAIN) * old.heldout_rms
+    if n_new == n_old:
+        return new.heldout_rms < old.heldout_rms
+    return new.heldout_rms < (1.0 - MIN_RELATIVE_GAIN) * old.heldout_rms
