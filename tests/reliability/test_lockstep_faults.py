@@ -11,6 +11,7 @@ still answer a set point. Every message the plant published must be in the bag.
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -37,7 +38,7 @@ SHAPE = (3, 3)
 # (seconds of start-up and discovery on a loaded machine) ends well before the run does: the
 # watcher notices sim time passing KILL_THERMAL_AT late when the plant runs at full speed,
 # and every 10 Hz sample without the thermal node costs sync_timeout of wall time.
-DURATION = 15.0
+DURATION = 30.0
 KILL_FEEDFORWARD_AT = 1.0
 KILL_THERMAL_AT = 3.0
 
@@ -55,8 +56,15 @@ def _kill_and_restart(
     # the rest goes on without it: the plant steps on its timeouts
     advanced = watcher.wait_for(lambda: watcher.clock > clock_at_kill + 0.05, READY_TIMEOUT)
     procs[name] = Proc(name, procs[name].command)
+    restarted = time.monotonic()
     came_back = watcher.wait_for(resumed, READY_TIMEOUT)
-    return advanced, came_back, f"killed at {clock_at_kill:.2f} s sim, now {watcher.clock:.2f} s"
+    detail = (f"killed at {clock_at_kill:.2f} s sim, now {watcher.clock:.2f} s; "
+              f"{'resumed' if came_back else 'not resumed'} "
+              f"{time.monotonic() - restarted:.1f} s wall after the restart")
+    if not came_back:
+        detail += (f"; {name} log: {procs[name].output()[-400:]}; "
+                   f"plant log: {procs['plant'].output()[-400:]}")
+    return advanced, came_back, detail
 
 
 def test_nodes_killed_and_restarted_in_lockstep(tmp_path: Path, fault_cases: FaultCases) -> None:
