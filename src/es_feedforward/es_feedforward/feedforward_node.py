@@ -13,8 +13,8 @@ holds a set point while the estimate of a sample received before it is owed
 (:mod:`es_feedforward.estimate_sync`). Parameters: :mod:`es_feedforward.param_file` names,
 declared with ranges; a run-time change is validated as a whole set and swapped in between
 two set points. Environment: ``ES_DM_FEEDFORWARD_KERNELS=numpy`` runs the modes' inner
-loops in plain numpy instead of the fused (numba)
-ones, same numbers (:mod:`es_feedforward.kernels`).
+loops in plain numpy instead of the fused (numba) ones, same numbers
+(:mod:`es_feedforward.kernels`).
 """
 
 from __future__ import annotations
