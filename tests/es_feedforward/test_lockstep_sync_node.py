@@ -132,3 +132,36 @@ def test_an_estimate_that_never_comes_ends_the_wait_after_sync_timeout(tmp_path:
     assert "estimates timed out 1, set points still waiting at the stop (no command) 0" in (
         proc.output()
     )
+
+
+@pytest.mark.parametrize("bad", ["wrong length", "non-finite"])
+def test_a_bad_estimate_ends_the_wait_and_never_reaches_the_command(
+    tmp_path: Path, bad: str
+) -> None:
+    # the thermal node's answer to the raw sample is unusable: the waiting set point must be
+    # answered at once (the estimate came), never from the bad values
+    estimate = Float64MultiArray(data=[45.0] * 5) if bad == "wrong length" else grid_to_msg(
+        np.full(SHAPE, np.nan)
+    )
+    with _start(tmp_path, "events", sync_timeout=60.0) as (h, proc):
+        good = h.step(TEMPERATURE)
+        before = len(h.commands)
+        h.raw.publish(grid_to_msg(np.zeros(SHAPE)))
+        h.setpoint.publish(grid_to_msg(Z / 2))
+        spin_until(h.node, lambda: len(h.commands) > before, HOLD_S)
+        assert len(h.commands) == before, "the set point did not wait for its estimate"
+        h.temperature.publish(estimate)
+        assert spin_until(h.node, lambda: len(h.commands) > before, READY_TIMEOUT)
+        command = h.commands[-1]
+        assert np.all(np.isfinite(command))
+        if bad == "wrong length":  # rejected at the door: the last good estimate still holds
+            assert np.allclose(hyperbolic_forward(command, TEMPERATURE, PARAMS), Z / 2,
+                               atol=1e-5 * NM)
+        else:  # a NaN estimate invalidates the temperature: the last good command is held
+            assert np.array_equal(command, good)
+        status = h.diagnostic(
+            "temperature", lambda s: values_of(s).get("setpoints_waited_for_estimate") == "1"
+        )
+        assert values_of(status)["estimates_timed_out"] == "0"
+        assert proc.stop() == 0
+    assert "set points that waited for their estimate 1, estimates timed out 0" in proc.output()
