@@ -45,6 +45,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
+from dataclasses import replace
 
 import numpy as np
 from builtin_interfaces.msg import Time
@@ -77,7 +78,11 @@ NODE_NAME = "thermal"
 #: The executor without self-sensing: events (cheap per message: in lockstep every /clock
 #: wakes the node). With self-sensing single-threaded: the self-sensing callbacks take the
 #: message info (publication stamps), which rclpy's EventsExecutor does not pass.
-EXECUTOR_SPEC = executor_spec("events")
+EXECUTOR_SPEC = replace(
+    executor_spec("events"),
+    description=executor_spec().description
+    + " With self-sensing (resonance.f0_hz set) only single_threaded, its default then.",
+)
 
 
 def _stamp(seconds: float) -> Time:
@@ -120,8 +125,9 @@ class ThermalNode(Node):
         self._pub_diag = self.create_publisher(
             DiagnosticArray, topics.DIAGNOSTICS, topics.qos_for(topics.DIAGNOSTICS)
         )
-        # Heat load first: the executor serves ready subscriptions in creation order, and the
-        # plant publishes a sample's heat load just before its readings, which must use it.
+        # Heat load first: the plant publishes a sample's heat load just before its readings,
+        # which must use it; the events executor serves messages in arrival order, the
+        # single-threaded one ready subscriptions in creation order.
         self.create_subscription(
             Float64MultiArray, topics.HEAT_LOAD, self._on_heat_load,
             topics.qos_for(topics.HEAT_LOAD),
@@ -161,7 +167,7 @@ class ThermalNode(Node):
 
         """
         selfsensing = self.fusion is not None
-        spec = executor_spec("single_threaded") if selfsensing else EXECUTOR_SPEC
+        spec = replace(EXECUTOR_SPEC, default="single_threaded") if selfsensing else EXECUTOR_SPEC
         kind = declare_parameters(self, [spec]).get_str(spec.name)
         if selfsensing and kind == "events":
             raise ParameterValueError(
