@@ -27,12 +27,12 @@ sys.path.insert(0, str(BENCH_DIR))
 
 if TYPE_CHECKING:
     from benchlib import Results, Settings
+    from dds_client import DdsClient
 
     from es_bringup.graph import ParamValue
 
-    #: Extra parameters by node name (plant, thermal, feedforward).
+    #: Extra parameters by node name (one of OVERRIDABLE).
     Overrides = dict[str, dict[str, ParamValue]]
-    from dds_client import DdsClient
 
 #: (rows, cols, set-point rate [Hz], p99 target [ms], p99 target as a multiple of the relay's
 #: p99, or None): the issue's figures.
@@ -43,6 +43,8 @@ SCALE_CASES: tuple[tuple[int, int, float, float, float | None], ...] = (
 #: Lockstep closed loop (plant + thermal + feedforward processes on dm_exposure): grid and
 #: the issue's floor [x real time].
 LOCKSTEP_CASES: tuple[tuple[int, int, float], ...] = ((32, 32, 10.0), (64, 64, 5.0))
+#: The lockstep nodes whose parameters ``--set`` may override.
+OVERRIDABLE = ("plant", "thermal", "feedforward")
 #: Longest wait for the thermal and feedforward nodes of a large grid to start [s].
 CONTROLLERS_TIMEOUT_S = 600.0
 #: Set points answered one at a time before each paced run (warm-up).
@@ -358,8 +360,9 @@ def parse_overrides(items: Sequence[str]) -> Overrides:
     for item in items:
         key, sep, value = item.partition("=")
         node, dot, name = key.partition(".")
-        if not (sep and dot and node and name):
-            raise SystemExit(f"error: --set {item!r}: expected NODE.NAME=VALUE")
+        if not (sep and dot and node in OVERRIDABLE and name):
+            raise SystemExit(f"error: --set {item!r}: expected NODE.NAME=VALUE with NODE one "
+                             f"of {', '.join(OVERRIDABLE)}")
         overrides.setdefault(node, {})[name] = yaml.safe_load(value)
     return overrides
 
