@@ -133,3 +133,20 @@ def test_unusable_resonance_parameters_exit_with_one_line() -> None:
     assert code == 2, proc.output()
     assert "resonance.f0_hz has 3 values, expected 1 or 16" in lines[-1]
     assert "Traceback" not in proc.output()
+
+
+def test_self_sensing_on_the_events_executor_exits_with_one_line() -> None:
+    # the self-sensing callbacks need the message info, which the EventsExecutor does not pass
+    args = [
+        "--ros-args", "-p", "rows:=4", "-p", "cols:=4", "-p", "sensor_pitch:=4",
+        "-p", f"resonance.f0_hz:={F0.tolist()}", "-p", "executor:=events",
+    ]  # fmt: skip
+    proc = NodeProcess("es_thermal", "thermal_node", args)
+    try:
+        proc.process.wait(60.0)
+    finally:
+        code = proc.stop()
+    lines = [line for line in proc.output().splitlines() if line.strip()]
+    assert code == 2, proc.output()
+    assert lines[-1].startswith("error: executor=events cannot run self-sensing"), lines[-1]
+    assert "Traceback" not in proc.output()

@@ -64,10 +64,9 @@ from es_sim_plant.plant import Plant
 NODE_NAME = "plant"
 #: Period of the wall watchdog that enforces the timeouts [s].
 _WATCHDOG_PERIOD = 0.05
-#: The node's parameters: the configuration's and the executor's. events: about half the
-#: plant's CPU per lockstep step, but the recorder's late match of the thermal node's
-#: estimates (a race) then loses the first ones more often, so single-threaded by default.
-NODE_SPECS = (executor_spec("single_threaded"), *SPECS)
+#: The node's parameters: the executor's (events: about half the plant's CPU per lockstep
+#: step of the single-threaded executor) and the configuration's.
+NODE_SPECS = (executor_spec("events"), *SPECS)
 #: A warning of one kind is logged at most this often [s wall].
 _WARN_THROTTLE = 1.0
 

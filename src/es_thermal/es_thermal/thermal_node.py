@@ -45,6 +45,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
+from dataclasses import replace
 
 import numpy as np
 from builtin_interfaces.msg import Time
@@ -63,7 +64,8 @@ from es_msgs_py.diagnostics import (
     unmatched,
     unreached,
 )
-from es_msgs_py.node_main import run_node, usage_text
+from es_msgs_py.errors import ParameterValueError
+from es_msgs_py.node_main import executor_spec, run_node, usage_text
 from es_msgs_py.params import declare_parameters
 from es_thermal.estimator import SampleClock, TemperatureEstimator
 from es_thermal.node_health import NodeHealth
@@ -73,6 +75,14 @@ from es_thermal.resonance_params import fusion_from_parameters
 from es_thermal.sweep_sync import SampleSync
 
 NODE_NAME = "thermal"
+#: The executor without self-sensing: events (cheap per message: in lockstep every /clock
+#: wakes the node). With self-sensing single-threaded: the self-sensing callbacks take the
+#: message info (publication stamps), which rclpy's EventsExecutor does not pass.
+EXECUTOR_SPEC = replace(
+    executor_spec("events"),
+    description=executor_spec().description
+    + " With self-sensing (resonance.f0_hz set) only single_threaded, its default then.",
+)
 
 
 def _stamp(seconds: float) -> Time:
@@ -95,6 +105,7 @@ class ThermalNode(Node):
         self._sync = (
             None if self.fusion is None else SampleSync(self.fusion, self.config.sample_period)
         )
+        self._declare_executor()
         self._fused: np.ndarray | None = None  # the newest fused estimate
         started = time.perf_counter()
         self.core = TemperatureEstimator(self.config)
@@ -114,8 +125,9 @@ class ThermalNode(Node):
         self._pub_diag = self.create_publisher(
             DiagnosticArray, topics.DIAGNOSTICS, topics.qos_for(topics.DIAGNOSTICS)
         )
-        # Heat load first: the executor serves ready subscriptions in creation order, and the
-        # plant publishes a sample's heat load just before its readings, which must use it.
+        # Heat load first: the plant publishes a sample's heat load just before its readings,
+        # which must use it; the events executor serves messages in arrival order, the
+        # single-threaded one ready subscriptions in creation order.
         self.create_subscription(
             Float64MultiArray, topics.HEAT_LOAD, self._on_heat_load,
             topics.qos_for(topics.HEAT_LOAD),
@@ -146,6 +158,22 @@ class ThermalNode(Node):
         self._timer_mode = rate > 0.0
         if self._timer_mode:
             self.create_timer(1.0 / rate, self._publish_latest)
+
+    def _declare_executor(self) -> None:
+        """Declare ``executor``: events by default, single-threaded with self-sensing.
+
+        Raises:
+            ParameterValueError: ``executor`` is events with self-sensing configured.
+
+        """
+        selfsensing = self.fusion is not None
+        spec = replace(EXECUTOR_SPEC, default="single_threaded") if selfsensing else EXECUTOR_SPEC
+        kind = declare_parameters(self, [spec]).get_str(spec.name)
+        if selfsensing and kind == "events":
+            raise ParameterValueError(
+                f"{spec.name}=events cannot run self-sensing (resonance.f0_hz set): its "
+                "callbacks need the message info, which the EventsExecutor does not pass"
+            )
 
     # --- input ------------------------------------------------------------------------------
 
@@ -294,7 +322,9 @@ class ThermalNode(Node):
 def main(args: Sequence[str] | None = None) -> int:
     """Run the thermal node until shutdown."""
     return run_node(
-        ThermalNode, args, help_text=usage_text("es_thermal thermal_node", __doc__ or "", SPECS)
+        ThermalNode, args, help_text=usage_text(
+            "es_thermal thermal_node", __doc__ or "", (EXECUTOR_SPEC, *SPECS)
+        )
     )
 
 
