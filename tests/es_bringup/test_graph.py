@@ -12,8 +12,10 @@ import yaml
 
 from es_bringup.bringup import node_specs
 from es_bringup.graph import (
+    FAST_EXECUTOR,
     FEEDFORWARD,
     PLANT,
+    RECORDED_EXECUTOR,
     RECORDER,
     THERMAL,
     GraphConfig,
@@ -78,6 +80,19 @@ def test_a_real_time_plant_is_no_subscriber_the_thermal_node_waits_for() -> None
     # nothing to wait for: the plant does not wait for the estimates either
     assert nodes[FEEDFORWARD]["sync_temperature"] is False
     assert "raw_subscribers" not in nodes[PLANT]
+
+
+def test_the_plant_and_thermal_node_spin_on_events_only_without_a_recorder() -> None:
+    unrecorded = by_name(GraphConfig(scenario="dm_exposure"))
+    assert unrecorded[PLANT]["executor"] == FAST_EXECUTOR == "events"
+    assert "executor" not in unrecorded[THERMAL]  # its own default (self-sensing: threaded)
+    recorded = by_name(GraphConfig(scenario="dm_exposure", bag=Path("b")))
+    assert recorded[PLANT]["executor"] == recorded[THERMAL]["executor"] == RECORDED_EXECUTOR
+    assert RECORDED_EXECUTOR == "single_threaded"
+    # a graph's own choice wins
+    chosen = by_name(GraphConfig(scenario="dm_exposure", bag=Path("b"),
+                                 plant={"executor": "events"}, thermal={"executor": "events"}))
+    assert chosen[PLANT]["executor"] == chosen[THERMAL]["executor"] == "events"
 
 
 def test_a_test_stand_is_plant_and_recorder_only() -> None:

@@ -41,6 +41,13 @@ TEST_STAND_QUEUE_DEPTH: Final = 200_000
 #: test stands at 3x (no loss), the plant alone runs near 10x; the rest is caught up after
 #: the run from the recorder's deep queue.
 TEST_STAND_SPEED: Final = 5.0
+#: The plant's and the thermal node's executor (``executor`` parameter) in a graph without a
+#: recorder: the EventsExecutor, about half their CPU per lockstep step.
+FAST_EXECUTOR: Final = "events"
+#: Their executor in a graph with a recorder: a lockstep plant on the EventsExecutor outran
+#: the recorder at 3 x 3 (400 of 3001 displacements lost in one of the fault test's runs; the
+#: recorder keeps up with a few hundred steps per second, see TEST_STAND_SPEED).
+RECORDED_EXECUTOR: Final = "single_threaded"
 #: Longest wall time [s] the plant waits at its start for its peers to be ready (a 32 x 32
 #: thermal estimator takes seconds to build on a busy machine).
 START_TIMEOUT_S: Final = 120.0
@@ -197,6 +204,7 @@ def build_graph(config: GraphConfig) -> Graph:
         ),
         # the recorder's subscriptions must match before the first message goes out
         **({"start_subscribers": 1} if config.bag is not None else {}),
+        "executor": FAST_EXECUTOR if config.bag is None else RECORDED_EXECUTOR,
         # the thermal node and the feedforward both count the raw samples
         **(
             {"raw_subscribers": 2}
@@ -241,9 +249,13 @@ def _controller_specs(
     # In lockstep the feedforward holds a set point until the step's estimate is in (the two
     # come from different publishers, which DDS does not order).
     feedforward["sync_temperature"] = bool(synced)
+    # without a recorder the thermal node's own default (events; single-threaded with
+    # self-sensing, which cannot run on events)
+    executor: dict[str, ParamValue] = {} if recorder == 0 else {"executor": RECORDED_EXECUTOR}
     return [
         NodeSpec(
-            "es_thermal", "thermal_node", THERMAL, {**sim_time, **thermal, **config.thermal}
+            "es_thermal", "thermal_node", THERMAL,
+            {**sim_time, **thermal, **executor, **config.thermal},
         ),
         NodeSpec(
             "es_feedforward",

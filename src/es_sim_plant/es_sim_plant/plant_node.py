@@ -64,16 +64,21 @@ from es_sim_plant.plant import Plant
 NODE_NAME = "plant"
 #: Period of the wall watchdog that enforces the timeouts [s].
 _WATCHDOG_PERIOD = 0.05
-#: The node's parameters: the executor's (events: about half the plant's CPU per lockstep
-#: step of the single-threaded executor) and the configuration's.
-NODE_SPECS = (executor_spec("events"), *SPECS)
+#: The node's parameters: the executor's and the configuration's. events: about half the
+#: plant's CPU per lockstep step, but at small grids such a plant outruns a recorder (which
+#: then loses messages), so single-threaded by default; a graph without a recorder picks
+#: events (es_bringup.graph).
+NODE_SPECS = (executor_spec("single_threaded"), *SPECS)
 #: A warning of one kind is logged at most this often [s wall].
 _WARN_THROTTLE = 1.0
 
 
-def _stamp(seconds: float) -> Time:
+def _stamp(seconds: float, stamp: Time | None = None) -> Time:
+    """Return ``stamp`` (a new one if None) set to ``seconds`` [s]."""
     ns = round(seconds * 1e9)
-    return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+    stamp = stamp if stamp is not None else Time()
+    stamp.sec, stamp.nanosec = divmod(ns, 1_000_000_000)
+    return stamp
 
 
 class PlantNode(Node):
@@ -110,6 +115,7 @@ class PlantNode(Node):
             topic: grid_to_msg(np.zeros(scenario.shape))
             for topic in (topics.DISPLACEMENT, topics.HEAT_LOAD, topics.SETPOINT)
         }
+        self._clock_out = ClockMsg()  # refilled each step like the grids
         self._pub_clock = self.create_publisher(ClockMsg, topics.CLOCK, topics.CLOCK_QOS)
         self._pub_displacement = self.create_publisher(Float64MultiArray, topics.DISPLACEMENT, qos)
         self._pub_raw = self.create_publisher(Float64MultiArray, topics.TEMPERATURE_RAW, qos)
@@ -230,7 +236,8 @@ class PlantNode(Node):
     def publish_state(self) -> bool:
         """Publish /clock, /dm/displacement and a due sensor sample; return if one was due."""
         plant = self.plant
-        self._pub_clock.publish(ClockMsg(clock=_stamp(plant.time)))
+        _stamp(plant.time, self._clock_out.clock)
+        self._pub_clock.publish(self._clock_out)
         self._pub_displacement.publish(self._filled(topics.DISPLACEMENT,
                                                     plant.measured_displacement()))
         if plant.done or not plant.sensor_due():
