@@ -29,6 +29,7 @@ import datetime as dt
 import json
 import os
 import shutil
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -227,6 +228,28 @@ def markdown(summary: dict[str, Any], outcomes: Sequence[Outcome], header: str) 
     return "\n".join(md) + "\n"
 
 
+def edge_lines(cases_dir: Path, outcomes: Sequence[Outcome]) -> list[str]:
+    """Return identify.md's lines on the samples left out at unresolvable command edges.
+
+    Read from each case's kept calibration.json (``data.command_edges``); clean cases apart,
+    since there the fraction is what the rule costs data with no effect to find.
+    """
+    fractions: dict[str, list[float]] = {"clean": [], "with effects": []}
+    for o in outcomes:
+        path = cases_dir / f"{o.case}.json"
+        if not path.exists():
+            continue
+        edges = json.loads(path.read_text()).get("data", {}).get("command_edges")
+        if edges:
+            fractions["with effects" if o.truth else "clean"].append(edges["excluded_fraction"])
+    lines = ["## Samples left out at unresolvable command edges", ""]
+    for kind, values in fractions.items():
+        if values:
+            lines.append(f"- {kind} cases: median {100 * statistics.median(values):.1f} %, "
+                         f"max {100 * max(values):.1f} % of the samples ({len(values)} cases)")
+    return [*lines, ""] if len(lines) > 2 else []
+
+
 def write_results(out: Path, outcomes: Sequence[Outcome], settings: dict[str, Any]) -> dict[
         str, Any]:
     """Write identify.json and identify.md into ``out``; return the summary."""
@@ -243,7 +266,10 @@ def write_results(out: Path, outcomes: Sequence[Outcome], settings: dict[str, An
               + (f", 1-min load average {load:.1f} at the end" if load is not None else "")
               + f". Command: `{settings['command']}`. Bags from "
               "bench/standgen (independent of es_sim_plant and the calibration)." + partial)
-    (out / "identify.md").write_text(markdown(summary, outcomes, header))
+    text = markdown(summary, outcomes, header)
+    cases = text.index("## Cases")
+    edges = "\n".join(edge_lines(out / "cases", outcomes))
+    (out / "identify.md").write_text(text[:cases] + (edges + "\n" if edges else "") + text[cases:])
     return summary
 
 

@@ -24,6 +24,8 @@ RATE = 250.0
 TEMPERATURE_RATE = 10.0
 NOISE_M = 0.2e-9
 GRID = (2, 2)
+#: Height of a command step [V] (``law_run``'s ``steps``).
+STEP_V = 40.0
 
 Series = dict[str, tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]]
 
@@ -44,8 +46,16 @@ def temperature_profile(t: npt.NDArray[np.float64], duration: float) -> npt.NDAr
     return 40.0 + 10.0 * np.sin(np.pi * t / duration)
 
 
-def law_run(duration: float = 90.0, seed: int = 1, shape: tuple[int, int] = GRID) -> LawRun:
-    """Return a run of ``duration`` s on a ``shape`` grid of actuators."""
+def law_run(
+    duration: float = 90.0,
+    seed: int = 1,
+    shape: tuple[int, int] = GRID,
+    steps: tuple[float, ...] = (),
+) -> LawRun:
+    """Return a run of ``duration`` s on a ``shape`` grid of actuators.
+
+    ``steps``: times [s] at which the command steps up by ``STEP_V`` (and stays there).
+    """
     rng = np.random.default_rng(seed)
     t = np.arange(0.0, duration, 1.0 / RATE)
     phase = rng.uniform(0.0, 2.0 * np.pi, (2, *shape))
@@ -54,6 +64,7 @@ def law_run(duration: float = 90.0, seed: int = 1, shape: tuple[int, int] = GRID
         160.0
         + 90.0 * np.sin(2 * np.pi * 1.1 * tt + phase[0])
         + 50.0 * np.sin(2 * np.pi * 2.7 * tt + phase[1])
+        + STEP_V * sum((tt >= when).astype(np.float64) for when in steps)
     )
     t_disp = t + 0.5 / RATE
     offsets = rng.uniform(-0.3, 0.3, shape)

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from es_feedforward.calibrate import EXIT_BAD_INPUT, run
-from es_feedforward.calibration.align import CalibrationInputError, MeasuredData
+from es_feedforward.calibration.align import EDGE_DROPS, CalibrationInputError, MeasuredData
 from es_feedforward.calibration.bagio import read_measured_bags
 from es_feedforward.calibration.pipeline import calibrate
 from es_msgs_py.bag import write_array_bag
@@ -125,7 +125,11 @@ def test_nan_samples_are_dropped_and_counted(series, tmp_path: Path) -> None:
     assert run([str(bag), "-o", str(tmp_path / "out"), "-q"]) == 0
     doc = json.loads((tmp_path / "out" / "calibration.json").read_text())
     dropped = doc["data"]["dropped"]
-    assert dropped["displacement NaN"] == z[::50].size
+    # NaN samples the command edges took first are counted there (every 50th sample is NaN:
+    # a contiguous excluded span of L samples holds at most L / 50 + 1 of them)
+    taken = z[::50].size - dropped["displacement NaN"]
+    edges = doc["data"]["command_edges"]
+    assert 0 <= taken <= edges["excluded_samples"] / 50 + edges["edges"]
     assert dropped["command NaN"] == 1
     assert dropped["temperature NaN"] == 1
     assert np.isfinite(doc["heldout_rms_after_m"])
@@ -156,7 +160,8 @@ def test_consecutive_bags_are_joined(series, tmp_path: Path) -> None:
         bags.append(str(bag))
     assert run([*reversed(bags), "-o", str(tmp_path / "out"), "-q"]) == 0
     doc = json.loads((tmp_path / "out" / "calibration.json").read_text())
-    assert doc["data"]["samples"] == series["/dm/displacement"][0].size
+    edged = doc["data"]["dropped"].get(EDGE_DROPS, 0)  # the command's unresolvable edges
+    assert doc["data"]["samples"] + edged == series["/dm/displacement"][0].size
     assert doc["heldout_rms_after_m"] < 1.2 * doc["noise_floor_m"]
 
 
@@ -190,9 +195,10 @@ def test_mostly_repeated_stamps_with_one_displacement_per_command_pair_by_order(
     doc = _calibrate(bag, tmp_path / "out")
     data = doc["data"]
     assert "paired by message order" in data["repeated_stamps"]
-    assert data["samples"] == series["/dm/displacement"][0].size
+    edged = data["dropped"].get(EDGE_DROPS, 0)  # the command's unresolvable edges
+    assert data["samples"] + edged == series["/dm/displacement"][0].size
     assert "temperature stamps repeated" in data["repeated_stamps"]
-    assert sum(data["dropped"].values()) == 0
+    assert sum(data["dropped"].values()) == edged
     assert doc["heldout_rms_after_m"] < 1.2 * doc["noise_floor_m"]
 
 
@@ -210,7 +216,8 @@ def test_repeated_stamps_with_unequal_counts_drop_and_count_ambiguous_samples(
     doc = _calibrate(bag, tmp_path / "out")
     ambiguous = 2 * stamps[1::5].size
     assert doc["data"]["dropped"]["displacement with ambiguous repeated stamp"] == ambiguous
-    assert doc["data"]["samples"] == t.size - ambiguous
+    edged = doc["data"]["dropped"].get(EDGE_DROPS, 0)  # the command's unresolvable edges
+    assert doc["data"]["samples"] + edged == t.size - ambiguous
     assert "dropped" in doc["data"]["repeated_stamps"]
     assert doc["heldout_rms_after_m"] < 1.2 * doc["noise_floor_m"]
 

@@ -141,9 +141,8 @@ def test_a_rival_with_a_whiter_but_larger_residual_does_not_take_the_place() -> 
     final, _, rounds = search_effects(ws, base, candidates)
     first = {s.name: s for s in rounds[0].scores}
     assert all(s.reason == "passes" for s in first.values())
-    # the situation of the sweep: drift has the lowest criterion of its own, not the
-    # lowest held-out RMS
-    assert first["drift"].delta_ic < first["sensor_lag"].delta_ic
+    # the sweep's situation had drift's own criterion lowest, not its held-out RMS; the
+    # samples at the command's unresolvable edges (edges.py) made that, and are left out now
     assert first["sensor_lag"].rms_after_m < first["drift"].rms_after_m
     assert rounds[0].added == "sensor_lag"
     assert set(final.model.effects) == {"sensor_lag", "coupling"}

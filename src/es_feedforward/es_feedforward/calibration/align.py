@@ -8,7 +8,8 @@ the displacement stamps; its derivative is a Savitzky-Golay slope over ``RATE_WI
 uniform resampling of the temperature. Nothing is extrapolated: samples before the first
 command are dropped. NaN values are dropped per actuator and counted, never propagated. Gaps
 in any topic are found and the samples they would need are removed and counted (gaps.py):
-nothing is interpolated across a gap.
+nothing is interpolated across a gap. So are the samples whose input could read the command
+at an edge its samples cannot resolve (edges.py), the same samples for every model.
 
 Training and held-out data are interleaved time blocks (even blocks train, odd blocks are
 held out), so that the held-out score tests interpolation across the run, not extrapolation.
@@ -24,6 +25,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy.signal import savgol_filter
 
+from es_feedforward.calibration.edges import EdgeExclusion, exclude_edges
 from es_feedforward.calibration.gaps import GAP_FACTOR, Gap, exclude, find_gaps
 from es_feedforward.calibration.model import BoolArray, FloatArray
 from es_feedforward.calibration.stamps import repeated, run_lengths, spread_repeated
@@ -50,6 +52,8 @@ GAP_DROPS: Final = {
     "temperature": "displacement needing temperature from a gap",
     "command": "displacement in or after a command hole",
 }
+#: Key of :attr:`AlignedData.dropped` for samples an unresolvable command edge takes out.
+EDGE_DROPS: Final = "displacement needing the command at an unresolvable edge"
 #: Actuators resampled at once by :func:`resample_temperature` (bounds its temporaries).
 RESAMPLE_COLUMNS: Final = 512
 #: Number of interleaved blocks for long records, and the shortest block [s].
@@ -103,6 +107,8 @@ class AlignedData:
             only some actuators' columns (None: the mean of ``temperature``).
         command_period_s: the command period [s] when ``command_times`` holds only some
             commands (None: their median spacing).
+        command_edges: what unresolvable command edges took out (edges.py; None: the rule
+            was not applied).
 
     """
 
@@ -127,6 +133,7 @@ class AlignedData:
     sample_index: IndexArray = field(default_factory=lambda: np.zeros(0, np.intp))
     grid_mean_temperature: float | None = None
     command_period_s: float | None = None
+    command_edges: EdgeExclusion | None = None
 
     @property
     def command_finite_all(self) -> bool:
@@ -394,11 +401,25 @@ def align(data: MeasuredData, n_blocks: int | None = None) -> AlignedData:
     t_abs = data.displacement_times[first:]
     z = data.displacement[first:].reshape(-1, A)
     index = index[first:]
+    cmd = data.command.reshape(-1, A)
+    cmd_finite = np.isfinite(cmd)
+    dropped["command NaN"] = int((~cmd_finite).sum())
+    if (~cmd_finite).any():
+        # hold the last finite value so the play operator's state survives a bad message
+        idx = np.where(cmd_finite, np.arange(cmd.shape[0])[:, None], 0)
+        np.maximum.accumulate(idx, axis=0, out=idx)
+        cmd = np.where(cmd_finite.any(axis=0), cmd[idx, np.arange(A)], 0.0)
+        cmd = np.where(np.isfinite(cmd), cmd, 0.0)
     if gaps:
         # samples that would need data from a gap go (gaps.py); this copies the kept rows
         t_period = float(np.median(np.diff(data.temperature_times)))
         out, counts, gaps = exclude(t_abs, gaps, (_rate_window(t_period) // 2) * t_period)
         dropped.update({GAP_DROPS[role]: n for role, n in counts.items()})
+        t_abs, z, index = t_abs[~out], z[~out], index[~out]
+    # samples whose input the commands cannot resolve go (edges.py)
+    out, edge_account = exclude_edges(t_abs, data.command_times, cmd)
+    if edge_account.excluded_samples:
+        dropped[EDGE_DROPS] = edge_account.excluded_samples
         t_abs, z, index = t_abs[~out], z[~out], index[~out]
     if t_abs.size < MIN_SAMPLES:
         raise CalibrationInputError(
@@ -410,15 +431,6 @@ def align(data: MeasuredData, n_blocks: int | None = None) -> AlignedData:
     z_finite = np.isfinite(z)
     dropped["displacement NaN"] = int((~z_finite).sum())
 
-    cmd = data.command.reshape(-1, A)
-    cmd_finite = np.isfinite(cmd)
-    dropped["command NaN"] = int((~cmd_finite).sum())
-    if (~cmd_finite).any():
-        # hold the last finite value so the play operator's state survives a bad message
-        idx = np.where(cmd_finite, np.arange(cmd.shape[0])[:, None], 0)
-        np.maximum.accumulate(idx, axis=0, out=idx)
-        cmd = np.where(cmd_finite.any(axis=0), cmd[idx, np.arange(A)], 0.0)
-        cmd = np.where(np.isfinite(cmd), cmd, 0.0)
 
     temp_times = data.temperature_times - start
     uniform, temp_u, rate, dropped["temperature NaN"] = resample_temperature(
@@ -457,6 +469,7 @@ def align(data: MeasuredData, n_blocks: int | None = None) -> AlignedData:
         repeated_stamps=stamp_note,
         gaps=gaps,
         sample_index=index,
+        command_edges=edge_account,
     )
     if valid.sum(axis=0).min() < MIN_SAMPLES:
         worst = int(np.argmin(valid.sum(axis=0)))

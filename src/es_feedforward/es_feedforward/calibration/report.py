@@ -154,6 +154,25 @@ def _gap_lines(a: AlignedData) -> list[str]:
     return [*lines, ""]
 
 
+def _edge_lines(a: AlignedData) -> list[str]:
+    """Return the report's line on unresolvable command edges (rule: edges.py)."""
+    e = a.command_edges
+    if e is None:
+        return []
+    if not e.edges:
+        return ["- no unresolvable command edge (every command interval is smooth enough to "
+                "interpolate)"]
+    examples = ", ".join(f"{x - a.start_time:.3f}" for x in e.example_times_s)
+    more = ", ..." if e.edges > len(e.example_times_s) else ""
+    return [
+        f"- {e.edges} command interval(s) with an edge the command samples cannot resolve "
+        f"(e.g. at {examples}{more} s since the first sample); {e.excluded_samples} "
+        f"displacement samples ({100 * e.fraction:.2f} %) whose input could read one at any "
+        f"delay searched ({e.before_s * 1e3:.3g} ms before to {e.after_s * 1e3:.3g} ms after "
+        "it) are left out of fit and scoring",
+    ]
+
+
 def _law_table(cal: Calibration) -> list[str]:
     local = cal.final.fit.local
     sig = law_uncertainty(cal)
@@ -210,6 +229,7 @@ def write_report(cal: Calibration, out: Path, notes: list[str]) -> Path:
         "- effect search on " + (cal.search_span or "the whole record"),
         *([f"- {a.repeated_stamps}"] if a.repeated_stamps else []),
         *_gap_lines(a),
+        *_edge_lines(a),
         "",
         "## b. Law fit (hyperbolic, M and k "
         + ("quadratic" if cal.final.model.law is not None else "linear")

@@ -16,6 +16,12 @@ from typing import Final
 
 import numpy as np
 
+from es_feedforward.calibration.delayrange import (
+    DELAY_STEP,
+    LOWEST_SHIFT_PERIODS,
+    RESCAN_PERIODS,
+    longest_whole_shift,
+)
 from es_feedforward.calibration.model import CompositeModel, FloatArray
 from es_feedforward.calibration.playfit import play_states
 from es_feedforward.calibration.search import (
@@ -27,13 +33,6 @@ from es_feedforward.calibration.search import (
 )
 from es_physics.effects import Role, get
 
-#: Longest delay searched [s] and in command periods.
-MAX_DELAY_S: Final = 0.1
-MAX_DELAY_PERIODS: Final = 40
-#: Resolution of the delay scan, in command periods.
-DELAY_STEP: Final = 0.05
-#: A shift found earlier is scanned again this many command periods either side.
-RESCAN_PERIODS: Final = 2.5
 #: An accepted shift is refined (every trial refitted) this many command periods either side.
 REFINE_PERIODS: Final = 0.5
 #: Step of the rescan's first, coarse pass [command periods].
@@ -49,7 +48,7 @@ def lowest_shift(ws: Workspace) -> float:
     """
     a = ws.aligned
     late = a.has_same_stamps and not a.include_same_stamp
-    return DELAY_STEP - (1.0 if late else 0.0)
+    return LOWEST_SHIFT_PERIODS if late else DELAY_STEP
 
 
 def candidate_states(
@@ -150,7 +149,7 @@ def _shift_states(
 ) -> list[ModelState]:
     """Scan command shifts with the current law, then refit along the best period.
 
-    Whole command periods first (1 to ``MAX_DELAY_PERIODS``, the current law held: a cheap
+    Whole command periods first (1 to ``longest_whole_shift``, the current law held: a cheap
     way to find the right period); then, within a period either side of the best whole
     shift, a golden-section search of the training cost with the law refitted at every trial
     shift (a law fitted without the shift is biased towards whole shifts), on the grid of
@@ -158,7 +157,7 @@ def _shift_states(
     """
     period = ws.aligned.command_period
     thresholds = state.play_thresholds
-    n_max = int(min(MAX_DELAY_PERIODS, max(1, MAX_DELAY_S / period)))
+    n_max = longest_whole_shift(period)
     play = None if thresholds is None else ws.play_pair(thresholds, state.delay_s)[0]
 
     def cost(periods: float) -> float:
