@@ -17,10 +17,12 @@ from es_bringup.graph import (
     PLANT,
     RECORDED_EXECUTOR,
     RECORDER,
+    TEST_STAND_QUEUE_DEPTH,
     THERMAL,
     GraphConfig,
     GraphError,
     build_graph,
+    closed_loop_queue_depth,
     topic_remaps,
 )
 from es_feedforward.feedforward import FeedforwardConfig
@@ -93,6 +95,25 @@ def test_the_plant_and_thermal_node_spin_on_events_only_without_a_recorder() -> 
     chosen = by_name(GraphConfig(scenario="dm_exposure", bag=Path("b"),
                                  plant={"executor": "events"}, thermal={"executor": "events"}))
     assert chosen[PLANT]["executor"] == chosen[THERMAL]["executor"] == "events"
+
+
+def _queue_depth(config: GraphConfig) -> int:
+    arguments = build_graph(config).before[0].arguments
+    return int(arguments[arguments.index("--queue-depth") + 1])
+
+
+def test_the_recorder_queue_holds_a_lagging_backlog_within_a_memory_bound() -> None:
+    # a small closed loop: as deep as a test stand's (the plant can outrun the recorder)
+    small = GraphConfig(scenario="dm_exposure", bag=Path("b"), plant={"rows": 3, "cols": 3})
+    assert _queue_depth(small) == TEST_STAND_QUEUE_DEPTH
+    # a large grid: bounded by memory, still deeper than the topics' own depth
+    large = GraphConfig(scenario="dm_exposure", bag=Path("b"), plant={"rows": 64, "cols": 64})
+    assert _queue_depth(large) == closed_loop_queue_depth(64, 64)
+    assert topics.DM_DEPTH < closed_loop_queue_depth(64, 64) < TEST_STAND_QUEUE_DEPTH
+    assert closed_loop_queue_depth(64, 64) * 8 * 64 * 64 <= 1 << 30
+    assert closed_loop_queue_depth(2000, 2000) == topics.DM_DEPTH
+    stand = GraphConfig(scenario="characterisation", bag=Path("b"), with_controllers=False)
+    assert _queue_depth(stand) == TEST_STAND_QUEUE_DEPTH
 
 
 def test_a_test_stand_is_plant_and_recorder_only() -> None:

@@ -37,6 +37,12 @@ TEST_STAND_TOPICS: Final[tuple[str, ...]] = tuple(
 )
 #: Recorder queue depth of a test stand: the whole backlog of a fast plant fits.
 TEST_STAND_QUEUE_DEPTH: Final = 200_000
+#: Most memory a recorder's queue may hold per topic in a closed loop [bytes]. The lockstep
+#: plant is paced by the controllers, not by the recorder, and at small grids it outruns a
+#: busy recorder (83 and 400 of 3001 messages lost with the contract-sized queue of 1000 in
+#: the lockstep fault test on a loaded machine): the queue holds the backlog instead, reached
+#: only while the recorder lags.
+CLOSED_LOOP_QUEUE_BYTES: Final = 1 << 30
 #: Speed limit of a test stand (x real time): measured here, a recorder keeps up with 250 Hz
 #: test stands at 3x (no loss), the plant alone runs near 10x; the rest is caught up after
 #: the run from the recorder's deep queue.
@@ -179,11 +185,16 @@ def build_graph(config: GraphConfig) -> Graph:
             *(RECORDED_TOPICS if config.with_controllers else TEST_STAND_TOPICS),
             *config.record_extra,
         )
-        depth = () if config.with_controllers else ("--queue-depth", str(TEST_STAND_QUEUE_DEPTH))
+        depth = (
+            closed_loop_queue_depth(*_grid(config.scenario, plant_values))
+            if config.with_controllers
+            else TEST_STAND_QUEUE_DEPTH
+        )
         before.append(
             NodeSpec(
                 "es_msgs_py", "record", RECORDER, dict(sim_time),
-                arguments=("-o", str(config.bag), "--storage", config.storage, *depth, *recorded),
+                arguments=("-o", str(config.bag), "--storage", config.storage,
+                           "--queue-depth", str(depth), *recorded),
             )
         )  # fmt: skip
     if config.with_controllers:
@@ -215,6 +226,25 @@ def build_graph(config: GraphConfig) -> Graph:
     }
     plant = NodeSpec("es_sim_plant", "plant_node", PLANT, plant_params)
     return Graph(before, plant, config.namespace)
+
+
+def closed_loop_queue_depth(rows: int, cols: int) -> int:
+    """Return the recorder's queue depth per topic in a closed loop of ``rows`` x ``cols``.
+
+    As deep as a test stand's, within CLOSED_LOOP_QUEUE_BYTES of grid messages, never below
+    the /dm topics' own depth.
+    """
+    message_bytes = 8 * rows * cols + 64  # the doubles and the layout
+    fits = CLOSED_LOOP_QUEUE_BYTES // message_bytes
+    return max(topics.DM_DEPTH, min(TEST_STAND_QUEUE_DEPTH, fits))
+
+
+def _grid(scenario: str, plant_values: Mapping[str, ParamValue]) -> tuple[int, int]:
+    """Return the plant's (rows, cols): the scenario's with the plant's overrides."""
+    thermal, _ = scenario_parameters(scenario, plant_values)
+    rows, cols = thermal["rows"], thermal["cols"]
+    assert isinstance(rows, int) and isinstance(cols, int)
+    return rows, cols
 
 
 def _synchronised(plant_values: Mapping[str, ParamValue]) -> bool:
