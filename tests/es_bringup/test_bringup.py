@@ -9,7 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from es_bringup.bringup import stand_published_counts
+from es_bringup.bringup import plant_published_counts
+from es_bringup.graph import RECORDED_TOPICS, TEST_STAND_TOPICS
 
 LAUNCHER = Path(sys.prefix) / "lib" / "es_bringup" / "bringup"
 
@@ -57,9 +58,27 @@ def test_a_test_stand_waits_only_for_the_topics_its_recorder_records() -> None:
         "[INFO] [1.0] [plant.summary]: published /dm/setpoint: 0",
         "[INFO] [1.0] [plant.summary]: published /run0/dm/temperature/raw: 200",
     ]
-    assert stand_published_counts(log) == {
+    assert plant_published_counts(log, TEST_STAND_TOPICS) == {
         "/dm/command": 5000,
         "/dm/displacement": 5001,
         "/dm/heat_load": 200,
         "/dm/temperature/raw": 200,
+    }
+
+
+def test_a_closed_loop_waits_for_the_plant_topics_its_recorder_records() -> None:
+    # a lockstep plant is paced by its controllers, not by the recorder: after the run the
+    # recorder must have every set point, displacement, heat load and raw sample
+    log = [
+        "[INFO] [1.0] [plant.summary]: published /clock: 3001",
+        "[INFO] [1.0] [plant.summary]: published /dm/displacement: 3001",
+        "[INFO] [1.0] [plant.summary]: published /dm/heat_load: 301",
+        "[INFO] [1.0] [plant.summary]: published /dm/setpoint: 3000",
+        "[INFO] [1.0] [plant.summary]: published /dm/temperature/raw: 301",
+    ]
+    assert plant_published_counts(log, RECORDED_TOPICS) == {
+        "/dm/displacement": 3001,
+        "/dm/heat_load": 301,
+        "/dm/setpoint": 3000,
+        "/dm/temperature/raw": 301,
     }

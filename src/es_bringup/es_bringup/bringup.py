@@ -67,7 +67,7 @@ __all__ = [
     "scenario_parameters",
 ]
 
-#: Longest wait for a test stand's recorder to catch up after the plant finished [s] (it
+#: Longest wait for the recorder to catch up after the plant finished [s] (it
 #: stops earlier when the recorder's counts stand still for ``graph_waits.DRAIN_IDLE_S``).
 DRAIN_TIMEOUT_S = 60.0
 
@@ -214,21 +214,21 @@ class Bringup:
         # No settle time: the plant's first step waits until the recorder, thermal and
         # feedforward nodes report on /diagnostics that their inputs are matched (wait_ready).
         self.supervisor.start(plant)
-        drain = None
-        if self.config.bag is not None and not self.config.with_controllers:
-            drain = self._drain_recorder
+        drain = self._drain_recorder if self.config.bag is not None else None
         return self.supervisor.run(wall_timeout=self.config.wall_timeout, on_primary_done=drain)
 
     def _drain_recorder(self) -> None:
         """Wait until the recorder has received everything the plant published.
 
-        A test stand is paced by nobody: the plant may run ahead of the recorder, whose
-        deep queue (``--queue-depth``) holds the backlog. The recorder reports its received
-        counts on /diagnostics every second; the plant's exit log has what it published.
+        Nothing paces the plant by the recorder (a test stand by nobody, a lockstep plant by
+        its controllers): the plant may run ahead of the recorder, whose deep queue
+        (``--queue-depth``) holds the backlog. The recorder reports its received counts on
+        /diagnostics every second; the plant's exit log has what it published.
         """
         log = self.config.log_dir / f"{PLANT}.log"
         lines = log.read_text(encoding="utf-8", errors="replace").splitlines()
-        published = stand_published_counts(lines)
+        recorded = RECORDED_TOPICS if self.config.with_controllers else TEST_STAND_TOPICS
+        published = plant_published_counts(lines, recorded)
         if not wait_for_recorder(
             published, DRAIN_TIMEOUT_S, self.config.domain_id, self.config.namespace
         ):
@@ -239,17 +239,17 @@ class Bringup:
             )
 
 
-def stand_published_counts(plant_log: Iterable[str]) -> dict[str, int]:
-    """Return the plant's published counts of the /dm topics a test stand's recorder records.
+def plant_published_counts(plant_log: Iterable[str], recorded: Iterable[str]) -> dict[str, int]:
+    """Return the plant's published counts of the /dm topics of ``recorded``.
 
     Only those: the recorder reports no count for a topic it does not record (a test stand
-    publishes no set points, and it has no thermal node), so waiting for one never ends.
+    records no set points, and it has no thermal node), so waiting for one never ends.
     """
     from es_bringup.invariants import published_counts_from_log
 
     counts = published_counts_from_log(plant_log, topics.TOPIC_TYPES)
-    recorded = set(topics.DM_TOPICS) & set(TEST_STAND_TOPICS)
-    return {t: n for t, n in counts.items() if t in recorded}
+    wanted = set(topics.DM_TOPICS) & set(recorded)
+    return {t: n for t, n in counts.items() if t in wanted}
 
 
 
