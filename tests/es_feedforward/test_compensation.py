@@ -14,6 +14,7 @@ from es_feedforward.compensation import (
     drift_factor,
 )
 from es_feedforward.feedforward import Feedforward, FeedforwardConfig
+from es_physics.effects.sensor_lag import SensorLag
 from es_physics.laws import hyperbolic_forward
 
 from .plantlike import drift_gain, grid_params, laplacian_of, play
@@ -209,6 +210,25 @@ def test_temperature_lead_follows_steps_without_amplifying_the_noise(seed: int) 
     rms = np.sqrt(np.mean((used - actuator)[50:] ** 2))
     assert rms_raw > 0.15  # the lag is real
     assert rms < 0.08
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_temperature_lead_with_calibrated_smoothing_averages_the_noise_between_steps(
+    seed: int,
+) -> None:
+    # between the steps (0.5 s on) and along the ramp the lead, set up as a calibration sets
+    # it, must average the 0.02 degC noise well below the sensor's own: a jump taken on
+    # noise (a 3 sigma gate fires once in ~370 readings) restarts the averaging, which kept
+    # the quiet stretches at 0.016-0.032 degC rms (ramp 0.025-0.046) whatever the smoothing
+    t, actuator, sensor = _lagged_noisy_sensor(seed)
+    values = SensorLag().compensation_values({"tau_s": 0.1}, 0.0)
+    lead = TemperatureLead(0.1, values["temperature_lead_filter_s"], noise_degc=0.02)
+    used = np.array([lead(np.array([T]), tk)[0] for T, tk in zip(sensor, t, strict=True)])
+    quiet = (t > 1.0) & (t < 15.0) & (t % 3.0 >= 0.5)
+    ramp = t > 15.5
+    assert np.sqrt(np.mean((used - actuator)[quiet] ** 2)) < 0.013
+    assert np.sqrt(np.mean((used - actuator)[ramp] ** 2)) < 0.015
+    assert np.sqrt(np.mean((used - actuator)[50:] ** 2)) < 0.08  # the steps still followed
 
 
 def test_temperature_lead_stays_finite_on_a_noise_free_sensor() -> None:

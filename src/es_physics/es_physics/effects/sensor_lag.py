@@ -7,10 +7,15 @@ an actuator temperature that moves at a slowly changing rate (it follows ramps w
 and that may jump (a jump is taken where a reading departs from the prediction by more than
 JUMP_GATE standard deviations). A plain lead T_s + tau dT_s/dt differentiates the sensor's
 noise: on a 0.02 degC sensor read every 0.2 tau it amplifies the noise about threefold, while
-the filter, smoothing where nothing jumps, comes close to the lag-free reading. A calibration
-sets the filter's smoothing time (``temperature_lead_filter_s``) to LEAD_FILTER_FRACTION of
-the lag. The sensor's noise is estimated from the readings as they come (their second
-differences, robustly), starting from ``temperature_noise_degc``.
+the filter, smoothing where nothing jumps, comes well below the lag-free reading's noise.
+The gate is wide (4 sigma) because a jump taken on noise throws the smoothing away: at 3 sigma
+(one reading in 370) the quiet stretches stayed at the sensor's own noise whatever the
+smoothing time. A real step is seldom over in one sample (an actuator settles on its base
+over a few sensor periods), so for FOLLOW_TIME lags after a jump the filter follows faster
+(smoothing FOLLOW_FILTER of the lag) and takes a further jump at FOLLOW_GATE sigma. A
+calibration sets the quiet smoothing time (``temperature_lead_filter_s``) to
+LEAD_FILTER_FRACTION of the lag. The sensor's noise is estimated from the readings as they
+come (their second differences, robustly), starting from ``temperature_noise_degc``.
 """
 
 from __future__ import annotations
@@ -23,10 +28,17 @@ import numpy as np
 from es_physics.effects.base import Effect, FittedEffect, FloatArray, Parameter, Role
 from es_physics.effects.stages import Compensator, PlantContext, PlantStage
 
-#: The filter's smoothing time as a fraction of the calibrated lag.
-LEAD_FILTER_FRACTION: Final = 0.5
+#: The filter's smoothing time where nothing jumps, as a multiple of the calibrated lag.
+LEAD_FILTER_FRACTION: Final = 4.0
 #: A reading further than this many standard deviations from the prediction is a jump.
-JUMP_GATE: Final = 3.0
+JUMP_GATE: Final = 4.0
+#: How long after a jump the filter follows faster, as a multiple of the lag.
+FOLLOW_TIME: Final = 2.5
+#: The gate [standard deviations] for a further jump within FOLLOW_TIME of the last.
+FOLLOW_GATE: Final = 3.0
+#: The smoothing time within FOLLOW_TIME of a jump, as a multiple of the lag (at most the
+#: quiet one).
+FOLLOW_FILTER: Final = 0.25
 #: Standard deviation of the actuator temperature's jump assumed at a detected jump, in
 #: sensor noise standard deviations.
 JUMP_SIZE: Final = 15.0
@@ -65,7 +77,9 @@ class TemperatureLead(Compensator):
     noise of intensity noise^2 / filter^3 [degC^2/s^3], the sensor adds white noise. A
     reading whose innovation exceeds JUMP_GATE standard deviations adds a jump of JUMP_SIZE
     noise standard deviations to T_a's uncertainty before the update, so a step is followed
-    within a sample or two while quiet stretches stay smoothed. The noise's standard
+    within a sample or two while quiet stretches stay smoothed; for FOLLOW_TIME lags after a
+    jump the smoothing time is FOLLOW_FILTER lags and the gate FOLLOW_GATE (an actuator's
+    step is not over in one sample). The noise's standard
     deviation per actuator starts at ``noise_degc`` and follows the running mean of the
     readings' absolute second differences (each clipped at NOISE_CLIP times that mean).
 
@@ -88,12 +102,14 @@ class TemperatureLead(Compensator):
         self._time = 0.0
         self._readings: list[FloatArray] = []  # the last two readings
         self._mean_abs_d2: FloatArray | None = None  # running mean of |second difference|
+        self._since_jump: FloatArray | None = None  # time since the last jump [s]
 
     def retuned(self, tau_s: float, filter_s: float, noise_degc: float) -> TemperatureLead:
         """Return a copy with new parameters and this one's state (this one is unchanged)."""
         other = TemperatureLead(tau_s, filter_s, noise_degc)
         other._state, other._cov, other._time = self._state, self._cov, self._time
         other._readings, other._mean_abs_d2 = self._readings, self._mean_abs_d2
+        other._since_jump = self._since_jump
         return other
 
     def _start(self, T: FloatArray, t: float) -> FloatArray:
@@ -104,6 +120,7 @@ class TemperatureLead(Compensator):
         self._time = t
         self._readings = [T]
         self._mean_abs_d2 = np.full(T.shape, self.noise_degc * _MEAN_ABS_D2)
+        self._since_jump = np.full(T.shape, np.inf)
         return T
 
     def _noise_variance(self, T: FloatArray) -> FloatArray:
@@ -138,7 +155,12 @@ class TemperatureLead(Compensator):
         g = 1.0 - e
         h = dt - self.tau_s * g
         r = self._noise_variance(T)
-        q = r / self.filter_s**3  # white noise on the rate
+        assert self._since_jump is not None
+        self._since_jump = self._since_jump + dt
+        following = self._since_jump <= FOLLOW_TIME * self.tau_s
+        fast = min(FOLLOW_FILTER * self.tau_s, self.filter_s)
+        smoothing = np.where(following, fast, self.filter_s)
+        q = r / smoothing**3  # white noise on the rate
         p00, p01, p02, p11, p12, p22 = self._cov
         f2p0 = g * p00 + h * p01 + e * p02  # (P F^T) column 2
         f2p1 = g * p01 + h * p11 + e * p12
@@ -151,7 +173,9 @@ class TemperatureLead(Compensator):
         n22 = g * f2p0 + h * f2p1 + e * f2p2
         a, s = a + dt * v, g * a + h * v + e * s
         innovation = T - s
-        jump = innovation**2 > JUMP_GATE**2 * (n22 + r)
+        gate = np.where(following, FOLLOW_GATE, JUMP_GATE)
+        jump = innovation**2 > gate**2 * (n22 + r)
+        self._since_jump = np.where(jump, 0.0, self._since_jump)
         if np.any(jump):  # a jump of T_a at the interval's start: variance along (1, 0, g)
             size = np.where(jump, JUMP_SIZE**2 * r, 0.0)
             n00, n02, n22 = n00 + size, n02 + g * size, n22 + g * g * size
@@ -206,7 +230,7 @@ class SensorLag(Effect):
     def compensation_values(
         self, reported: dict[str, float], start_time: float
     ) -> dict[str, float]:
-        """Undo the fitted lag, smoothing over LEAD_FILTER_FRACTION of it."""
+        """Undo the fitted lag, smoothing quiet stretches over LEAD_FILTER_FRACTION of it."""
         return {
             "temperature_lead_s": reported["tau_s"],
             "temperature_lead_filter_s": LEAD_FILTER_FRACTION * reported["tau_s"],
