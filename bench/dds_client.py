@@ -44,6 +44,8 @@ class DdsClient:
         self.received = 0
         self.received_at: list[float] = []
         self.last_command: Float64MultiArray | None = None
+        #: publish times [s, perf_counter] of the last paced run's set points
+        self.paced_sent_at = np.empty(0)
         self.command_sub = self.node.create_subscription(Float64MultiArray, COMMAND,
                                                          self._on_command, qos_for(COMMAND))
         # Set points from 10 % to 60 % of z_sat at 46 degC, changing from message to message.
@@ -147,6 +149,7 @@ class DdsClient:
                 self.executor.spin_once(timeout_sec=left)
             sent_at[k] = time.perf_counter()
             self.publish(self.messages[k % len(self.messages)])
+        self.paced_sent_at = sent_at
         sent_rate = (count - 1) / (sent_at[-1] - sent_at[0])
         lost = self._wait_received(first + count, 10.0)
         if lost:
