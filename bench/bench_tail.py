@@ -25,7 +25,10 @@ from __future__ import annotations
 
 import argparse
 import gc
+import os
+import signal
 import sys
+import threading
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -90,9 +93,29 @@ def node_command(kind: str, shape: tuple[int, int], out: Path, env: Sequence[str
             str(out), "--ros-args", *ros]
 
 
+def pause_later(pid: int, at_s: float, pause_s: float) -> threading.Thread:
+    """Return a started thread that stops process ``pid`` at ``at_s`` for ``pause_s`` [s]."""
+
+    def pause() -> None:
+        time.sleep(at_s)
+        os.kill(pid, signal.SIGSTOP)
+        try:
+            time.sleep(pause_s)
+        finally:
+            os.kill(pid, signal.SIGCONT)
+
+    thread = threading.Thread(target=pause, daemon=True)
+    thread.start()
+    return thread
+
+
 def probed_run(kind: str, label: str, shape: tuple[int, int], *, rate_hz: float,
-               seconds: float, log_dir: Path, env: Sequence[str]) -> ProbedRun:
+               seconds: float, log_dir: Path, env: Sequence[str],
+               pause_s: float = 0.0) -> ProbedRun:
     """Start the probed node, run one paced measurement, return its stamps.
+
+    ``pause_s`` > 0: the node is stopped (SIGSTOP) for that long half-way through the run,
+    like a scheduler stall of the machine, to see how long the stream takes to recover.
 
     Raises:
         RuntimeError: a command was lost (the pairing by order is then gone), or the node
@@ -121,7 +144,11 @@ def probed_run(kind: str, label: str, shape: tuple[int, int], *, rate_hz: float,
         try:
             first = len(client.received_at)
             before = proc_counts(node.popen.pid)
+            pauser = (pause_later(node.popen.pid, seconds / 2, pause_s) if pause_s > 0
+                      else None)
             latencies, _, lost = client.paced(rate_hz, seconds)
+            if pauser is not None:
+                pauser.join()
             after = proc_counts(node.popen.pid)
             received = np.asarray(client.received_at[first:])
         finally:
@@ -162,8 +189,8 @@ def report(run: ProbedRun, stall_s: float = 1e-3, stall_gap: int = 3) -> list[st
     tail = ", ".join(f"{leg} {legs[leg][slow].mean() * 1e3:.2f}" for leg in LEGS)
     median = ", ".join(f"{leg} {np.median(legs[leg]) * 1e3:.2f}" for leg in LEGS)
     lines = [f"{run.label}: p50 {np.median(lat) * 1e3:.2f} ms, p99 {p99 * 1e3:.2f} ms, max "
-             f"{lat.max() * 1e3:.2f} ms (load {run.load}); GCs node {len(run.node_gc)}, client "
-             f"{len(run.client_gc)}",
+             f"{lat.max() * 1e3:.2f} ms, > 2 ms: {np.count_nonzero(lat > 2e-3)} "
+             f"(load {run.load}); GCs node {len(run.node_gc)}, client {len(run.client_gc)}",
              f"  median legs [ms]: {median}",
              f"  tail (>= p99, {len(slow)} samples) mean legs [ms]: {tail}",
              "  node per message: " + ", ".join(f"{key} {value:.3g}" for key, value in
@@ -199,6 +226,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help="environment of the node processes (the B of an A/B)")
     parser.add_argument("--turns", action="store_true",
                         help="A/B: run each kind without and with --node-env in turns")
+    parser.add_argument("--pause-ms", type=float, default=0.0,
+                        help="stop the node (SIGSTOP) for this long half-way through each run")
     parser.add_argument("--log-dir", type=Path, default=Path("out/tail"))
     args = parser.parse_args(argv)
     shape = (args.grid, args.grid)
@@ -209,7 +238,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             for tag, env in variants:
                 name = f"{kind}{tag}"
                 run = probed_run(kind, f"{name}_{repeat}", shape, rate_hz=args.rate,
-                                 seconds=args.seconds, log_dir=args.log_dir, env=env)
+                                 seconds=args.seconds, log_dir=args.log_dir, env=env,
+                                 pause_s=args.pause_ms * 1e-3)
                 p99.setdefault(name, []).append(float(np.percentile(run.latency, 99)) * 1e3)
                 print("\n".join(report(run)), flush=True)
     for name, values in p99.items():

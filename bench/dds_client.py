@@ -44,8 +44,10 @@ class DdsClient:
         self.received = 0
         self.received_at: list[float] = []
         self.last_command: Float64MultiArray | None = None
-        #: publish times [s, perf_counter] of the last paced run's set points
+        #: publish times [s, perf_counter] of the last paced run's set points, and the
+        #: reception times of their commands (empty when some were lost)
         self.paced_sent_at = np.empty(0)
+        self.paced_received_at = np.empty(0)
         self.command_sub = self.node.create_subscription(Float64MultiArray, COMMAND,
                                                          self._on_command, qos_for(COMMAND))
         # Set points from 10 % to 60 % of z_sat at 46 degC, changing from message to message.
@@ -153,8 +155,10 @@ class DdsClient:
         sent_rate = (count - 1) / (sent_at[-1] - sent_at[0])
         lost = self._wait_received(first + count, 10.0)
         if lost:
+            self.paced_received_at = np.empty(0)
             return None, sent_rate, lost
         received_at = np.asarray(self.received_at[first_index:first_index + count])
+        self.paced_received_at = received_at
         return received_at - sent_at, sent_rate, 0
 
     def rate(self, seconds: float) -> tuple[float, int]:
