@@ -176,6 +176,17 @@ def overlapping(spans: np.ndarray, start: float, end: float, what: str) -> list[
             for h in hits]
 
 
+def gc_summary(gcs: np.ndarray, start: float, end: float) -> str:
+    """Return count, longest and total [ms] of the collections within [start, end] by gen."""
+    inside = gcs[(gcs[:, 0] >= start) & (gcs[:, 1] <= end)] if len(gcs) else gcs
+    parts = []
+    for gen in range(3):
+        span = np.diff(inside[inside[:, 2] == gen][:, :2], axis=1).ravel() * 1e3
+        if len(span):
+            parts.append(f"gen{gen} {len(span)} (max {span.max():.2f}, total {span.sum():.2f} ms)")
+    return ", ".join(parts) or "none"
+
+
 def report(run: ProbedRun, stall_s: float = 1e-3, stall_gap: int = 3) -> list[str]:
     """Return the run's summary: p50/p99, mean legs of the tail, and its stalls.
 
@@ -193,6 +204,7 @@ def report(run: ProbedRun, stall_s: float = 1e-3, stall_gap: int = 3) -> list[st
              f"(load {run.load}); GCs node {len(run.node_gc)}, client {len(run.client_gc)}",
              f"  median legs [ms]: {median}",
              f"  tail (>= p99, {len(slow)} samples) mean legs [ms]: {tail}",
+             "  node GCs during the run: " + gc_summary(run.node_gc, run.sent[0], run.received[-1]),
              "  node per message: " + ", ".join(f"{key} {value:.3g}" for key, value in
                                                 run.node_proc.items())]
     slow = np.flatnonzero(lat >= min(p99, stall_s))

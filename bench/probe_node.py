@@ -7,7 +7,8 @@ the host) when the callback starts and when it returns (the command published). 
 records its timers' callbacks the same way and every garbage collection of the process
 (start, end, generation; ``gc.callbacks``). At the stop it writes them to ``--out``
 (``.npz``: ``callback`` (N, 2) [s], ``timer`` (T, 2), ``gc`` (M, 3)).
-The wrapper costs two clock reads and an append per set point.
+The wrapper costs two clock reads and an append per set point. ``PROBE_GC_FREEZE=0`` in the
+environment skips run_node's collection and ``gc.freeze()`` before the spin (an A/B of it).
 
     .venv/bin/python bench/probe_node.py {feedforward,relay} --out FILE [--ros-args ...]
 """
@@ -16,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import gc
+import os
 import sys
 import time
 from collections.abc import Callable
@@ -109,14 +111,16 @@ def make_probed(kind: str, out: Path) -> Callable[[], Any]:
 
 def main() -> int:
     """Run the probed node until SIGINT/SIGTERM, then write its stamps."""
-    from es_msgs_py.node_main import run_node
+    from es_msgs_py import node_main
 
+    if os.environ.get("PROBE_GC_FREEZE") == "0":  # the A of an A/B of run_node's freeze
+        node_main.settle_garbage = lambda: None
     own = sys.argv[1:sys.argv.index("--ros-args")] if "--ros-args" in sys.argv else sys.argv[1:]
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("kind", choices=("feedforward", "relay"))
     parser.add_argument("--out", type=Path, required=True)
     args = parser.parse_args(own)
-    return run_node(make_probed(args.kind, args.out), sys.argv)
+    return node_main.run_node(make_probed(args.kind, args.out), sys.argv)
 
 
 if __name__ == "__main__":
