@@ -187,7 +187,14 @@ def gc_summary(gcs: np.ndarray, start: float, end: float) -> str:
     return ", ".join(parts) or "none"
 
 
-def report(run: ProbedRun, stall_s: float = 1e-3, stall_gap: int = 3) -> list[str]:
+def late_summary(late: np.ndarray) -> str:
+    """Return how far [ms] a paced client's publishes fell behind their schedule."""
+    return (f"p99 {np.percentile(late, 99) * 1e3:.2f}, max {late.max() * 1e3:.2f}, "
+            f"over 1 ms: {np.count_nonzero(late > 1e-3)}")
+
+
+def report(run: ProbedRun, rate_hz: float, stall_s: float = 1e-3,
+           stall_gap: int = 3) -> list[str]:
     """Return the run's summary: p50/p99, mean legs of the tail, and its stalls.
 
     A stall: consecutive samples (gaps of at most ``stall_gap``) slower than ``stall_s`` or
@@ -204,6 +211,8 @@ def report(run: ProbedRun, stall_s: float = 1e-3, stall_gap: int = 3) -> list[st
              f"(load {run.load}); GCs node {len(run.node_gc)}, client {len(run.client_gc)}",
              f"  median legs [ms]: {median}",
              f"  tail (>= p99, {len(slow)} samples) mean legs [ms]: {tail}",
+             "  client publish behind its schedule [ms]: "
+             + late_summary(run.sent - (run.sent[0] + np.arange(len(run.sent)) / rate_hz)),
              "  node GCs during the run: " + gc_summary(run.node_gc, run.sent[0], run.received[-1]),
              "  node per message: " + ", ".join(f"{key} {value:.3g}" for key, value in
                                                 run.node_proc.items())]
@@ -253,7 +262,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                                  seconds=args.seconds, log_dir=args.log_dir, env=env,
                                  pause_s=args.pause_ms * 1e-3)
                 p99.setdefault(name, []).append(float(np.percentile(run.latency, 99)) * 1e3)
-                print("\n".join(report(run)), flush=True)
+                print("\n".join(report(run, args.rate)), flush=True)
     for name, values in p99.items():
         print(f"{name}: p99 per run [ms] {', '.join(f'{v:.2f}' for v in values)}")
     if args.node_env:

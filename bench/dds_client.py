@@ -26,11 +26,13 @@ class DdsClient:
         from std_msgs.msg import Float64MultiArray
 
         from es_msgs_py.arrays import grid_to_msg
+        from es_msgs_py.middleware import configure_middleware
         from es_msgs_py.topics import COMMAND, SETPOINT, TEMPERATURE, qos_for
         from es_physics.laws import z_sat
         from es_physics.params import ActuatorParams
 
         self.shape = shape
+        configure_middleware()  # the nodes' profile (takes effect before the first context)
         self.context = rclpy.Context()
         rclpy.init(context=self.context)
         self.node = rclpy.create_node("bench_client", context=self.context)
