@@ -56,6 +56,7 @@ class ProbedRun:
     client_gc: np.ndarray
     node_proc: dict[str, float]
     load: str
+    machine: np.ndarray
 
     @property
     def latency(self) -> np.ndarray:
@@ -124,6 +125,7 @@ def probed_run(kind: str, label: str, shape: tuple[int, int], *, rate_hz: float,
     """
     from bench_scale import WARMUP, start_client
     from benchlib import Process, processes
+    from stall_witness import load as load_witness
 
     out = log_dir / f"tail_{label}.npz"
     out.unlink(missing_ok=True)
@@ -137,8 +139,12 @@ def probed_run(kind: str, label: str, shape: tuple[int, int], *, rate_hz: float,
         else:
             client_gc.append((marks[0], now, info["generation"]))
 
+    witnessed = log_dir / f"tail_{label}_witness.npy"
+    witnessed.unlink(missing_ok=True)
     node = Process(f"tail_{label}", node_command(kind, shape, out, env), log_dir)
-    with processes(node):
+    witness = Process(f"tail_{label}_witness", [sys.executable, str(BENCH_DIR / "stall_witness.py"),
+                                                "--out", str(witnessed)], log_dir)
+    with processes(node, witness):
         client = start_client(shape, 60.0, hold_check=kind == "feedforward")
         gc.callbacks.append(on_gc)
         try:
@@ -154,6 +160,7 @@ def probed_run(kind: str, label: str, shape: tuple[int, int], *, rate_hz: float,
         finally:
             gc.callbacks.remove(on_gc)
             client.close()
+        witness.stop()
     if latencies is None or lost:
         raise RuntimeError(f"{label}: {lost} command(s) lost")
     if not out.exists():
@@ -166,7 +173,8 @@ def probed_run(kind: str, label: str, shape: tuple[int, int], *, rate_hz: float,
     per_message = {key: (after[key] - before[key]) / count for key in before}
     return ProbedRun(label, client.paced_sent_at, received, callback, stamps["gc"],
                      stamps["timer"], np.asarray(client_gc, float).reshape(-1, 3), per_message,
-                     " ".join(Path("/proc/loadavg").read_text().split()[:3]))
+                     " ".join(Path("/proc/loadavg").read_text().split()[:3]),
+                     load_witness(witnessed))
 
 
 def overlapping(spans: np.ndarray, start: float, end: float, what: str) -> list[str]:
@@ -225,10 +233,11 @@ def report(run: ProbedRun, rate_hz: float, stall_s: float = 1e-3,
         node = [*overlapping(run.node_gc, *window, "gen"),
                 *overlapping(run.node_timer, *window, "timer")]
         client = overlapping(run.client_gc, *window, "gen")
+        machine = overlapping(run.machine, *window, "late")
         lines.append(f"  stall at sample {k} ({(run.sent[k] - run.sent[0]):.3f} s), "
                      f"{len(group)} slow, worst {lat[group].max() * 1e3:.2f} ms; first: "
                      f"{first}; node {', '.join(node) or '-'}; client GC "
-                     f"{', '.join(client) or '-'}")
+                     f"{', '.join(client) or '-'}; machine {', '.join(machine) or '-'}")
     return lines
 
 
