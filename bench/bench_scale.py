@@ -176,7 +176,7 @@ def published_commands(node_log: str) -> int | None:
 def measure(kind: str, shape: tuple[int, int], rate_hz: float, seconds: float,
             log_dir: Path, *, target_s: float,
             ) -> tuple[PacedRun, float, int | None, MachineCheck]:
-    """Start the node ``kind`` and a stall witness, run one paced measurement.
+    """Start the node ``kind`` and a stall witness per CPU, run one paced measurement.
 
     Returns:
         The run, the node's peak RSS [MiB], how many of the paced set points the
@@ -187,16 +187,16 @@ def measure(kind: str, shape: tuple[int, int], rate_hz: float, seconds: float,
 
     """
     from benchlib import Process, processes
-    from stall_witness import MachineCheck, load
+    from stall_witness import MachineCheck, load_all, witness_commands
 
     rows, cols = shape
     name = f"scale_{kind}_{rows}x{cols}"
-    witnessed = log_dir / f"{name}_witness.npy"
-    witnessed.unlink(missing_ok=True)
     node = Process(name, node_command(kind, shape), log_dir)
-    witness = Process(f"{name}_witness", [sys.executable, str(BENCH_DIR / "stall_witness.py"),
-                                          "--out", str(witnessed)], log_dir)
-    with processes(node, witness):
+    witnesses = witness_commands(log_dir / f"{name}_witness")
+    for path, _ in witnesses:
+        path.unlink(missing_ok=True)
+    watching = [Process(path.stem, argv, log_dir) for path, argv in witnesses]
+    with processes(node, *watching):
         client = start_client(shape, 60.0, hold_check=kind == "feedforward")
         try:
             run = paced_run(client, rate_hz, seconds)
@@ -204,10 +204,12 @@ def measure(kind: str, shape: tuple[int, int], rate_hz: float, seconds: float,
         finally:
             client.close()
         node.sample_rss()
-        witness.stop()
+        for witness in watching:
+            witness.stop()
     published = published_commands(node.output()) if kind == "feedforward" else None
     unanswered = None if published is None else run.sent - (published - WARMUP)
-    check = MachineCheck.of(sent, received, load(witnessed), target_s)
+    witnessed = load_all([path for path, _ in witnesses])
+    check = MachineCheck.of(sent, received, witnessed, target_s)
     return run, node.peak_mib, unanswered, check
 
 
@@ -264,8 +266,8 @@ def section_scale(settings: Settings, results: Results, log_dir: Path) -> None:
         "the node never answered (from its exit summary of published commands; the rest were "
         "lost on the way back); per run: set points over the target, in episodes (a stall and "
         "its backlog), and how many were in episodes that began during a stall of the machine "
-        "itself (a process beside the run that only sleeps 1 ms at a time woke at least half "
-        "the target late: bench/stall_witness.py); "
+        "itself (one process per CPU beside the run that only sleeps 1 ms at a time woke at "
+        "least half the target late: bench/stall_witness.py); "
         f"{load_note()}"
     )
 

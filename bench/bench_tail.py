@@ -39,6 +39,8 @@ import numpy as np
 BENCH_DIR = Path(__file__).resolve().parent
 sys.path.insert(0, str(BENCH_DIR))
 
+#: Set points at the start of a paced run whose latency is shown apart (one-off costs).
+FIRST = 200
 #: The legs of a sample's latency, in order (see the module docstring).
 LEGS = ("queued", "in", "node", "back")
 
@@ -125,7 +127,7 @@ def probed_run(kind: str, label: str, shape: tuple[int, int], *, rate_hz: float,
     """
     from bench_scale import WARMUP, start_client
     from benchlib import Process, processes
-    from stall_witness import load as load_witness
+    from stall_witness import load_all, witness_commands
 
     out = log_dir / f"tail_{label}.npz"
     out.unlink(missing_ok=True)
@@ -139,12 +141,12 @@ def probed_run(kind: str, label: str, shape: tuple[int, int], *, rate_hz: float,
         else:
             client_gc.append((marks[0], now, info["generation"]))
 
-    witnessed = log_dir / f"tail_{label}_witness.npy"
-    witnessed.unlink(missing_ok=True)
+    witnesses = witness_commands(log_dir / f"tail_{label}_witness")
+    for path, _ in witnesses:
+        path.unlink(missing_ok=True)
     node = Process(f"tail_{label}", node_command(kind, shape, out, env), log_dir)
-    witness = Process(f"tail_{label}_witness", [sys.executable, str(BENCH_DIR / "stall_witness.py"),
-                                                "--out", str(witnessed)], log_dir)
-    with processes(node, witness):
+    watching = [Process(path.stem, argv, log_dir) for path, argv in witnesses]
+    with processes(node, *watching):
         client = start_client(shape, 60.0, hold_check=kind == "feedforward")
         gc.callbacks.append(on_gc)
         try:
@@ -160,7 +162,8 @@ def probed_run(kind: str, label: str, shape: tuple[int, int], *, rate_hz: float,
         finally:
             gc.callbacks.remove(on_gc)
             client.close()
-        witness.stop()
+        for witness in watching:
+            witness.stop()
     if latencies is None or lost:
         raise RuntimeError(f"{label}: {lost} command(s) lost")
     if not out.exists():
@@ -174,7 +177,7 @@ def probed_run(kind: str, label: str, shape: tuple[int, int], *, rate_hz: float,
     return ProbedRun(label, client.paced_sent_at, received, callback, stamps["gc"],
                      stamps["timer"], np.asarray(client_gc, float).reshape(-1, 3), per_message,
                      " ".join(Path("/proc/loadavg").read_text().split()[:3]),
-                     load_witness(witnessed))
+                     load_all([path for path, _ in witnesses]))
 
 
 def overlapping(spans: np.ndarray, start: float, end: float, what: str) -> list[str]:
@@ -219,6 +222,9 @@ def report(run: ProbedRun, rate_hz: float, stall_s: float = 1e-3,
              f"(load {run.load}); GCs node {len(run.node_gc)}, client {len(run.client_gc)}",
              f"  median legs [ms]: {median}",
              f"  tail (>= p99, {len(slow)} samples) mean legs [ms]: {tail}",
+             f"  first {FIRST} set points: p99 {np.percentile(lat[:FIRST], 99) * 1e3:.2f} ms, "
+             f"max {lat[:FIRST].max() * 1e3:.2f}; the rest: p99 "
+             f"{np.percentile(lat[FIRST:], 99) * 1e3:.2f}, max {lat[FIRST:].max() * 1e3:.2f}",
              "  client publish behind its schedule [ms]: "
              + late_summary(run.sent - (run.sent[0] + np.arange(len(run.sent)) / rate_hz)),
              "  node GCs during the run: " + gc_summary(run.node_gc, run.sent[0], run.received[-1]),

@@ -7,7 +7,11 @@ tenants, the kernel). A set point that was slow while the witness was late was s
 of the machine; one that was slow while the witness was on time was slow because of us
 (the node, the client, DDS). Its CPU is a few per cent of one core.
 
-    .venv/bin/python bench/stall_witness.py --out FILE    (until SIGINT/SIGTERM)
+    .venv/bin/python bench/stall_witness.py --out FILE [--cpu N]   (until SIGINT/SIGTERM)
+
+``--cpu N`` pins it to CPU N: on a virtual machine the host can stall one virtual CPU and not
+the other, so a benchmark runs one witness per CPU (:func:`witness_commands`) and merges
+their files (:func:`load_all`).
 
 It prints ``watching`` once its stop signals are taken.
 
@@ -49,6 +53,23 @@ def watch(out: Path) -> None:
             late.append((due, woke))
         due = max(due + PERIOD, woke)
     np.save(out, np.asarray(late, float).reshape(-1, 2))
+
+
+def witness_commands(out_stem: Path) -> list[tuple[Path, list[str]]]:
+    """Return (file, argv) of one witness per CPU this process may run on."""
+    import os
+    import sys
+
+    return [(out_stem.with_name(f"{out_stem.name}_cpu{cpu}.npy"),
+             [sys.executable, __file__, "--out",
+              str(out_stem.with_name(f"{out_stem.name}_cpu{cpu}.npy")), "--cpu", str(cpu)])
+            for cpu in sorted(os.sched_getaffinity(0))]
+
+
+def load_all(paths: list[Path]) -> np.ndarray:
+    """Return the late wake-ups of several witness files together, by time."""
+    rows = np.concatenate([load(path) for path in paths]) if paths else np.empty((0, 2))
+    return rows[np.argsort(rows[:, 0], kind="stable")]
 
 
 def load(path: Path) -> np.ndarray:
@@ -126,7 +147,13 @@ def main() -> int:
     """Watch until stopped."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, required=True)
-    watch(parser.parse_args().out)
+    parser.add_argument("--cpu", type=int, default=None, help="pin the witness to this CPU")
+    args = parser.parse_args()
+    if args.cpu is not None:
+        import os
+
+        os.sched_setaffinity(0, {args.cpu})
+    watch(args.out)
     return 0
 
 

@@ -15,7 +15,13 @@ import pytest
 BENCH = Path(__file__).resolve().parents[2] / "bench"
 sys.path.insert(0, str(BENCH))
 
-from stall_witness import MachineCheck, during_stalls, load  # noqa: E402
+from stall_witness import (  # noqa: E402
+    MachineCheck,
+    during_stalls,
+    load,
+    load_all,
+    witness_commands,
+)
 
 PERIOD = 1e-3  # a 1 kHz paced run
 
@@ -77,3 +83,16 @@ def test_the_witness_process_writes_its_late_wake_ups_at_sigint(tmp_path: Path) 
     assert late.shape[1] == 2
     assert np.max(late[:, 1] - late[:, 0]) >= 0.09  # the stop, at least
     assert load(tmp_path / "none.npy").shape == (0, 2)
+
+
+def test_one_witness_per_cpu_and_their_files_merged_by_time(tmp_path: Path) -> None:
+    commands = witness_commands(tmp_path / "run_witness")
+    cpus = sorted(os.sched_getaffinity(0))
+    assert [argv[-1] for _, argv in commands] == [str(cpu) for cpu in cpus]
+    assert len({path for path, _ in commands}) == len(cpus)
+    first, second = tmp_path / "a.npy", tmp_path / "b.npy"
+    np.save(first, np.array([[3.0, 3.1], [1.0, 1.2]]))
+    np.save(second, np.array([[2.0, 2.5]]))
+    merged = load_all([first, second, tmp_path / "missing.npy"])
+    assert merged[:, 0].tolist() == [1.0, 2.0, 3.0]
+    assert load_all([]).shape == (0, 2)
