@@ -1,8 +1,8 @@
 """A witness of the machine's own stalls, run beside a latency measurement.
 
-A process that does nothing but sleep :data:`PERIOD` at a time and note every wake-up that
-came more than :data:`LATE` late: on a shared or virtual machine a process that asked for
-nothing but the CPU now and then still waits tens of milliseconds at times (the host, other
+A real-time process that does nothing but sleep :data:`PERIOD` at a time and note every
+wake-up that came more than :data:`LATE` late: on a shared or virtual machine even a process
+that preempts every other one still waits tens of milliseconds at times (the host, other
 tenants, the kernel). A set point that was slow while the witness was late was slow because
 of the machine; one that was slow while the witness was on time was slow because of us
 (the node, the client, DDS). Its CPU is a few per cent of one core.
@@ -13,7 +13,8 @@ of the machine; one that was slow while the witness was on time was slow because
 the other, so a benchmark runs one witness per CPU (:func:`witness_commands`) and merges
 their files (:func:`load_all`).
 
-It prints ``watching`` once its stop signals are taken.
+It prints ``watching (real-time)`` or ``watching (normal priority)`` once its stop signals
+are taken.
 
 ``FILE`` (``.npy``): one row per late wake-up, (due, woke) [s, ``time.perf_counter``, the
 host's CLOCK_MONOTONIC, comparable with every process's stamps].
@@ -33,8 +34,24 @@ import numpy as np
 PERIOD = 1e-3
 #: Lateness [s] from which a wake-up is noted.
 LATE = 0.5e-3
+#: SCHED_FIFO priority of the witness: above every process of the benchmark (and of anyone
+#: else's normal processes), so that what delays it is the machine (the host, the kernel),
+#: not the CPU use of the node it watches. Where real-time is not permitted, it runs at normal
+#: priority (and then also sees the machine's load).
+PRIORITY = 50
 #: Most set points between two slow ones of one episode (MachineCheck).
 EPISODE_GAP = 3
+
+
+def real_time() -> bool:
+    """Make this process real-time (SCHED_FIFO :data:`PRIORITY`); return whether it is."""
+    import os
+
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(PRIORITY))
+    except OSError:  # not permitted: the witness then waits for the CPU like anyone
+        return False
+    return True
 
 
 def watch(out: Path) -> None:
@@ -42,7 +59,7 @@ def watch(out: Path) -> None:
     stop: list[int] = []
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda signum, _frame: stop.append(signum))
-    print("watching", flush=True)
+    print("watching", "(real-time)" if real_time() else "(normal priority)", flush=True)
     late: list[tuple[float, float]] = []
     clock = time.perf_counter
     due = clock() + PERIOD
