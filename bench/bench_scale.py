@@ -28,6 +28,7 @@ sys.path.insert(0, str(BENCH_DIR))
 if TYPE_CHECKING:
     from benchlib import Results, Settings
     from dds_client import DdsClient
+    from stall_witness import MachineCheck
 
     from es_bringup.graph import ParamValue
 
@@ -47,8 +48,12 @@ LOCKSTEP_CASES: tuple[tuple[int, int, float], ...] = ((32, 32, 10.0), (64, 64, 5
 OVERRIDABLE = ("plant", "thermal", "feedforward")
 #: Longest wait for the thermal and feedforward nodes of a large grid to start [s].
 CONTROLLERS_TIMEOUT_S = 600.0
-#: Set points answered one at a time before each paced run (warm-up).
+#: Set points answered one at a time before each paced run (warm-up, not counted).
 WARMUP = 50
+#: Fewest set points of a paced run (the run is longer than ``--seconds`` if needed): its
+#: p99 is its 1 %-worst, so that one stall of the machine of a few tens of ms (tens of late
+#: set points) is not the p99 alone.
+PACED_SAMPLES = 10_000
 #: The node under test and its floor (bench/relay.py on the EventsExecutor).
 KINDS = ("relay_events", "feedforward")
 
@@ -139,11 +144,25 @@ def node_command(kind: str, shape: tuple[int, int]) -> list[str]:
 
 @dataclass
 class CaseRuns:
-    """Paced runs of one node at one case, and the node's peak memory [MiB]."""
+    """Paced runs of one node at one case, the machine's stalls in each, peak memory [MiB]."""
 
     runs: list[PacedRun] = field(default_factory=list)
     unanswered: list[float] = field(default_factory=list)
+    checks: list[MachineCheck] = field(default_factory=list)
     peak_mib: float = 0.0
+
+    def line(self, name: str) -> str:
+        """Return the per-run figures: p99, slow set points and the machine's stalls."""
+        def each(values: Sequence[float], spec: str = "g") -> str:
+            return "[" + ", ".join(format(v, spec) for v in values) + "]"
+
+        checks = self.checks
+        return (f"{name}: p99 per run {each([r.p99_s * 1e3 for r in self.runs], '.3g')} ms; "
+                f"slow (over the target) {each([c.slow for c in checks])} in "
+                f"{each([c.episodes for c in checks])} episodes, of them after a stall of the "
+                f"machine {each([c.slow_in_stall for c in checks])}; the machine's stalls "
+                f"(>= half the target) {each([c.stalls for c in checks])}, longest "
+                f"{each([c.longest_ms for c in checks], '.3g')} ms")
 
 
 def published_commands(node_log: str) -> int | None:
@@ -155,46 +174,63 @@ def published_commands(node_log: str) -> int | None:
 
 
 def measure(kind: str, shape: tuple[int, int], rate_hz: float, seconds: float,
-            log_dir: Path) -> tuple[PacedRun, float, int | None]:
-    """Start the node ``kind``, run one paced measurement.
+            log_dir: Path, *, target_s: float,
+            ) -> tuple[PacedRun, float, int | None, MachineCheck]:
+    """Start the node ``kind`` and a stall witness per CPU, run one paced measurement.
 
     Returns:
-        The run, the node's peak RSS [MiB], and how many of the paced set points the
+        The run, the node's peak RSS [MiB], how many of the paced set points the
         feedforward node never answered (from the count of published commands in its exit
-        summary; the rest of ``PacedRun.lost`` was lost on the way back to the client);
-        ``None`` for the relay, whose plain publisher is not counted.
+        summary; the rest of ``PacedRun.lost`` was lost on the way back to the client;
+        ``None`` for the relay, whose plain publisher is not counted), and the set points
+        slower than ``target_s`` beside the machine's stalls (bench/stall_witness.py).
 
     """
     from benchlib import Process, processes
+    from stall_witness import MachineCheck, load_all, witness_commands
 
     rows, cols = shape
-    node = Process(f"scale_{kind}_{rows}x{cols}", node_command(kind, shape), log_dir)
-    with processes(node):
+    name = f"scale_{kind}_{rows}x{cols}"
+    node = Process(name, node_command(kind, shape), log_dir)
+    witnesses = witness_commands(log_dir / f"{name}_witness")
+    for path, _ in witnesses:
+        path.unlink(missing_ok=True)
+    watching = [Process(path.stem, argv, log_dir) for path, argv in witnesses]
+    with processes(node, *watching):
         client = start_client(shape, 60.0, hold_check=kind == "feedforward")
         try:
             run = paced_run(client, rate_hz, seconds)
+            sent, received = client.paced_sent_at, client.paced_received_at
         finally:
             client.close()
         node.sample_rss()
+        for witness in watching:
+            witness.stop()
     published = published_commands(node.output()) if kind == "feedforward" else None
     unanswered = None if published is None else run.sent - (published - WARMUP)
-    return run, node.peak_mib, unanswered
+    witnessed = load_all([path for path, _ in witnesses])
+    check = MachineCheck.of(sent, received, witnessed, target_s)
+    return run, node.peak_mib, unanswered, check
 
 
 def section_scale(settings: Settings, results: Results, log_dir: Path) -> None:
     """Paced p99, rate and loss at 66 x 66 / 2 kHz and 128 x 128 / 1 kHz, beside the relay."""
     from benchlib import Record
 
-    seconds = settings.dds_rate_seconds
+    durations = []
     for rows, cols, rate, target_ms, target_ratio in SCALE_CASES:
         n = rows * cols
+        seconds = max(settings.dds_rate_seconds, PACED_SAMPLES / rate)
+        durations.append(f"{seconds:g} s at {rate:g} Hz")
         by_kind = {kind: CaseRuns() for kind in KINDS}
         for _ in range(settings.repeats):
             for kind in KINDS:  # in turns: a change of the machine's load hits both alike
-                run, peak, unanswered = measure(kind, (rows, cols), rate, seconds, log_dir)
+                run, peak, unanswered, check = measure(kind, (rows, cols), rate, seconds,
+                                                       log_dir, target_s=target_ms * 1e-3)
                 by_kind[kind].runs.append(run)
                 by_kind[kind].unanswered.append(float("nan") if unanswered is None
                                                 else unanswered)
+                by_kind[kind].checks.append(check)
                 by_kind[kind].peak_mib = max(by_kind[kind].peak_mib, peak)
         ff, relay = by_kind["feedforward"], by_kind["relay_events"]
         ff_p99 = [r.p99_s * 1e3 for r in ff.runs]
@@ -218,13 +254,20 @@ def section_scale(settings: Settings, results: Results, log_dir: Path) -> None:
         results.notes.append(target_line(
             rows, cols, rate, p99_ms=float(np.median(ff_p99)), ratio=ratio,
             lost=sum(r.lost for r in ff.runs), target_ms=target_ms, target_ratio=target_ratio))
+        for kind in KINDS:
+            results.notes.append(by_kind[kind].line(f"{rows} x {cols} {kind}"))
     results.notes.append(
-        f"scale_*: set points paced at the named rate for {seconds:g} s per run, "
+        f"scale_*: set points paced at the named rate ({', '.join(durations)}) per run, "
+        f"after {WARMUP} answered one at a time (warm-up, not counted), "
         f"{settings.repeats} run(s), feedforward node and relay (EventsExecutor, the node's) "
         "started in turns; p99 set point published -> command received (NaN if any was lost); "
-        "ratio = feedforward p99 / relay p99; scale_paced_lost: set points without a command at "
-        "the client; scale_paced_unanswered: of those, the ones the node never answered "
-        "(from its exit summary of published commands; the rest were lost on the way back); "
+        "ratio = feedforward p99 / relay p99 (medians of the runs); scale_paced_lost: set "
+        "points without a command at the client; scale_paced_unanswered: of those, the ones "
+        "the node never answered (from its exit summary of published commands; the rest were "
+        "lost on the way back); per run: set points over the target, in episodes (a stall and "
+        "its backlog), and how many were in episodes that began during a stall of the machine "
+        "itself (one process per CPU beside the run that only sleeps 1 ms at a time woke at "
+        "least half the target late: bench/stall_witness.py); "
         f"{load_note()}"
     )
 
@@ -372,7 +415,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     from benchlib import Results, Settings
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--seconds", type=float, default=3.0)
+    parser.add_argument("--seconds", type=float, default=3.0,
+                        help=f"per paced run, at least {PACED_SAMPLES} set points' worth")
     parser.add_argument("--repeats", type=int, default=1)
     parser.add_argument("--log-dir", type=Path, default=Path("out/scale"))
     parser.add_argument("--lockstep", type=float, default=0.0, metavar="SECONDS",

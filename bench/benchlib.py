@@ -1,8 +1,8 @@
 """Shared pieces of the benchmark sections: settings, records, node processes, waits.
 
 Importing it sets the DDS environment of every benchmark run (localhost discovery, a
-ROS_DOMAIN_ID of its own unless given, Fast DDS) and puts bench/ on ``sys.path`` for the
-sibling ``bench_*.py`` modules.
+ROS_DOMAIN_ID of its own unless given, Fast DDS with the nodes' profile) and puts bench/ on
+``sys.path`` for the sibling ``bench_*.py`` modules.
 """
 
 from __future__ import annotations
@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
 
+from es_msgs_py.middleware import configure_middleware
 from es_msgs_py.topics import reserve_domain_id
 
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
@@ -33,6 +34,7 @@ os.environ.setdefault("PYTHONUNBUFFERED", "1")
 
 import numpy as np
 
+configure_middleware()  # the nodes' Fast DDS profile, for this process and its children
 BENCH_DIR = Path(__file__).resolve().parent
 if str(BENCH_DIR) not in sys.path:
     sys.path.insert(0, str(BENCH_DIR))  # the sibling bench_*.py modules

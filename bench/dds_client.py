@@ -26,11 +26,13 @@ class DdsClient:
         from std_msgs.msg import Float64MultiArray
 
         from es_msgs_py.arrays import grid_to_msg
+        from es_msgs_py.middleware import configure_middleware
         from es_msgs_py.topics import COMMAND, SETPOINT, TEMPERATURE, qos_for
         from es_physics.laws import z_sat
         from es_physics.params import ActuatorParams
 
         self.shape = shape
+        configure_middleware()  # the nodes' profile (takes effect before the first context)
         self.context = rclpy.Context()
         rclpy.init(context=self.context)
         self.node = rclpy.create_node("bench_client", context=self.context)
@@ -44,6 +46,10 @@ class DdsClient:
         self.received = 0
         self.received_at: list[float] = []
         self.last_command: Float64MultiArray | None = None
+        #: publish times [s, perf_counter] of the last paced run's set points, and the
+        #: reception times of their commands (empty when some were lost)
+        self.paced_sent_at = np.empty(0)
+        self.paced_received_at = np.empty(0)
         self.command_sub = self.node.create_subscription(Float64MultiArray, COMMAND,
                                                          self._on_command, qos_for(COMMAND))
         # Set points from 10 % to 60 % of z_sat at 46 degC, changing from message to message.
@@ -147,11 +153,14 @@ class DdsClient:
                 self.executor.spin_once(timeout_sec=left)
             sent_at[k] = time.perf_counter()
             self.publish(self.messages[k % len(self.messages)])
+        self.paced_sent_at = sent_at
         sent_rate = (count - 1) / (sent_at[-1] - sent_at[0])
         lost = self._wait_received(first + count, 10.0)
         if lost:
+            self.paced_received_at = np.empty(0)
             return None, sent_rate, lost
         received_at = np.asarray(self.received_at[first_index:first_index + count])
+        self.paced_received_at = received_at
         return received_at - sent_at, sent_rate, 0
 
     def rate(self, seconds: float) -> tuple[float, int]:

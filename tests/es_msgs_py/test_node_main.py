@@ -192,6 +192,36 @@ def test_a_stop_signal_closes_and_destroys_the_node_before_the_context_shuts_dow
     assert said == ["close: context ok True", "destroy_node: context ok True"], out
 
 
+# A node that says, while it spins, whether its start-up's objects are frozen.
+REPORTS_FROZEN = r"""
+import gc
+import sys
+from rclpy.node import Node
+from es_msgs_py.node_main import run_node
+
+class Frozen(Node):
+    def __init__(self):
+        super().__init__("reports_frozen")
+        self.create_timer(0.02, self.spinning)
+
+    def spinning(self):
+        print(f"frozen {gc.get_freeze_count()}, garbage {len(gc.garbage)}", flush=True)
+        self.context.try_shutdown()
+
+sys.exit(run_node(Frozen, []))
+"""
+
+
+def test_the_node_spins_with_its_start_up_objects_frozen_out_of_the_collector() -> None:
+    done = subprocess.run([sys.executable, "-c", REPORTS_FROZEN], capture_output=True,
+                          text=True, timeout=60, check=False)  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    line = next(x for x in done.stdout.splitlines() if x.startswith("frozen"))
+    frozen = int(line.split()[1].rstrip(","))
+    assert frozen > 10_000, line  # rclpy, numpy, the node: tens of thousands of objects
+    assert line.endswith("garbage 0"), line
+
+
 @pytest.mark.parametrize(
     ("package", "name"),
     [

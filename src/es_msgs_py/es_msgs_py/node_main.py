@@ -8,6 +8,16 @@ and trigger the executors' guard conditions there, while the main thread goes on
 the node and collecting garbage: that thread crashed the process with SIGSEGV in
 ``rcl_trigger_guard_condition`` in 3 of 133 recorder Ctrl-C stops on a loaded machine.
 
+Once the node is built, before it spins, the start-up's garbage is collected and every object
+left is frozen out of the garbage collector's reach (:func:`settle_garbage`): the imports, the
+node, compiled kernels are never scanned again, and a collection while messages are served
+walks only what was allocated since. Measured with the feedforward node at 128 x 128 (a
+loaded machine): its one young (generation 1) collection per 10 s of 1 kHz set points took
+0.9-1.0 ms, frozen 0.1 ms; an unfrozen full collection took 17-24 ms.
+
+Fast DDS gets the es_dm profile (:func:`es_msgs_py.middleware.configure_middleware`: a
+shared-memory segment that holds a hundred 128 x 128 grids) unless the environment names one.
+
 A node picks its executor with a read-only ``executor`` parameter (see :data:`EXECUTORS`);
 nodes without it get rclpy's ``SingleThreadedExecutor``.
 
@@ -29,6 +39,7 @@ crash (SIGSEGV, SIGABRT) prints the Python stack of every thread (``faulthandler
 from __future__ import annotations
 
 import faulthandler
+import gc
 import signal
 import sys
 import time
@@ -48,6 +59,7 @@ from rclpy.qos import ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 
 from es_msgs_py.errors import ParameterValueError
+from es_msgs_py.middleware import configure_middleware
 from es_msgs_py.param_spec import ParameterSpec
 
 #: Name of the read-only parameter through which a node chooses its executor.
@@ -154,6 +166,16 @@ class StopSignals:
     ) -> None:
         for sig, handler in self._previous.items():
             signal.signal(sig, handler)  # type: ignore[arg-type]  # what signal() returned
+
+
+def settle_garbage() -> None:
+    """Collect the garbage there is, then freeze what is left (``gc.freeze``).
+
+    Call once a long-running process is built: later collections skip every object frozen
+    here (they stay alive for good, like the imports and the node do anyway).
+    """
+    gc.collect()
+    gc.freeze()
 
 
 def executor_kind(node: Node) -> str:
@@ -287,6 +309,7 @@ def run_node(
         return 0
     # A native crash (e.g. SIGSEGV in a DDS teardown) prints every thread's stack.
     faulthandler.enable()
+    configure_middleware()
     with StopSignals() as stop:
         try:
             rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
@@ -303,6 +326,7 @@ def _run(make_node: Callable[[], Node], stop: StopSignals, teardown_limit: float
     try:
         node = make_node()
         counter = PublishCounter(node)
+        settle_garbage()
         spin(node, executor_kind(node), stopped=stop)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
