@@ -30,11 +30,11 @@ sys.path.insert(0, str(BENCH_DIR))
 from bench_scale import (  # noqa: E402
     KINDS,
     PacedRun,
-    load_note,
     node_command,
     paced_run,
     start_client,
 )
+from benchlib import load_note  # noqa: E402
 from multihost import Host, host_environment, two_hosts  # noqa: E402
 
 if TYPE_CHECKING:

@@ -30,10 +30,6 @@ if TYPE_CHECKING:
     from dds_client import DdsClient
     from stall_witness import MachineCheck
 
-    from es_bringup.graph import ParamValue
-
-    #: Extra parameters by node name (one of OVERRIDABLE).
-    Overrides = dict[str, dict[str, ParamValue]]
 
 #: (rows, cols, set-point rate [Hz], p99 target [ms], p99 target as a multiple of the relay's
 #: p99, or None): the issue's figures.
@@ -41,13 +37,6 @@ SCALE_CASES: tuple[tuple[int, int, float, float, float | None], ...] = (
     (66, 66, 2000.0, 1.0, 1.2),
     (128, 128, 1000.0, 2.0, None),
 )
-#: Lockstep closed loop (plant + thermal + feedforward processes on dm_exposure): grid and
-#: the issue's floor [x real time].
-LOCKSTEP_CASES: tuple[tuple[int, int, float], ...] = ((32, 32, 10.0), (64, 64, 5.0))
-#: The lockstep nodes whose parameters ``--set`` may override.
-OVERRIDABLE = ("plant", "thermal", "feedforward")
-#: Longest wait for the thermal and feedforward nodes of a large grid to start [s].
-CONTROLLERS_TIMEOUT_S = 600.0
 #: Set points answered one at a time before each paced run (warm-up, not counted).
 WARMUP = 50
 #: Fewest set points of a paced run (the run is longer than ``--seconds`` if needed): its
@@ -215,7 +204,7 @@ def measure(kind: str, shape: tuple[int, int], rate_hz: float, seconds: float,
 
 def section_scale(settings: Settings, results: Results, log_dir: Path) -> None:
     """Paced p99, rate and loss at 66 x 66 / 2 kHz and 128 x 128 / 1 kHz, beside the relay."""
-    from benchlib import Record
+    from benchlib import Record, load_note
 
     durations = []
     for rows, cols, rate, target_ms, target_ratio in SCALE_CASES:
@@ -272,102 +261,6 @@ def section_scale(settings: Settings, results: Results, log_dir: Path) -> None:
     )
 
 
-def cpu_seconds(pid: int) -> float:
-    """Return the CPU time [s] (user + system) process ``pid`` has used so far (/proc)."""
-    import os
-
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-
-
-@dataclass(frozen=True)
-class LockstepRun:
-    """Figures of one lockstep run.
-
-    Attributes:
-        speedup: sim time / wall time of the run (the plant's summary).
-        cpu_ms: CPU [ms] per step of each process during the run (plant from its own
-            summary; the others from /proc, the plant's start to its exit, their share of
-            the plant's start-up included).
-        ready_s: how long the thermal and feedforward nodes took to show on the graph [s].
-
-    """
-
-    speedup: float
-    cpu_ms: dict[str, float]
-    ready_s: float
-
-
-def lockstep_run(rows: int, cols: int, duration: float, log_dir: Path,
-                 overrides: Overrides | None = None) -> LockstepRun:
-    """Run the closed loop once (``overrides``: node name -> extra parameters).
-
-    The plant is started only once the thermal and feedforward nodes are on the graph, so
-    that their start-up (the thermal model of a large grid) is not in the figure.
-
-    Raises:
-        RuntimeError: a node exited, did not start, or the plant printed no summary.
-
-    """
-    import re
-
-    from benchlib import Process, plant_speedup, processes, run_until_exit, wait_for_controllers
-
-    from es_bringup.bringup import GraphConfig, node_specs
-
-    extra = overrides or {}
-    config = GraphConfig(scenario="dm_exposure",
-                         plant={"rows": rows, "cols": cols, "duration": duration,
-                                **extra.get("plant", {})},
-                         thermal=dict(extra.get("thermal", {})),
-                         feedforward=dict(extra.get("feedforward", {})))
-    before, plant_spec = node_specs(config)
-    tag = f"scale_{rows}x{cols}"
-    started = [Process(f"{s.name}_{tag}", s.command, log_dir) for s in before]
-    with processes(*started):
-        ready_s = wait_for_controllers(started, CONTROLLERS_TIMEOUT_S)
-        cpu_before = {s.name: cpu_seconds(p.popen.pid)
-                      for s, p in zip(before, started, strict=True)}
-        plant = Process(f"{plant_spec.name}_{tag}", plant_spec.command, log_dir)
-        with processes(plant):
-            run_until_exit(plant, [plant], 120.0 + 30.0 * duration)
-        cpu_after = {s.name: cpu_seconds(p.popen.pid)
-                     for s, p in zip(before, started, strict=True)}
-    output = plant.output()
-    speedup, _ = plant_speedup(output)
-    summary = re.search(r"finished: (\d+) steps.*plant CPU ([\d.]+) ms/step", output)
-    steps = int(summary.group(1)) if summary else 0
-    cpu_ms = {plant_spec.name: float(summary.group(2)) if summary else float("nan")}
-    for name, seconds in cpu_after.items():
-        cpu_ms[name] = (seconds - cpu_before[name]) * 1e3 / steps if steps else float("nan")
-    return LockstepRun(speedup, cpu_ms, ready_s)
-
-
-def section_lockstep_scale(settings: Settings, results: Results, log_dir: Path,
-                           overrides: Overrides | None = None) -> None:
-    """Lockstep closed loop at 32 x 32 and 64 x 64: x real time beside the issue's floors."""
-    from benchlib import Record
-
-    for rows, cols, floor in LOCKSTEP_CASES:
-        runs = [lockstep_run(rows, cols, settings.lockstep_duration, log_dir, overrides)
-                for _ in range(1 if rows * cols > 144 else settings.repeats)]
-        speedups = [r.speedup for r in runs]
-        results.records.append(Record.of("lockstep_speedup", rows * cols, speedups, "sim/wall"))
-        for name in runs[0].cpu_ms:
-            results.records.append(Record.of(f"lockstep_{name}_cpu_per_step", rows * cols,
-                                              [r.cpu_ms[name] for r in runs], "ms"))
-        median = float(np.median(speedups))
-        results.notes.append(
-            f"{'met' if median >= floor else 'MISSED'}: lockstep {rows} x {cols} >= {floor:g}x "
-            f"real time (measured {median:.2f}x; thermal and feedforward took "
-            f"{max(r.ready_s for r in runs):.0f} s to start, not counted)")
-    results.notes.append(
-        f"lockstep (scale): dm_exposure, {settings.lockstep_duration:g} s sim at 100 Hz, plant + "
-        "thermal (model estimator) + feedforward processes on one host; "
-        "lockstep_<node>_cpu_per_step: each process's CPU per step (plant: its own summary; "
-        f"thermal, feedforward: /proc over the plant's run). {load_note()}")
-
-
 def target_line(rows: int, cols: int, rate: float, *, p99_ms: float, ratio: float, lost: int,
                 target_ms: float, target_ratio: float | None) -> str:
     """Return the one-line verdict of a case against the issue's targets."""
@@ -376,38 +269,6 @@ def target_line(rows: int, cols: int, rate: float, *, p99_ms: float, ratio: floa
         f" and <= {target_ratio:g}x the relay" if target_ratio is not None else "")
     return (f"{'met' if ok else 'MISSED'}: {rows} x {cols} at {rate:g} Hz: {wanted}, nothing "
             f"lost (measured p99 {p99_ms:.3g} ms, {ratio:.2f}x the relay, {lost} lost)")
-
-
-def load_note() -> str:
-    """Return the load average now, for the notes (the machine is shared)."""
-    one, five, fifteen = Path("/proc/loadavg").read_text().split()[:3]
-    return f"load average at the end of the section {one} {five} {fifteen} on {_cores()} cores"
-
-
-def _cores() -> int:
-    import os
-
-    return os.cpu_count() or 0
-
-
-def parse_overrides(items: Sequence[str]) -> Overrides:
-    """Parse ``NODE.NAME=VALUE`` items (VALUE as YAML, e.g. ``true``, ``3``) by node.
-
-    Raises:
-        SystemExit: an item is not of that form (argparse's one-line error).
-
-    """
-    import yaml
-
-    overrides: Overrides = {}
-    for item in items:
-        key, sep, value = item.partition("=")
-        node, dot, name = key.partition(".")
-        if not (sep and dot and node in OVERRIDABLE and name):
-            raise SystemExit(f"error: --set {item!r}: expected NODE.NAME=VALUE with NODE one "
-                             f"of {', '.join(OVERRIDABLE)}")
-        overrides.setdefault(node, {})[name] = yaml.safe_load(value)
-    return overrides
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -419,25 +280,13 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help=f"per paced run, at least {PACED_SAMPLES} set points' worth")
     parser.add_argument("--repeats", type=int, default=1)
     parser.add_argument("--log-dir", type=Path, default=Path("out/scale"))
-    parser.add_argument("--lockstep", type=float, default=0.0, metavar="SECONDS",
-                        help="run the lockstep cases instead, SECONDS of sim time each")
-    parser.add_argument("--set", action="append", default=[], metavar="NODE.NAME=VALUE",
-                        help="lockstep: a parameter of one node (plant, thermal, feedforward), "
-                             "e.g. plant.executor=events; repeatable")
     args = parser.parse_args(argv)
     settings = Settings.create(quick=True, profile=False)
     settings = type(settings)(**{**settings.__dict__, "repeats": args.repeats,
                                  "dds_rate_seconds": args.seconds})
     results = Results()
-    if args.lockstep:
-        settings = type(settings)(**{**settings.__dict__, "lockstep_duration": args.lockstep})
-        section_lockstep_scale(settings, results, args.log_dir, parse_overrides(args.set))
-    else:
-        section_scale(settings, results, args.log_dir)
-    for record in [*results.records, *results.references]:
-        print(record)
-    for note in results.notes:
-        print(note)
+    section_scale(settings, results, args.log_dir)
+    results.print()
     return 0
 
 

@@ -100,6 +100,13 @@ class Results:
     profiles: dict[str, str] = field(default_factory=dict)
     calibrate_durations: dict[int, float] = field(default_factory=dict)
 
+    def print(self) -> None:
+        """Print the records, the references and the notes (a section run alone)."""
+        for record in [*self.records, *self.references]:
+            print(record)
+        for note in self.notes:
+            print(note)
+
 
 @dataclass(frozen=True)
 class Context:
@@ -119,6 +126,13 @@ class Context:
 
 
 # --- machine -------------------------------------------------------------------------------
+
+def load_note() -> str:
+    """Return the load average now, for a section's notes (the machine is shared)."""
+    one, five, fifteen = Path("/proc/loadavg").read_text().split()[:3]
+    return (f"load average at the end of the section {one} {five} {fifteen} on "
+            f"{os.cpu_count() or 0} cores")
+
 
 def machine_info() -> dict[str, Any]:
     """Return cores, CPU model, memory, OS, Python and the load when the run started."""

@@ -12,7 +12,7 @@ Sections (``--only``): ``kernels`` (bench_kernels.py), ``convert`` (bench_conver
 (bench_calibration_loop.py: characterise, calibrate, closed loop per effect family; writes
 ``calibration_loop.md``/``.json``), ``import`` (bench_import.py: lab recordings into bags,
 time and peak memory), ``scale`` (bench_scale.py: the feedforward node at 66 x 66 / 2 kHz and
-128 x 128 / 1 kHz), ``lockstep_scale`` (bench_scale.py: the closed loop at 32 x 32 and
+128 x 128 / 1 kHz), ``lockstep_scale`` (bench_lockstep_scale.py: the closed loop at 32 x 32 and
 64 x 64), ``multihost`` (bench_multihost.py: 64 x 64 at 1 kHz across two network namespaces;
 needs root), ``selfsensing`` (bench_selfsensing.py, offline cores). Peak memory of every
 node process comes with the sections that start them. ``identify`` (the identification sweep

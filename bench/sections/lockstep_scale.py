@@ -6,7 +6,7 @@ from benchlib import Context
 
 
 def run(context: Context) -> None:
-    """Run :func:`bench_scale.section_lockstep_scale`."""
-    from bench_scale import section_lockstep_scale
+    """Run :func:`bench_lockstep_scale.section_lockstep_scale`."""
+    from bench_lockstep_scale import section_lockstep_scale
 
     section_lockstep_scale(context.settings, context.results, context.log_dir)
