@@ -11,7 +11,12 @@ import numpy as np
 import pytest
 
 from es_feedforward.calibrate import EXIT_BAD_INPUT, run
-from es_feedforward.calibration.align import EDGE_DROPS, CalibrationInputError, MeasuredData
+from es_feedforward.calibration.align import (
+    EDGE_DROPS,
+    SPAN_DROPS,
+    CalibrationInputError,
+    MeasuredData,
+)
 from es_feedforward.calibration.bagio import read_measured_bags
 from es_feedforward.calibration.pipeline import calibrate
 from es_msgs_py.bag import write_array_bag
@@ -161,6 +166,7 @@ def test_consecutive_bags_are_joined(series, tmp_path: Path) -> None:
     assert run([*reversed(bags), "-o", str(tmp_path / "out"), "-q"]) == 0
     doc = json.loads((tmp_path / "out" / "calibration.json").read_text())
     edged = doc["data"]["dropped"].get(EDGE_DROPS, 0)  # the command's unresolvable edges
+    edged += doc["data"]["dropped"].get(SPAN_DROPS, 0)  # and after the last temperature
     assert doc["data"]["samples"] + edged == series["/dm/displacement"][0].size
     assert doc["heldout_rms_after_m"] < 1.2 * doc["noise_floor_m"]
 
@@ -196,6 +202,7 @@ def test_mostly_repeated_stamps_with_one_displacement_per_command_pair_by_order(
     data = doc["data"]
     assert "paired by message order" in data["repeated_stamps"]
     edged = data["dropped"].get(EDGE_DROPS, 0)  # the command's unresolvable edges
+    edged += data["dropped"].get(SPAN_DROPS, 0)  # and after the last temperature
     assert data["samples"] + edged == series["/dm/displacement"][0].size
     assert "temperature stamps repeated" in data["repeated_stamps"]
     assert sum(data["dropped"].values()) == edged
@@ -217,6 +224,7 @@ def test_repeated_stamps_with_unequal_counts_drop_and_count_ambiguous_samples(
     ambiguous = 2 * stamps[1::5].size
     assert doc["data"]["dropped"]["displacement with ambiguous repeated stamp"] == ambiguous
     edged = doc["data"]["dropped"].get(EDGE_DROPS, 0)  # the command's unresolvable edges
+    edged += doc["data"]["dropped"].get(SPAN_DROPS, 0)  # and after the last temperature
     assert doc["data"]["samples"] + edged == t.size - ambiguous
     assert "dropped" in doc["data"]["repeated_stamps"]
     assert doc["heldout_rms_after_m"] < 1.2 * doc["noise_floor_m"]

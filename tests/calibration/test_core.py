@@ -5,7 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from es_feedforward.calibration.align import CalibrationInputError, MeasuredData, align
+from es_feedforward.calibration.align import (
+    SPAN_DROPS,
+    CalibrationInputError,
+    MeasuredData,
+    align,
+)
 from es_feedforward.calibration.fit import levenberg_marquardt
 from es_feedforward.calibration.history import DriveHistory, DriveSamples, first_order_lowpass
 from es_feedforward.calibration.model import (
@@ -96,6 +101,7 @@ def test_jacobians_match_finite_differences(coupled: bool, per_actuator: bool) -
         "drift.log_nu": -0.5,
         "self_heating.gain": 1e-4,
         "self_heating.log_tau_s": np.log(1.5),
+        "self_heating.log_mean_window_s": np.log(1.3),
         "frequency_dispersion.fraction": 0.08,
         "frequency_dispersion.log_corner_hz": np.log(0.5),
     }
@@ -190,20 +196,21 @@ def test_alignment_handles_rates_start_times_and_nan() -> None:
     aligned = align(data)
     assert aligned.dropped["displacement NaN"] == 1
     assert aligned.dropped["temperature NaN"] == 1
-    assert not aligned.valid[100, 1] and aligned.valid[100, 0]
+    # the samples before the first temperature message (0.35 s) are left out, not held
+    t_disp = data.displacement_times
+    assert aligned.dropped[SPAN_DROPS] == int((t_disp < 0.35).sum()) == 35
+    assert aligned.t[0] + aligned.start_time >= 0.35
+    np.testing.assert_array_equal(aligned.sample_index, np.flatnonzero(t_disp >= 0.35))
+    row = int(np.flatnonzero(aligned.sample_index == 100)[0])
+    assert not aligned.valid[row, 1] and aligned.valid[row, 0]
     assert np.isfinite(aligned.temperature).all()
     rows = np.arange(aligned.t.size)
-    # temperature interpolated onto the displacement stamps (held before the first sample)
+    # temperature interpolated onto the displacement stamps
     T = aligned.temperature_at(rows, np.array([0]))[0]
-    expected = 44 + 0.1 * np.clip(aligned.t + aligned.start_time, 0.35, None)
-    np.testing.assert_allclose(
-        T[aligned.t + aligned.start_time > 0.35],
-        expected[aligned.t + aligned.start_time > 0.35],
-        atol=1e-9,
-    )
+    np.testing.assert_allclose(T, 44 + 0.1 * (aligned.t + aligned.start_time), atol=1e-9)
     np.testing.assert_allclose(aligned.temperature_rate, 0.1, atol=1e-9)
     # zero-order hold: each sample sees the command stamped half a period before it
-    np.testing.assert_array_equal(aligned.command_index(rows), rows)
+    np.testing.assert_array_equal(aligned.command_index(rows), aligned.sample_index)
 
 
 def test_split_interleaves_training_and_heldout_blocks() -> None:
@@ -296,4 +303,4 @@ def test_only_offered_parameters_can_be_fitted_per_actuator() -> None:
     with pytest.raises(EffectError, match=r"sensor_lag\.tau_s"):
         CompositeModel(("drift",), per_actuator=("sensor_lag.tau_s",))  # effect not chosen
     model = CompositeModel(("self_heating",), per_actuator=("self_heating.gain",))
-    assert model.global_names == ("self_heating.log_tau_s",)
+    assert model.global_names == ("self_heating.log_tau_s", "self_heating.log_mean_window_s")

@@ -21,6 +21,7 @@ from es_feedforward.calibration.delayrange import shift_span
 from es_feedforward.calibration.edges import EDGE_MARGIN_PERIODS, exclude_edges, find_edges
 
 from . import law_bags as lb
+from .stand_data import measured
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
 
@@ -112,16 +113,7 @@ def _delay_case(seconds: float) -> tuple[MeasuredData, float]:
     """Return the sweep's delay+drift case (2 x 2, 250 Hz), shortened, and its true noise."""
     case = next(c for c in build_cases() if c.name == "delay+drift")
     config = replace(case.config, duration_s=seconds, temperature_kind="grid")
-    r = simulate(config)
-    measured = MeasuredData(
-        r.command_times,
-        r.command,
-        r.displacement_times,
-        r.displacement,
-        r.temperature_times,
-        r.temperature,
-    )
-    return measured, config.noise_rms_m
+    return measured(simulate(config)), config.noise_rms_m
 
 
 def test_standgen_delay_case_is_rescued_by_the_edge_rule() -> None:
@@ -131,8 +123,8 @@ def test_standgen_delay_case_is_rescued_by_the_edge_rule() -> None:
     from es_feedforward.calibration.pipeline import _search
     from es_feedforward.calibration.search import choose_stamp_convention
 
-    measured, noise = _delay_case(30.0)  # the old rule-less search: 2.1x the noise
-    aligned = choose_stamp_convention(align(measured))
+    data, noise = _delay_case(30.0)  # the old rule-less search: 2.1x the noise
+    aligned = choose_stamp_convention(align(data))
     account = aligned.command_edges
     assert account is not None and account.edges > 0
     assert 0.0 < account.fraction < 0.2

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from es_feedforward.calibrate import EXIT_BAD_INPUT, run
-from es_feedforward.calibration.align import GAP_DROPS, align
+from es_feedforward.calibration.align import GAP_DROPS, SPAN_DROPS, align
 from es_feedforward.calibration.bagio import read_measured_bags
 from es_feedforward.calibration.gaps import COMMAND_SETTLING_S, find_gaps
 from es_feedforward.calibration.residual import spectrum
@@ -114,7 +114,10 @@ def test_samples_needing_gap_data_are_excluded_and_counted(law_run: lb.LawRun, g
     assert gaps["/dm/temperature"]["excluded_samples"] == int(in_temp.sum())
     assert gaps["/dm/command"]["excluded_samples"] == int(in_cmd.sum())
     assert gaps["/dm/displacement"]["excluded_samples"] == 0
-    kept = t_disp.size - int((in_temp | in_cmd).sum())
+    # and the samples after the last temperature message (at 89.9 s, the record ends 89.998 s)
+    outside = t_disp > t_temp[-1]
+    assert dropped[SPAN_DROPS] == int((outside & ~(in_temp | in_cmd)).sum()) > 0
+    kept = t_disp.size - int((in_temp | in_cmd | outside).sum())
     assert gapped["data"]["samples"] == kept
 
 
@@ -201,6 +204,34 @@ def test_topics_starting_late_or_ending_early_have_gaps_at_the_ends(
     assert aligned.dropped[GAP_DROPS["temperature"]] == int(
         ((t_disp <= 5.0 + RATE_HALF_WINDOW_S) | (t_disp >= 86.9 - RATE_HALF_WINDOW_S)).sum()
     )
+
+
+def test_samples_outside_the_temperature_topic_are_left_out_and_reported(
+    tmp_path: Path,
+) -> None:
+    # a 1 Hz sensor: its first message 0.4 s into the record, its last 0.6 s before the
+    # end (less than a gap's 3.5 periods), while the temperature moves by ~1 degC/s there
+    run_ = lb.law_run(duration=30.0)
+    t_temp, temp = run_.topics["/dm/temperature"]
+    slow = np.flatnonzero(np.isclose((t_temp + 0.6) % 1.0, 0.0, atol=1e-6))
+    series = {**run_.topics, "/dm/temperature": (t_temp[slow], temp[slow])}
+    first, last = float(t_temp[slow][0]), float(t_temp[slow][-1])
+    t_disp = series["/dm/displacement"][0]
+    assert (first, t_disp[-1] - last) == pytest.approx((0.4, 0.6 - 0.5 / lb.RATE))
+    doc = _calibrate(series, tmp_path)
+    data = doc["data"]
+    assert not [g for g in data["gaps"] if g["topic"] == "/dm/temperature"]
+    before, after = int((t_disp < first).sum()), int((t_disp > last).sum())
+    assert data["temperature_span"] == {
+        "start_s": pytest.approx(first), "end_s": pytest.approx(last),
+        "excluded_before": before, "excluded_after": after,
+    }
+    assert data["dropped"][SPAN_DROPS] == before + after > 2 * 100
+    assert data["samples"] == t_disp.size - before - after
+    assert f"{before} displacement samples before the first temperature message" in doc["report"]
+    aligned = align(read_measured_bags([lb.write(series, tmp_path / "bag2")]))
+    t = aligned.t + aligned.start_time
+    assert t[0] >= first and t[-1] <= last
 
 
 def test_a_run_cut_short_by_a_gap_does_not_coarsen_the_spectrum() -> None:

@@ -15,10 +15,11 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
 
 from standgen import StandConfig, simulate
-from standgen.effects import Drift, Effects, FrequencyDispersion, Hysteresis
+from standgen.effects import Drift, Effects, FrequencyDispersion, Hysteresis, SelfHeating
+from standgen.stand import AC_SPLIT_TAU_S
 from standgen.sweep import build_cases
 
-from es_feedforward.calibration.align import MeasuredData, align
+from es_feedforward.calibration.align import align
 from es_feedforward.calibration.model import CompositeModel
 from es_feedforward.calibration.pipeline import _search
 from es_feedforward.calibration.scans import candidate_states
@@ -36,19 +37,12 @@ from es_feedforward.calibration.selection import (
     settle_operators,
 )
 
+from .stand_data import measured
+
 
 def _workspace(config: StandConfig) -> tuple[Workspace, float]:
     """Return the workspace of a stand recording (whole grid) and the stand's true noise [m]."""
-    r = simulate(config)
-    measured = MeasuredData(
-        r.command_times,
-        r.command,
-        r.displacement_times,
-        r.displacement,
-        r.temperature_times,
-        r.temperature,
-    )
-    aligned = choose_stamp_convention(align(measured))
+    aligned = choose_stamp_convention(align(measured(simulate(config))))
     actuators = np.arange(aligned.n_actuators, dtype=np.intp)
     return Workspace(aligned, actuators, (config.rows, config.cols)), config.noise_rms_m
 
@@ -76,6 +70,32 @@ def test_drift_fits_on_top_of_a_coupling_from_every_start() -> None:
     found = effect_parameters(best, "drift", ws.aligned)
     assert abs(found["fraction"] - truth.fraction) < 0.2 * truth.fraction
     assert abs(found["tau_s"] - truth.tau_s) < 0.2 * truth.tau_s
+
+
+def test_the_self_heating_window_is_fitted_to_the_stands_split_of_the_drive() -> None:
+    # sweep case hysteresis+self_heating: the stand measures the loss against the drive's
+    # 1.6 s low-pass (its own split of level and swing), the calibration measured it against
+    # a fixed 1 s running mean, and 1.22x the noise was left with the right effects
+    config = StandConfig(
+        rows=1,
+        cols=1,
+        rate_hz=1000.0,
+        duration_s=24.0,
+        temperature_kind="grid",
+        noise_m=0.4e-9,
+        effects=Effects(self_heating=SelfHeating(gain=2.5e-5, tau_s=0.76)),
+        seed=59,
+    )
+    ws, noise = _workspace(config)
+    base = base_state(ws)
+    heated = min(
+        candidate_states(ws, base, "self_heating", float(ws.aligned.t[-1])),
+        key=lambda s: s.fit.total_cost,
+    )
+    found = effect_parameters(heated, "self_heating", ws.aligned)
+    assert abs(found["mean_window_s"] - AC_SPLIT_TAU_S) < 0.15 * AC_SPLIT_TAU_S
+    assert abs(found["tau_s"] - 0.76) < 0.15 * 0.76
+    assert heated.heldout_rms < 1.1 * noise
 
 
 def test_an_unphysical_extra_play_operator_is_dropped_not_the_hysteresis() -> None:

@@ -75,9 +75,39 @@ def test_the_calibrations_loss_measure_is_the_heating_estimates() -> None:
     np.testing.assert_allclose(settled, 2.0 * np.array([100.0, 50.0]) ** 2, rtol=0.03)
 
 
+def test_the_loss_measure_takes_the_fitted_window_and_its_slope() -> None:
+    # a 2 Hz swing on a 0.2 Hz level at 1 kHz for 10 s: the level's share of the running
+    # mean, and so the measure, depends on the window
+    dt, window = 1e-3, 1.6
+    t = np.arange(0.0, 10.0, dt)[:, None]
+    command = 150.0 + 60.0 * np.sin(2 * np.pi * 0.2 * t) + 40.0 * np.sin(2 * np.pi * 2.0 * t)
+    heating = SelfHeating()
+    shape = (np.log(window),)
+    loss = heating.drive_signal(command, dt, shape)
+    estimate = HeatingEstimate(1.0, 1e6, window)  # the feedforward's measure, same window
+    for k, row in enumerate(command):
+        estimate.apply(row, k * dt)
+    np.testing.assert_allclose(
+        np.asarray(estimate.at((len(t) - 1) * dt)), loss[1:-1].sum(axis=0) * dt / 1e6, rtol=1e-4
+    )
+    assert not np.allclose(loss, heating.drive_signal(command, dt))  # the 1 s default
+    (slope,) = heating.drive_signal_slopes(command, dt, shape)
+    h = 1e-5
+    numeric = (
+        heating.drive_signal(command, dt, (shape[0] + h,))
+        - heating.drive_signal(command, dt, (shape[0] - h,))
+    ) / (2.0 * h)
+    # the measure has a kink where the drive crosses its mean: a difference across it differs
+    close = np.isclose(slope, numeric, rtol=1e-6, atol=1e-6 * np.abs(numeric).max())
+    assert close.mean() > 0.999
+
+
 def test_filter_effects_must_be_determined() -> None:
     heating, dispersion = SelfHeating(), FrequencyDispersion()
-    good = FittedEffect({"gain": 1e-5, "log_tau_s": 0.5}, {"gain": 1e-6, "log_tau_s": 0.1})
+    good = FittedEffect(
+        {"gain": 1e-5, "log_tau_s": 0.5, "log_mean_window_s": 0.4},
+        {"gain": 1e-6, "log_tau_s": 0.1, "log_mean_window_s": 0.2},
+    )
     assert heating.undetermined(good) is None
     loose = FittedEffect({"gain": 1e-4, "log_tau_s": 4.7}, {"gain": 5e-4, "log_tau_s": 3.0})
     assert "gain not determined" in str(heating.undetermined(loose))
@@ -87,10 +117,14 @@ def test_filter_effects_must_be_determined() -> None:
     assert "log_corner_hz not determined" in str(dispersion.undetermined(corner))
     # reported in physical units, and what the feedforward gets from them
     reported = heating.reported(good)
-    assert reported == {"gain": 1e-5, "tau_s": pytest.approx(np.exp(0.5))}
+    assert reported == {
+        "gain": 1e-5,
+        "tau_s": pytest.approx(np.exp(0.5)),
+        "mean_window_s": pytest.approx(np.exp(0.4)),
+    }
     assert heating.problem(reported) is None
     assert heating.problem({"gain": -1e-6, "tau_s": 1.0}) is not None
     comp = heating.compensation_values(reported, 0.0)
     assert comp["self_heating_gain"] == 1e-5
-    assert comp["self_heating_mean_window_s"] == MEAN_WINDOW_S
+    assert comp["self_heating_mean_window_s"] == pytest.approx(np.exp(0.4))  # the fitted one
     assert dispersion.problem({"fraction": 0.95, "corner_hz": 5.0}) is not None

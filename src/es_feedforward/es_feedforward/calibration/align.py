@@ -6,9 +6,10 @@ coincide, as in a lock-step simulation, whether "before" includes the same stamp
 from the data, see search.py). The temperature, usually slower, is linearly interpolated onto
 the displacement stamps; its derivative is a Savitzky-Golay slope over ``RATE_WINDOW_S`` on a
 uniform resampling of the temperature. Nothing is extrapolated: samples before the first
-command are dropped. NaN values are dropped per actuator and counted, never propagated. Gaps
-in any topic are found and the samples they would need are removed and counted (gaps.py):
-nothing is interpolated across a gap. So are the samples whose input could read the command
+command, and those before the first or after the last temperature message, are dropped. NaN
+values are dropped per actuator and counted, never propagated. Gaps in any topic are found
+and the samples they would need are removed and counted (gaps.py): nothing is interpolated
+across a gap. So are the samples whose input could read the command
 at an edge its samples cannot resolve (edges.py), the same samples for every model.
 
 Training and held-out data are interleaved time blocks (even blocks train, odd blocks are
@@ -26,7 +27,14 @@ import numpy.typing as npt
 from scipy.signal import savgol_filter
 
 from es_feedforward.calibration.edges import EdgeExclusion, exclude_edges
-from es_feedforward.calibration.gaps import GAP_FACTOR, Gap, exclude, find_gaps
+from es_feedforward.calibration.gaps import (
+    GAP_FACTOR,
+    Gap,
+    TemperatureSpan,
+    exclude,
+    exclude_outside_span,
+    find_gaps,
+)
 from es_feedforward.calibration.model import BoolArray, FloatArray
 from es_feedforward.calibration.stamps import repeated, run_lengths, spread_repeated
 from es_feedforward.errors import CalibrationInputError
@@ -52,6 +60,8 @@ GAP_DROPS: Final = {
     "temperature": "displacement needing temperature from a gap",
     "command": "displacement in or after a command hole",
 }
+#: Key of :attr:`AlignedData.dropped` for samples outside the temperature topic's span.
+SPAN_DROPS: Final = "displacement outside the temperature record"
 #: Key of :attr:`AlignedData.dropped` for samples an unresolvable command edge takes out.
 EDGE_DROPS: Final = "displacement needing the command at an unresolvable edge"
 #: Actuators resampled at once by :func:`resample_temperature` (bounds its temporaries).
@@ -109,6 +119,8 @@ class AlignedData:
             commands (None: their median spacing).
         command_edges: what unresolvable command edges took out (edges.py; None: the rule
             was not applied).
+        temperature_span: what the ends of the temperature topic took out (gaps.py; None:
+            the rule was not applied).
 
     """
 
@@ -134,6 +146,7 @@ class AlignedData:
     grid_mean_temperature: float | None = None
     command_period_s: float | None = None
     command_edges: EdgeExclusion | None = None
+    temperature_span: TemperatureSpan | None = None
 
     @property
     def command_finite_all(self) -> bool:
@@ -416,6 +429,11 @@ def align(data: MeasuredData, n_blocks: int | None = None) -> AlignedData:
         out, counts, gaps = exclude(t_abs, gaps, (_rate_window(t_period) // 2) * t_period)
         dropped.update({GAP_DROPS[role]: n for role, n in counts.items()})
         t_abs, z, index = t_abs[~out], z[~out], index[~out]
+    # samples whose temperature would be extrapolated beyond the topic's ends go (gaps.py)
+    out, span = exclude_outside_span(t_abs, data.temperature_times)
+    if span.excluded_samples:
+        dropped[SPAN_DROPS] = span.excluded_samples
+        t_abs, z, index = t_abs[~out], z[~out], index[~out]
     # samples whose input the commands cannot resolve go (edges.py)
     out, edge_account = exclude_edges(t_abs, data.command_times, cmd)
     if edge_account.excluded_samples:
@@ -470,6 +488,7 @@ def align(data: MeasuredData, n_blocks: int | None = None) -> AlignedData:
         gaps=gaps,
         sample_index=index,
         command_edges=edge_account,
+        temperature_span=span,
     )
     if valid.sum(axis=0).min() < MIN_SAMPLES:
         worst = int(np.argmin(valid.sum(axis=0)))

@@ -25,6 +25,12 @@ A topic that starts later or ends earlier than the displacement record by more t
 ``GAP_FACTOR`` periods has a gap at that end, with the same rules (the samples before the
 first command are dropped anyway; a late first command still takes its settling margin).
 Gap times are on the bag's time base [s].
+
+Shorter than that, the ends of a slow temperature topic still leave samples without a
+temperature on both sides: a 1 Hz sensor's last message can come most of a second before the
+record ends, while the temperature moves by a degree per second. Their temperature would be
+an extrapolation (the last message held), so the samples before the first temperature
+message and after the last one go too (:func:`exclude_outside_span`), counted apart.
 """
 
 from __future__ import annotations
@@ -97,6 +103,51 @@ class Gap:
         if self.role == "temperature":
             return self.start_s - temperature_margin_s, self.end_s + temperature_margin_s
         return None
+
+
+@dataclass(frozen=True)
+class TemperatureSpan:
+    """The samples outside the temperature topic's time span, which its ends take out.
+
+    Attributes:
+        start_s, end_s: bag times of the first and the last temperature message [s].
+        excluded_before, excluded_after: displacement samples before ``start_s`` and after
+            ``end_s`` left out of fit and scoring (after any gap's).
+
+    """
+
+    start_s: float
+    end_s: float
+    excluded_before: int
+    excluded_after: int
+
+    @property
+    def excluded_samples(self) -> int:
+        """Return the samples excluded at both ends."""
+        return self.excluded_before + self.excluded_after
+
+    def as_dict(self) -> dict[str, Any]:
+        """Return the span as calibration.json writes it (``data.temperature_span``)."""
+        return {
+            "start_s": self.start_s,
+            "end_s": self.end_s,
+            "excluded_before": self.excluded_before,
+            "excluded_after": self.excluded_after,
+        }
+
+
+def exclude_outside_span(
+    t: FloatArray, temperature_times: FloatArray
+) -> tuple[BoolArray, TemperatureSpan]:
+    """Return the samples at times ``t`` (N,) [s] outside the temperature topic's span.
+
+    ``temperature_times`` (Nt,) [s] are the sorted temperature stamps on the same time base.
+    A sample at a message's own stamp keeps its (measured) temperature.
+    """
+    start, end = float(temperature_times[0]), float(temperature_times[-1])
+    before, after = t < start, t > end
+    span = TemperatureSpan(start, end, int(before.sum()), int(after.sum()))
+    return before | after, span
 
 
 def _spread(times: FloatArray) -> FloatArray:

@@ -2,11 +2,13 @@
 
 Effects of the roles ``HEATING`` and ``RELAXATION`` act through a first-order low-pass of a
 signal derived from the drive (:meth:`es_physics.effects.Effect.drive_signal`) whose time
-constant is an unknown of the fit. A low-pass needs the whole history, not only the sampled
-rows, so :class:`DriveHistory` keeps the block's command and filters it at full rate
-(``scipy.signal.lfilter``, vectorised over actuators), caching the last few results;
-:class:`DriveSamples` takes the filtered series at a set of sample rows, with the same
-command taps (fractional delay) as the voltage in effect.
+constant is an unknown of the fit, as are the parameters that shape the signal, if any
+(:attr:`es_physics.effects.Effect.signal_parameters`: the filter is linear, so their
+derivatives are the filtered derivatives of the signal). A low-pass needs the whole
+history, not only the sampled rows, so :class:`DriveHistory` keeps the block's command and
+filters it at full rate (``scipy.signal.lfilter``, vectorised over actuators), caching the
+last few results; :class:`DriveSamples` takes the filtered series at a set of sample rows,
+with the same command taps (fractional delay) as the voltage in effect.
 
 The command is taken as uniformly sampled at its median period and as varying linearly
 between samples (first-order hold: exact for a signal generator's continuous program, and
@@ -17,6 +19,7 @@ filtered series is approximate, and the samples there are left out by gaps.py an
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Final
 
@@ -32,6 +35,9 @@ IndexArray = npt.NDArray[np.intp]
 
 #: Filtered series kept per history (each is the command's size).
 CACHE_SIZE: Final = 8
+
+#: A filtered drive signal, its derivative by log tau and those by its signal parameters.
+Filtered = tuple[FloatArray, FloatArray, tuple[FloatArray, ...]]
 
 
 def first_order_lowpass(x: FloatArray, period: float, tau: float) -> tuple[FloatArray, FloatArray]:
@@ -76,30 +82,37 @@ class DriveHistory:
         """Keep ``command`` (non-finite values read as 0) sampled every ``period`` [s]."""
         self.command = np.nan_to_num(np.asarray(command, np.float64))
         self.period = float(period)
-        self._signals: dict[str, FloatArray] = {}
-        self._filtered: dict[tuple[str, float], tuple[FloatArray, FloatArray]] = {}
+        self._signals: dict[tuple[str, tuple[float, ...]], FloatArray] = {}
+        self._filtered: dict[tuple[str, float, tuple[float, ...]], Filtered] = {}
 
-    def signal(self, effect: Effect) -> FloatArray:
-        """Return ``effect``'s drive signal (N, A) (computed once)."""
-        if effect.name not in self._signals:
-            self._signals[effect.name] = np.asarray(
-                effect.drive_signal(self.command, self.period), np.float64
+    def signal(self, effect: Effect, shape: Sequence[float] = ()) -> FloatArray:
+        """Return ``effect``'s drive signal (N, A) with signal parameters ``shape``."""
+        key = (effect.name, tuple(float(v) for v in shape))
+        if key not in self._signals:
+            if len(self._signals) >= CACHE_SIZE:
+                del self._signals[next(iter(self._signals))]
+            self._signals[key] = np.asarray(
+                effect.drive_signal(self.command, self.period, key[1]), np.float64
             )
-        return self._signals[effect.name]
+        return self._signals[key]
 
-    def lowpass(self, effect: Effect, tau: float) -> tuple[FloatArray, FloatArray]:
-        """Return y = LP_tau(signal) and dy / d(log tau), each (N, A).
+    def lowpass(self, effect: Effect, tau: float, shape: Sequence[float] = ()) -> Filtered:
+        """Return y = LP_tau(signal), dy / d(log tau) and dy / d each of ``shape``, (N, A).
 
         Raises:
             CalibrationFitError: ``tau`` not positive and finite.
 
         """
-        key = (effect.name, float(tau))
+        key = (effect.name, float(tau), tuple(float(v) for v in shape))
         if key not in self._filtered:
-            y, slope = first_order_lowpass(self.signal(effect), self.period, tau)
+            y, slope = first_order_lowpass(self.signal(effect, shape), self.period, tau)
+            slopes = tuple(
+                first_order_lowpass(d, self.period, tau)[0]
+                for d in effect.drive_signal_slopes(self.command, self.period, key[2])
+            )
             if len(self._filtered) >= CACHE_SIZE:
                 del self._filtered[next(iter(self._filtered))]
-            self._filtered[key] = (y, slope)
+            self._filtered[key] = (y, slope, slopes)
         return self._filtered[key]
 
 
@@ -117,14 +130,16 @@ class DriveSamples:
     history: DriveHistory
     taps: tuple[tuple[IndexArray, float], ...]
 
-    def lowpass(self, effect: Effect, tau: float) -> tuple[FloatArray, FloatArray]:
+    def lowpass(self, effect: Effect, tau: float, shape: Sequence[float] = ()) -> Filtered:
         """Return :meth:`DriveHistory.lowpass` at the samples, each (A, n).
 
         Raises:
             CalibrationFitError: ``tau`` not positive and finite.
 
         """
-        y, slope = self.history.lowpass(effect, tau)
-        value = sum(w * y[rows].T for rows, w in self.taps)
-        d_value = sum(w * slope[rows].T for rows, w in self.taps)
-        return np.asarray(value, np.float64), np.asarray(d_value, np.float64)
+        y, slope, slopes = self.history.lowpass(effect, tau, shape)
+        return self._at(y), self._at(slope), tuple(self._at(d) for d in slopes)
+
+    def _at(self, series: FloatArray) -> FloatArray:
+        """Return a full-rate series (N, A) read at the samples through the taps, (A, n)."""
+        return np.asarray(sum(w * series[rows].T for rows, w in self.taps), np.float64)

@@ -7,8 +7,9 @@ effect registry (:mod:`es_physics.effects`); each effect acts in one stage (its
 :class:`~es_physics.effects.Role`), in this order:
 
 - ``TEMPERATURE``: T_a = T + tau dT/dt (the actuator leads the sensor by a first-order lag);
-- ``HEATING``: T_a += g LP_tau(P), P the effect's drive signal (the drive's loss), g and
-  log tau fitted (the low-pass runs over the whole command, see history.py);
+- ``HEATING``: T_a += g LP_tau(P), P the effect's drive signal (the drive's loss), g,
+  log tau and the signal's own parameters (self-heating: its running-mean window) fitted
+  (the low-pass runs over the whole command, see history.py);
 - ``INPUT_SHIFT``: V(t - d), applied when the inputs are built (see ``FitInputs``);
 - ``PLAY``: V_eff = V + a(T_a) sum_i weight_i (play_(r_i)(V) - V),
   a(T_a) = exp(-beta (T_a - T_mean)) with beta fitted too; the play operators are applied
@@ -40,7 +41,7 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
-from es_feedforward.calibration.history import DriveSamples
+from es_feedforward.calibration.history import DriveSamples, Filtered
 from es_feedforward.errors import CalibrationError
 from es_physics.effects import Effect, EffectError, Role, candidates, get, with_role
 from es_physics.effects.coupling import neighbour_count, neighbour_laplacian
@@ -180,15 +181,20 @@ class CompositeModel:
         """Return the global name of the effect's ``index``-th fit parameter."""
         return f"{effect.name}.{self.parameter_names(effect)[index]}"
 
-    @staticmethod
     def _lowpass(
-        data: FitInputs, effect: Effect, log_tau: float
-    ) -> tuple[FloatArray, FloatArray]:
-        """Return the effect's filtered drive signal at the samples and its d / d(log tau)."""
+        self, data: FitInputs, effect: Effect, log_tau: float, g: FloatArray
+    ) -> Filtered:
+        """Return the effect's filtered drive signal at the samples and its derivatives.
+
+        By log tau, and by each signal parameter (the effect's last shared unknowns, their
+        values in ``g``).
+        """
         if data.drive is None:
             raise CalibrationError(f"{effect.name} needs the command history in the inputs")
+        first = len(self.parameter_names(effect)) - len(effect.signal_parameters)
+        shape = [self._global(g, effect, first + i) for i in range(len(effect.signal_parameters))]
         # a time constant beyond e^+-30 s is no physical one (and would overflow)
-        return data.drive.lowpass(effect, float(np.exp(np.clip(log_tau, -30.0, 30.0))))
+        return data.drive.lowpass(effect, float(np.exp(np.clip(log_tau, -30.0, 30.0))), shape)
 
     def evaluate(
         self, local: FloatArray, g: FloatArray, data: FitInputs, jacobian: bool = True
@@ -212,10 +218,14 @@ class CompositeModel:
             dTa[self.key(self.lead)] = data.temperature_rate
         if self.heating:
             gain_h = self._value(local, g, self.heating, 0)
-            excess, d_excess = self._lowpass(data, self.heating, self._global(g, self.heating, 1))
+            excess, d_excess, d_shape = self._lowpass(
+                data, self.heating, self._global(g, self.heating, 1), g
+            )
             Ta = Ta + gain_h * excess
             dTa[self.key(self.heating, 0)] = excess
             dTa[self.key(self.heating, 1)] = gain_h * d_excess
+            for i, column in enumerate(d_shape):
+                dTa[self.key(self.heating, 2 + i)] = gain_h * column
 
         V = data.voltage
         dV: dict[str, FloatArray] = {}  # d V_eff / d parameter
@@ -238,7 +248,9 @@ class CompositeModel:
             r = self._global(g, self.relaxation, 0)
             log_fc = self._global(g, self.relaxation, 1)
             # tau = 1 / (2 pi f_c): d / d(log f_c) = -d / d(log tau)
-            state, d_state = self._lowpass(data, self.relaxation, -log_fc - np.log(2.0 * np.pi))
+            state, d_state, _ = self._lowpass(
+                data, self.relaxation, -log_fc - np.log(2.0 * np.pi), g
+            )
             high = data.voltage - state
             V = V - r * high
             dV[self.key(self.relaxation, 0)] = -high

@@ -173,6 +173,19 @@ def _edge_lines(a: AlignedData) -> list[str]:
     ]
 
 
+def _span_lines(a: AlignedData) -> list[str]:
+    """Return the report's line on samples outside the temperature topic (rule: gaps.py)."""
+    s = a.temperature_span
+    if s is None or not s.excluded_samples:
+        return []
+    return [
+        f"- {s.excluded_before} displacement samples before the first temperature message "
+        f"(bag time {s.start_s:.3f} s) and {s.excluded_after} after the last "
+        f"({s.end_s:.3f} s) are left out of fit and scoring "
+        "(their temperature would be extrapolated)",
+    ]
+
+
 def _law_table(cal: Calibration) -> list[str]:
     local = cal.final.fit.local
     sig = law_uncertainty(cal)
@@ -229,6 +242,7 @@ def write_report(cal: Calibration, out: Path, notes: list[str]) -> Path:
         "- effect search on " + (cal.search_span or "the whole record"),
         *([f"- {a.repeated_stamps}"] if a.repeated_stamps else []),
         *_gap_lines(a),
+        *_span_lines(a),
         *_edge_lines(a),
         "",
         "## b. Law fit (hyperbolic, M and k "

@@ -14,7 +14,10 @@ residual's autocorrelation)::
                          "duration_s", "missing_samples", "excluded_samples"}],
                "command_edges": {"edges", "excluded_samples", "excluded_fraction",
                                  "example_times_s" (bag times of the first edges),
-                                 "excluded_before_s", "excluded_after_s"} or null},
+                                 "excluded_before_s", "excluded_after_s"} or null,
+               "temperature_span": {"start_s", "end_s" (bag times of the first and last
+                                    temperature messages), "excluded_before",
+                                    "excluded_after" (samples outside them)} or null},
       "law": {"L", "Tm" (fixed), "m1", "m2", "m3", "k1", "k2", "k3": row-major lists of R*C,
               "uncertainty": {same names: lists of R*C 1-sigma values}},
       "effects": [{"name": canonical name, "parameters": {...}, "uncertainties": {...},
@@ -149,6 +152,7 @@ def calibration_document(cal: Calibration) -> dict[str, Any]:
             "repeated_stamps": a.repeated_stamps,
             "gaps": [g.as_dict() for g in a.gaps],
             "command_edges": a.command_edges.as_dict() if a.command_edges else None,
+            "temperature_span": a.temperature_span.as_dict() if a.temperature_span else None,
         },
         "law": law,
         "effects": [

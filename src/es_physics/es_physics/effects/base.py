@@ -22,7 +22,7 @@ from __future__ import annotations
 import enum
 import math
 from abc import ABC, abstractmethod
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import ClassVar
 
@@ -50,7 +50,8 @@ class Role(enum.Enum):
 
     ``HEATING`` and ``RELAXATION`` effects have two shared unknowns, in this order: the
     coefficient and the log of the filter's time constant (``HEATING``: log tau [log s];
-    ``RELAXATION``: log of the corner frequency f_c [log Hz], tau = 1 / (2 pi f_c)).
+    ``RELAXATION``: log of the corner frequency f_c [log Hz], tau = 1 / (2 pi f_c)); then
+    the :attr:`Effect.signal_parameters` that shape the filtered drive signal, if any.
     """
 
     TEMPERATURE = "temperature"
@@ -192,6 +193,9 @@ class Effect(ABC):
     #: Shared unknowns the calibration may fit one per actuator instead, when held-out
     #: scoring says the extra unknowns pay off (roles ``TEMPERATURE`` and ``HEATING``).
     local_options: ClassVar[tuple[str, ...]] = ()
+    #: The last shared unknowns of a ``HEATING`` or ``RELAXATION`` effect, which shape its
+    #: drive signal (:meth:`drive_signal`'s ``shape``, :meth:`drive_signal_slopes`).
+    signal_parameters: ClassVar[tuple[str, ...]] = ()
     #: Unknowns the calibration finds by a scan (one value for the grid).
     searched: ClassVar[tuple[str, ...]] = ()
     #: The feedforward's ``compensation.<name>`` parameters the effect owns.
@@ -258,12 +262,15 @@ class Effect(ABC):
         """
         return {}
 
-    def drive_signal(self, command: FloatArray, period: float) -> FloatArray:
+    def drive_signal(
+        self, command: FloatArray, period: float, shape: Sequence[float] = ()
+    ) -> FloatArray:
         """Return the series a ``HEATING`` or ``RELAXATION`` effect's low-pass filters.
 
         Args:
             command: the command, time-major (N, A) [V], uniformly sampled.
             period: its sample period [s].
+            shape: values of :attr:`signal_parameters` (empty: the effect's defaults).
 
         Returns:
             (N, A), in the unit the effect's coefficient multiplies.
@@ -273,6 +280,15 @@ class Effect(ABC):
 
         """
         raise EffectError(f"effect {self.name} filters no drive signal")
+
+    def drive_signal_slopes(
+        self, command: FloatArray, period: float, shape: Sequence[float]
+    ) -> tuple[FloatArray, ...]:
+        """Return d :meth:`drive_signal` / d each of :attr:`signal_parameters`, each (N, A).
+
+        The default: an effect without signal parameters has none.
+        """
+        return ()
 
     def additive(self, g: Mapping[str, float], t: FloatArray, Ta: FloatArray) -> Additive:
         """Return the displacement term of an ``ADDITIVE`` effect and its derivatives.

@@ -27,7 +27,7 @@ out).
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import ClassVar, Final
 
 import numpy as np
@@ -220,7 +220,9 @@ class FrequencyDispersion(Effect):
             {"fraction": START_FRACTION, "log_corner_hz": math.log(f)} for f in START_CORNERS_HZ
         ]
 
-    def drive_signal(self, command: FloatArray, period: float) -> FloatArray:
+    def drive_signal(
+        self, command: FloatArray, period: float, shape: Sequence[float] = ()
+    ) -> FloatArray:
         """Return the command itself (N, A) [V]: its low-pass is the relaxing part's state."""
         return np.asarray(command, np.float64)
 

@@ -13,18 +13,23 @@ drive's own history, d(dT)/dt = (g P_drive - dT) / tau with P_drive = |V - V_mea
 :class:`HeatingEstimate`).
 
 Calibration (role ``HEATING``): T_a = T_s + g LP_tau(P_drive), P_drive the same measure
-(:func:`loss_measure`, :meth:`SelfHeating.drive_signal`) with the running mean over
-``MEAN_WINDOW_S``; unknowns g and log tau, reported as ``gain`` [degC s/V^2] and ``tau_s``
-[s]. For a sine of amplitude A at f the steady excess is g f A^2 (the mean of P_drive).
+(:func:`loss_measure`, :meth:`SelfHeating.drive_signal`) with the running mean over a window
+W; unknowns g, log tau and log W, reported as ``gain`` [degC s/V^2], ``tau_s`` [s] and
+``mean_window_s`` [s] (and W set in the compensation). W is fitted because the plant's
+split of the drive into its level and its swing is its own (a different window leaves a
+residual heating error of the size of the noise); it is held within ``MEAN_WINDOW_RANGE_S``
+(beyond it the measure no longer changes with W). For a sine of amplitude A at f the steady
+excess is g f A^2 (the mean of P_drive).
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import ClassVar, Final
 
 import numpy as np
+from scipy.signal import lfilter
 
 from es_physics.effects.base import (
     Effect,
@@ -37,8 +42,10 @@ from es_physics.effects.base import (
 from es_physics.effects.stages import Compensator, Drive, PlantContext, PlantStage
 from es_physics.errors import EffectParameterError
 
-#: Running-mean window the calibration's drive measure uses (and sets in the compensation) [s].
+#: Running-mean window the calibration's drive measure starts from [s].
 MEAN_WINDOW_S: Final = 1.0
+#: Running-mean windows the calibration's drive measure can take [s].
+MEAN_WINDOW_RANGE_S: Final = (0.05, 50.0)
 #: Starting thermal gain of the calibration's fit [degC s/V^2] (tens of mdegC at 100 V, 1 Hz).
 START_GAIN: Final = 1e-5
 #: Time constants the calibration starts from [s].
@@ -172,7 +179,8 @@ class SelfHeating(Effect):
     summary: ClassVar[str] = "dielectric loss heats the actuator with V^2 and drive frequency"
     role: ClassVar[Role] = Role.HEATING
     simulated: ClassVar[bool] = True
-    fit_parameters: ClassVar[tuple[str, ...]] = ("gain", "log_tau_s")
+    fit_parameters: ClassVar[tuple[str, ...]] = ("gain", "log_tau_s", "log_mean_window_s")
+    signal_parameters: ClassVar[tuple[str, ...]] = ("log_mean_window_s",)
     local_options: ClassVar[tuple[str, ...]] = ("gain",)
     plant: ClassVar[tuple[Parameter, ...]] = (
         Parameter("loss_w_per_hz_v2", "W/(Hz V^2)", 0.0, 1e-3, 4.7e-9, "loss coefficient p_d"),
@@ -190,39 +198,90 @@ class SelfHeating(Effect):
 
     def starts(self, duration_s: float) -> list[dict[str, float]]:
         """Start from a typical gain (so tau has a gradient) at a short and a long tau."""
-        return [{"gain": START_GAIN, "log_tau_s": math.log(tau)} for tau in START_TAUS_S]
+        return [
+            {
+                "gain": START_GAIN,
+                "log_tau_s": math.log(tau),
+                "log_mean_window_s": math.log(MEAN_WINDOW_S),
+            }
+            for tau in START_TAUS_S
+        ]
 
-    def drive_signal(self, command: FloatArray, period: float) -> FloatArray:
+    @staticmethod
+    def _window(shape: Sequence[float]) -> tuple[float, bool]:
+        """Return the window W [s] of ``shape`` (log W; empty: ``MEAN_WINDOW_S``), in range.
+
+        The flag says whether W lies inside ``MEAN_WINDOW_RANGE_S`` (outside, it is held at
+        the bound and the measure does not change with log W).
+        """
+        if not shape:
+            return MEAN_WINDOW_S, True
+        low, high = MEAN_WINDOW_RANGE_S
+        window = math.exp(min(max(float(shape[0]), math.log(low)), math.log(high)))
+        return window, low < window < high
+
+    @staticmethod
+    def _means(command: FloatArray, keep: float) -> FloatArray:
+        """Return the running mean before each command (N, A) [V].
+
+        m_0 = V_0, m_(k+1) = V_k + (m_k - V_k) keep.
+        """
+        # y_k = keep y_(k-1) + (1 - keep) x_(k-1): the state starts at V_0, so y_0 = V_0
+        means, _ = lfilter([0.0, 1.0 - keep], [1.0, -keep], command, axis=0, zi=command[:1])
+        return np.asarray(means, np.float64)
+
+    def drive_signal(
+        self, command: FloatArray, period: float, shape: Sequence[float] = ()
+    ) -> FloatArray:
         """Return P_drive (N, A) [V^2/s] of a uniformly sampled command (N, A) [V].
 
         Row k holds the loss of the switch to command k (row 0: none), the running mean of
-        time constant ``MEAN_WINDOW_S`` started at the first command.
+        time constant W (``shape``: (log W,); empty: ``MEAN_WINDOW_S``) started at the first
+        command.
         """
         command = np.asarray(command, np.float64)
         out = np.zeros_like(command)
         if command.shape[0] < 2:
             return out
-        keep = math.exp(-period / MEAN_WINDOW_S)
-        means = np.empty_like(command)
-        mean = command[0].copy()
-        for k in range(command.shape[0]):  # a recursion over time, vectorised over actuators
-            means[k] = mean
-            mean = command[k] + (mean - command[k]) * keep
+        window, _ = self._window(shape)
+        means = self._means(command, math.exp(-period / window))
         out[1:] = loss_measure(command[:-1], command[1:], means[1:], period)
         return out
 
+    def drive_signal_slopes(
+        self, command: FloatArray, period: float, shape: Sequence[float]
+    ) -> tuple[FloatArray, ...]:
+        """Return (d P_drive / d log W,) (N, A) [V^2/s] (0 with W held at a bound)."""
+        command = np.asarray(command, np.float64)
+        out = np.zeros_like(command)
+        window, inside = self._window(shape)
+        if command.shape[0] < 2 or not inside:
+            return (out,)
+        keep = math.exp(-period / window)
+        means = self._means(command, keep)
+        # s_k = d m_k / d log W: s_0 = 0, s_(k+1) = keep s_k + (m_k - V_k) keep period / W
+        drive = (means - command) * (keep * period / window)
+        slope, _ = lfilter([0.0, 1.0], [1.0, -keep], drive, axis=0, zi=np.zeros_like(command[:1]))
+        swing = np.abs(command[1:] - command[:-1])
+        level = 0.5 * (command[1:] + command[:-1]) - means[1:]
+        out[1:] = -0.5 * swing * np.sign(level) * slope[1:] / period
+        return (out,)
+
     def reported(self, fit: FittedEffect) -> dict[str, float]:
-        """Return ``gain`` [degC s/V^2] and ``tau_s`` [s]."""
+        """Return ``gain`` [degC s/V^2], ``tau_s`` [s] and ``mean_window_s`` [s]."""
         return {
             "gain": float(fit.values["gain"]),
             "tau_s": float(np.exp(fit.values["log_tau_s"])),
+            "mean_window_s": self._window((fit.values["log_mean_window_s"],))[0],
         }
 
     def uncertainties(self, fit: FittedEffect) -> dict[str, float]:
-        """Propagate the log-parameter's uncertainty to ``tau_s``."""
+        """Propagate the log-parameters' uncertainties to ``tau_s`` and ``mean_window_s``."""
         return {
             "gain": float(fit.sigma["gain"]),
             "tau_s": float(np.exp(fit.values["log_tau_s"])) * float(fit.sigma["log_tau_s"]),
+            "mean_window_s": self._window((fit.values["log_mean_window_s"],))[0]
+            * float(fit.sigma["log_mean_window_s"]),
         }
 
     def problem(self, reported: dict[str, float]) -> str | None:
@@ -241,11 +300,11 @@ class SelfHeating(Effect):
     def compensation_values(
         self, reported: dict[str, float], start_time: float
     ) -> dict[str, float]:
-        """Estimate the excess from the drive sent, with the calibration's mean window."""
+        """Estimate the excess from the drive sent, with the fitted mean window."""
         return {
             "self_heating_gain": reported["gain"],
             "self_heating_tau_s": reported["tau_s"],
-            "self_heating_mean_window_s": MEAN_WINDOW_S,
+            "self_heating_mean_window_s": reported["mean_window_s"],
         }
 
     def plant_stage(self, settings: Mapping[str, float], context: PlantContext) -> PlantStage:
