@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import sys
+
 import numpy as np
 import pytest
 
@@ -21,6 +23,7 @@ from es_feedforward.calibration.model import (
     play_operator,
 )
 from es_feedforward.calibration.residual import integrated_autocorrelation_time, noise_floor
+from es_feedforward.kernels import KERNELS_ENV
 from es_physics.effects import EffectError
 from es_physics.effects.coupling import grid_laplacian
 from es_physics.effects.hysteresis import play
@@ -57,6 +60,34 @@ def test_play_operator_matches_the_plant_definition() -> None:
         state = play(state, row, 12.0)
         expected.extend([state] * int(np.sum(keep == i)))
     np.testing.assert_allclose(got, np.asarray(expected))
+
+
+@pytest.mark.parametrize(
+    ("command_shape", "threshold", "state"),
+    [
+        ((700, 3), 12.0, None),  # one threshold for every actuator
+        ((700, 3), np.array([0.0, 5.0, 40.0]), np.array([3.0, -2.0, 1e3])),  # per actuator
+        ((700, 1), np.array([[2.0], [9.0], [30.0]]), None),  # a stack of thresholds, 1 column
+        ((700, 2), np.array([[2.0], [9.0]]), np.zeros((2, 2))),  # thresholds x actuators
+    ],
+)
+def test_the_compiled_play_operator_gives_numpys_numbers(
+    monkeypatch: pytest.MonkeyPatch, command_shape, threshold, state
+) -> None:
+    # the effect search runs the compiled loop (play_loop.py); numpy's must agree exactly,
+    # NaN commands (a hole) and repeated or skipped rows included
+    rng = np.random.default_rng(3)
+    command = np.cumsum(rng.normal(0, 5, command_shape), axis=0)
+    command[200:203, 0] = np.nan
+    keep = np.array([0, 7, 7, 150, 201, 300, 301, 699, 699])
+    results = {}
+    for backend in ("numpy", "fused"):
+        monkeypatch.setenv(KERNELS_ENV, backend)
+        results[backend] = play_operator(command, threshold, keep, state)
+    assert "es_feedforward.calibration.play_loop" in sys.modules  # the compiled loop ran
+    assert results["fused"].shape == results["numpy"].shape
+    np.testing.assert_array_equal(results["fused"], results["numpy"])
+    assert np.isnan(results["numpy"][4]).any() and np.isfinite(results["numpy"][2]).all()
 
 
 def test_laplacian_matches_the_plant_definition() -> None:

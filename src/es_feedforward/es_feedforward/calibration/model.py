@@ -43,6 +43,7 @@ import numpy.typing as npt
 
 from es_feedforward.calibration.history import DriveSamples, Filtered
 from es_feedforward.errors import CalibrationError
+from es_feedforward.kernels import Backend, default_backend
 from es_physics.effects import Effect, EffectError, Role, candidates, get, with_role
 from es_physics.effects.coupling import neighbour_count, neighbour_laplacian
 from es_physics.effects.drift import DRIFT_LOG_NU_LIMIT
@@ -361,16 +362,30 @@ def play_operator(
     (A,) (a stack of thresholds works with ``command`` (N, 1)). The state starts at the clipped
     zero, y_0 = clip(0, V_0 - r, V_0 + r), or continues from ``state`` (the operator's value
     after the previous rows, a streamed command). Only the rows ``keep`` (sorted) are returned, so a
-    long run needs no full-size output; the loop is over time, vectorised over actuators.
+    long run needs no full-size output. The loop is over time: compiled where the kernels are
+    fused (:mod:`es_feedforward.calibration.play_loop`, the same numbers), else in numpy,
+    vectorised over actuators.
     """
     r = np.asarray(threshold, np.float64)
     shape = np.broadcast_shapes(command.shape[1:], r.shape)
     start = np.zeros(shape) if state is None else np.array(np.broadcast_to(state, shape))
     state = np.clip(start, command[0] - r, command[0] + r)
-    low = np.empty(shape)
     out = np.empty((len(keep), *shape))
     if not len(keep):
         return out
+    if default_backend() is Backend.FUSED:
+        from es_feedforward.calibration.play_loop import play_rows
+
+        size = int(np.prod(shape, dtype=np.intp))
+        own = command.shape[1:]
+        columns = np.broadcast_to(np.arange(int(np.prod(own, dtype=np.intp))).reshape(own), shape)
+        play_rows(np.ascontiguousarray(command.reshape(command.shape[0], -1), np.float64),
+                  np.ascontiguousarray(columns.reshape(size), np.intp),
+                  np.ascontiguousarray(np.broadcast_to(r, shape).reshape(size)),
+                  np.ascontiguousarray(state.reshape(size)), np.ascontiguousarray(keep, np.intp),
+                  out.reshape(len(keep), size))
+        return out
+    low = np.empty(shape)
     # which output slot each needed row fills (rows may repeat)
     last = int(keep[-1])
     first_slot = np.searchsorted(keep, np.arange(last + 1), side="left")
