@@ -35,7 +35,7 @@ message and after the last one go too (:func:`exclude_outside_span`), counted ap
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, replace
 from typing import Any, Final
 
 import numpy as np
@@ -128,12 +128,7 @@ class TemperatureSpan:
 
     def as_dict(self) -> dict[str, Any]:
         """Return the span as calibration.json writes it (``data.temperature_span``)."""
-        return {
-            "start_s": self.start_s,
-            "end_s": self.end_s,
-            "excluded_before": self.excluded_before,
-            "excluded_after": self.excluded_after,
-        }
+        return asdict(self)
 
 
 def exclude_outside_span(

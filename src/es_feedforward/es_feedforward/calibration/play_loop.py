@@ -1,7 +1,7 @@
 """The play operator's recursion over time, compiled (numba).
 
 The play operator is a recursion over time, y_i = min(max(y_(i-1), V_i - r), V_i + r): in
-numpy each time step is four calls over the (few) actuators, about 8 us per step whatever the
+numpy each time step is four calls over the actuators, about 8 us per step on a small
 grid, so a 1 x 1 recording of 23 s at 5 kHz took about 0.9 s per operator, and the effect
 search evaluates dozens (most of a hysteresis case's time). Here the whole recursion is one
 compiled loop. It does the same IEEE operations as :func:`es_feedforward.calibration.model.
