@@ -20,6 +20,7 @@ from es_feedforward.kernels import (
     KernelBackendError,
     default_backend,
     fused_available,
+    fused_hyperbolic_inverse,
     fused_reach_status,
     observer_command,
 )
@@ -195,3 +196,60 @@ def test_fused_reach_status_takes_clear_set_points_and_leaves_unclear_ones() -> 
         voltage = before.copy()
         assert fused_reach_status(z, voltage, below, beyond, DEFAULT_V_LIMIT) is None
         np.testing.assert_array_equal(voltage, before)  # untouched: the caller inverts
+
+
+@pytest.mark.parametrize("T0", [42.0, 50.0])  # +- 1 degC: inside the laws' range
+def test_fused_hyperbolic_inverse_is_the_numpy_inverse_bit_for_bit(T0: float) -> None:
+    rng = np.random.default_rng(11)
+    ff = Feedforward(FeedforwardConfig(shape=SHAPE, params=_params(rng)), backend=Backend.FUSED)
+    ff.update_temperature(T0 + rng.uniform(-1.0, 1.0, SHAPE), 0.0)
+    laws = ff._laws
+    assert laws is not None and not laws.flagged
+    # in reach, beyond what v_limit reaches (clipped there) and just below saturation
+    z = rng.uniform(0.0, 0.99, SHAPE) * laws.z_sat
+    z.flat[:4] = laws.z_sat.flat[:4] * (1.0 - 1e-11)
+    z.flat[4] = 0.0
+    for given in (z, np.asfortranarray(z), np.frombuffer(z.tobytes()).reshape(SHAPE)):
+        fused = fused_hyperbolic_inverse(laws, given, DEFAULT_V_LIMIT)
+        expected = laws.hyperbolic_inverse(given, DEFAULT_V_LIMIT)
+        assert fused is not None
+        np.testing.assert_array_equal(fused.voltage, expected.voltage)
+        np.testing.assert_array_equal(fused.status, expected.status)
+        assert fused.voltage.shape == SHAPE and fused.status.dtype == np.int8
+    assert np.any(expected.status == CODE_CLIPPED_HIGH) and np.any(expected.status == CODE_OK)
+
+
+@pytest.mark.parametrize("bad", [-1e-12, np.nan, np.inf, 1.0])
+def test_fused_hyperbolic_inverse_leaves_unclean_set_points_to_numpy(bad: float) -> None:
+    rng = np.random.default_rng(12)
+    ff = Feedforward(FeedforwardConfig(shape=SHAPE, params=_params(rng)), backend=Backend.FUSED)
+    ff.update_temperature(np.full(SHAPE, 46.0), 0.0)
+    laws = ff._laws
+    assert laws is not None
+    z = rng.uniform(0.0, 0.5, SHAPE) * laws.z_sat
+    z.flat[-1] = bad * laws.z_sat.flat[-1] if bad == 1.0 else bad  # 1.0: at saturation
+    assert fused_hyperbolic_inverse(laws, z, DEFAULT_V_LIMIT) is None
+    # and the feedforward gives the numpy path's command for it
+    numpy_ff = Feedforward(ff.config, backend=Backend.NUMPY)
+    numpy_ff.update_temperature(np.full(SHAPE, 46.0), 0.0)
+    fused_result, numpy_result = ff.command(z, 0.0), numpy_ff.command(z, 0.0)
+    np.testing.assert_array_equal(fused_result.voltage, numpy_result.voltage)
+    np.testing.assert_array_equal(fused_result.status, numpy_result.status)
+
+
+def test_default_mode_backends_agree_on_a_clean_stream() -> None:
+    rng = np.random.default_rng(13)
+    config = FeedforwardConfig(shape=SHAPE, params=_params(rng))
+    assert config.mode is Mode.INVERSE_HYPERBOLIC
+    cores = {b: Feedforward(config, backend=b) for b in Backend}
+    for step in range(6):
+        T = 46.0 + rng.uniform(-3.0, 3.0, SHAPE)
+        for core in cores.values():
+            core.update_temperature(T, 0.01 * step)
+        laws = cores[Backend.FUSED]._laws
+        assert laws is not None
+        z = rng.uniform(0.0, 0.95, SHAPE) * laws.z_sat
+        fused, numpy_ = (cores[b].command(z, 0.01 * step) for b in (Backend.FUSED, Backend.NUMPY))
+        np.testing.assert_array_equal(fused.voltage, numpy_.voltage)
+        np.testing.assert_array_equal(fused.status, numpy_.status)
+        assert not fused.held and fused.voltage.max() <= DEFAULT_V_LIMIT

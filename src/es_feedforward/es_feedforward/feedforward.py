@@ -47,6 +47,7 @@ from es_feedforward.feedforward_config import (
 from es_feedforward.kernels import (
     Backend,
     default_backend,
+    fused_hyperbolic_inverse,
     fused_reach_status,
     observer_command,
     prepare,
@@ -317,7 +318,7 @@ class Feedforward:
         elif mode is Mode.OBSERVER:
             result, model_error = self._observer(laws, z)
         else:
-            result = laws.hyperbolic_inverse(z, v_limit)
+            result = self._hyperbolic(laws, z)
 
         # the model inverses already return finite voltages in [0, v_limit]; only the
         # drive's inverses can leave that range
@@ -343,6 +344,15 @@ class Feedforward:
         self._last_voltage = voltage
         self._last_status = status
         return CommandResult(voltage, status, model_error=model_error)
+
+    def _hyperbolic(self, laws: LawsAtTemperature, z: FloatArray) -> InverseResult:
+        """Return the hyperbolic inverse of ``z``, fused where the kernels and the laws allow."""
+        v_limit = self.config.v_limit
+        if self.backend is Backend.FUSED and not laws.flagged and z.size:
+            fused = fused_hyperbolic_inverse(laws, z, v_limit)
+            if fused is not None:
+                return fused
+        return laws.hyperbolic_inverse(z, v_limit)
 
     def _compensate_setpoint(self, z: FloatArray, T: FloatArray, t: float) -> FloatArray:
         """Turn the wanted displacement into the wanted free (basic-model) displacement."""
