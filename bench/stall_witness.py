@@ -143,8 +143,12 @@ class MachineCheck:
     @classmethod
     def of(cls, sent: np.ndarray, received: np.ndarray, witnessed: np.ndarray,
            target_s: float) -> MachineCheck:
-        """Compare a run's (sent, received) stamps [s] with the witness's (due, woke) rows."""
-        if not len(sent):
+        """Compare a run's (sent, received) stamps [s] with the witness's (due, woke) rows.
+
+        A run that lost commands has no pairing of set points with commands (``received``
+        empty): nothing to compare, all counts 0 and ``longest_ms`` NaN.
+        """
+        if not len(sent) or len(received) != len(sent):
             return cls(0, 0, 0, 0, float("nan"))
         inside = (witnessed[:, 1] >= sent[0] - target_s) & (witnessed[:, 0] <= received[-1])
         run_stalls = witnessed[inside]

@@ -44,7 +44,7 @@ from es_feedforward.node_params import parameter_specs
 from es_feedforward.param_file import (
     config_from_parameters,
 )
-from es_msgs_py.arrays import LayoutError, grid_to_msg, msg_to_grid
+from es_msgs_py.arrays import LayoutError, msg_to_grid
 from es_msgs_py.diagnostics import (
     Level,
     make_array,
@@ -53,6 +53,7 @@ from es_msgs_py.diagnostics import (
     unmatched,
     unreached,
 )
+from es_msgs_py.grid_wire import GridWire
 from es_msgs_py.node_main import run_node, summary_line, usage_text
 from es_msgs_py.params import ParameterValues, declare_parameters
 from es_msgs_py.topics import (
@@ -111,10 +112,8 @@ class FeedforwardNode(Node):
 
         # deep publisher history: a recorder that lags for a moment still gets every command
         self._command_pub = self.create_publisher(Float64MultiArray, COMMAND, DM_QOS)
-        self._command_msg = grid_to_msg(np.zeros(config.shape))
-        self._command_grid = np.frombuffer(self._command_msg.data, np.float64).reshape(
-            config.shape
-        )
+        # set points in and commands out as CDR bytes: no rclpy message objects per set point
+        self._wire = GridWire(config.shape)
         self._diag_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS, qos_for(DIAGNOSTICS))
         # In lockstep a step's estimate is sent before its set point, which must use it: the
         # events executor serves messages in arrival order, the single-threaded one serves
@@ -135,11 +134,11 @@ class FeedforwardNode(Node):
                 qos_for(TEMPERATURE_RAW),
                 raw=True,
             )
-        self._deferred: deque[Float64MultiArray] = deque()  # set points waiting for estimates
+        self._deferred: deque[bytes] = deque()  # serialised set points waiting for estimates
         self._sync_timer: Timer | None = None
         self._reported_sync_timeouts = 0
         self._setpoint_sub = self.create_subscription(
-            Float64MultiArray, SETPOINT, self._on_setpoint, qos_for(SETPOINT)
+            Float64MultiArray, SETPOINT, self._on_setpoint, qos_for(SETPOINT), raw=True
         )
         self._counts = {
             "setpoints": 0, "commands": 0, "held": 0, "temperatures": 0, "waited": 0
@@ -168,7 +167,7 @@ class FeedforwardNode(Node):
     def _now(self) -> float:
         return float(self.get_clock().now().nanoseconds) * 1e-9
 
-    def _on_setpoint(self, msg: Float64MultiArray) -> None:
+    def _on_setpoint(self, msg: bytes) -> None:
         self._counts["setpoints"] += 1
         sync = self._sync
         if sync is not None and (self._deferred or sync.owed(time.monotonic())):
@@ -178,11 +177,10 @@ class FeedforwardNode(Node):
             return
         self._command_for(msg)
 
-    def _command_for(self, msg: Float64MultiArray) -> None:
-        """Compute and publish the command of one set point (or hold the last good one)."""
+    def _command_for(self, msg: bytes) -> None:
+        """Compute and publish the command of one serialised set point (or hold the last one)."""
         try:
-            # a view of the received message (not reused by rclpy, never written by the core)
-            setpoint = msg_to_grid(msg, self._core.config.shape, copy=False)
+            setpoint = self._wire.decode(msg)
         except LayoutError as err:
             self._hold(f"set point rejected: {err}")
             self._reject(SETPOINT, str(err))  # its diagnostics count the held command
@@ -272,10 +270,7 @@ class FeedforwardNode(Node):
         self._release_deferred()
 
     def _publish_command(self, voltage: np.ndarray) -> None:
-        # publish() serialises synchronously, so one message (layout fixed by the read-only
-        # rows/cols) is refilled in place instead of building a new one per set point.
-        self._command_grid[...] = voltage
-        self._command_pub.publish(self._command_msg)
+        self._command_pub.publish(self._wire.encode(voltage))
         self._counts["commands"] += 1
 
     def _unconnected_inputs(self) -> list[str]:
