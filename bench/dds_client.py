@@ -209,7 +209,13 @@ class DdsClient:
         return done / elapsed, self._wait_received(first + sent, 10.0)
 
     def close(self) -> None:
-        """Destroy the node and shut its context down."""
+        """Shut the executor down, destroy the node and shut its context down.
+
+        The EventsExecutor must be shut down first: otherwise it keeps the node's DDS entities
+        alive after ``destroy_node`` (8 threads per closed client), and every later run of a
+        benchmark process pays for the earlier clients still receiving its messages.
+        """
+        self.executor.shutdown()
         self.node.destroy_node()
         import rclpy
 
