@@ -96,23 +96,23 @@ def paced_run(client: DdsClient, rate_hz: float, seconds: float) -> PacedRun:
 def start_client(shape: tuple[int, int], timeout: float, hold_check: bool) -> DdsClient:
     """Return a DdsClient whose peer is up, has a temperature, and answered 50 set points.
 
+    A feedforward node (``hold_check``) first gets the estimate and set points one at a time
+    until a command shows it was taken.
+
     Raises:
         RuntimeError: the peer never showed up, or (``hold_check``) it answered 0 V only.
 
     """
     from dds_client import DdsClient
 
-    from es_msgs_py.arrays import msg_to_grid
-
     client = DdsClient(shape)
     try:
-        client.wait_for_peer(timeout=timeout)
-        client.temperature_pub.publish(client.temperature)
-        client.executor.spin_once(timeout_sec=0.2)
+        # the estimate is sent once the node's subscription matched (a volatile sample sent
+        # before that is lost), and set points go until a command shows it was taken
+        client.wait_for_peer(timeout=timeout, estimates=hold_check)
+        if hold_check:
+            client.use_temperature(timeout)
         client.latencies(WARMUP)  # one at a time
-        if hold_check and client.last_command is not None and not np.any(
-                msg_to_grid(client.last_command) > 0.0):
-            raise RuntimeError("feedforward holds (all 0 V): temperature not taken")
     except BaseException:
         client.close()
         raise
@@ -187,6 +187,7 @@ def measure(kind: str, shape: tuple[int, int], rate_hz: float, seconds: float,
     watching = [Process(path.stem, argv, log_dir) for path, argv in witnesses]
     with processes(node, *watching):
         client = start_client(shape, 60.0, hold_check=kind == "feedforward")
+        answered_before = client.received  # warm-up and estimate check, one at a time
         try:
             run = paced_run(client, rate_hz, seconds)
             sent, received = client.paced_sent_at, client.paced_received_at
@@ -196,7 +197,7 @@ def measure(kind: str, shape: tuple[int, int], rate_hz: float, seconds: float,
         for witness in watching:
             witness.stop()
     published = published_commands(node.output()) if kind == "feedforward" else None
-    unanswered = None if published is None else run.sent - (published - WARMUP)
+    unanswered = None if published is None else run.sent - (published - answered_before)
     witnessed = load_all([path for path, _ in witnesses])
     check = MachineCheck.of(sent, received, witnessed, target_s)
     return run, node.peak_mib, unanswered, check
