@@ -2,9 +2,10 @@
 
 A node that takes its busiest input raw (``create_subscription(..., raw=True)``) and
 publishes bytes skips rclpy's per-message Python objects (a ``Float64MultiArray``, its
-layout and two dimensions, each built and type-checked in Python): at 66 x 66 and 2 kHz that
-was about a quarter of the feedforward node's CPU per set point. The bytes are the ones rclpy
-would send; ``ros2 topic echo``, bags and every other reader see the same messages.
+layout and two dimensions, each built and type-checked in Python): at 66 x 66 and 2 kHz the
+feedforward node's CPU per set point fell from 0.39-0.42 to 0.34-0.37 ms with it. The bytes
+are the ones rclpy would send; ``ros2 topic echo``, bags and every other reader see the same
+messages.
 
 Every contract grid of one shape serialises to the same head (encapsulation, both
 dimensions, ``data_offset`` 0, the element count) followed by alignment padding and the
