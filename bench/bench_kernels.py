@@ -11,6 +11,12 @@ For each grid size N (a near-square R x C grid with per-actuator parameter maps,
   (``CompiledLaws.hyperbolic_inverse(z, T)``), the issue-3 figure;
 - ``inverse_hyperbolic`` ... ``uncompensated``: ``Feedforward.command(z, t)`` of each mode
   with the temperature already taken (what the node pays per set point);
+- ``observer_10hz`` and ``observer_jumps``: the observer is iterative and stops once the
+  next update would move nothing by more than ``observer.tolerance``, so its cost depends on
+  how far the set point moves. ``observer`` holds one set point (the other modes' workload:
+  no update runs), ``observer_10hz`` follows a 10 Hz sine over 0-150 nm at 2 kHz with a
+  phase per actuator (a smooth trajectory: two or three updates), ``observer_jumps`` takes a
+  new random set point every call (the worst case: every update up to ``observer.iterations``);
 - ``observer_numpy`` (``--numpy-too``): the observer on the pure-numpy path
   (``kernels.Backend.NUMPY``) beside the default (fused when numba is importable; see
   ``ES_DM_FEEDFORWARD_KERNELS`` in :mod:`es_feedforward.kernels`);
@@ -25,6 +31,7 @@ repeat.
 from __future__ import annotations
 
 import argparse
+import itertools
 import time
 import timeit
 from collections.abc import Callable, Sequence
@@ -90,6 +97,23 @@ def _paired(
     return best, best_floor
 
 
+def _moving_setpoints(rng: np.random.Generator, shape: tuple[int, int]) -> dict[str, np.ndarray]:
+    """Set point sequences [m] (frames x grid) that the observer workloads cycle through."""
+    frames = np.arange(200)[:, None, None] / 2000.0  # one period of 10 Hz at 2 kHz
+    phase = rng.uniform(0.0, 2.0 * np.pi, shape)
+    return {
+        "10hz": 75e-9 + 75e-9 * np.sin(2.0 * np.pi * 10.0 * frames + phase),
+        "jumps": rng.uniform(0.0, 150e-9, (16, *shape)),
+    }
+
+
+def _cycling(ff: Feedforward, trajectory: np.ndarray) -> Callable[[], object]:
+    """Return a call that commands the next frame of ``trajectory``, round and round."""
+    frames = itertools.cycle(list(trajectory))
+    ff.command(trajectory[-1], 0.0)  # start from the frame before the first
+    return lambda: ff.command(next(frames), 0.0)
+
+
 def bench_kernels(
     sizes: Sequence[int] = DEFAULT_SIZES, repeats: int = 5, numpy_too: bool = False
 ) -> list[KernelTiming]:
@@ -122,6 +146,11 @@ def bench_kernels(
             ff = Feedforward(FeedforwardConfig(shape=shape, params=params, mode=mode))
             ff.update_temperature(T, 0.0)
             kernels[mode.value] = partial(ff.command, z, 0.0)
+            if mode is Mode.OBSERVER:
+                for workload, trajectory in _moving_setpoints(rng, shape).items():
+                    moving = Feedforward(ff.config)
+                    moving.update_temperature(T, 0.0)
+                    kernels[f"{mode.value}_{workload}"] = _cycling(moving, trajectory)
             if numpy_too and mode is Mode.OBSERVER and ff.backend is not Backend.NUMPY:
                 plain = Feedforward(ff.config, backend=Backend.NUMPY)
                 plain.update_temperature(T, 0.0)

@@ -146,6 +146,106 @@ def test_reused_tanh_gives_the_numbers_of_a_fresh_start(backend: Backend) -> Non
     assert not np.array_equal(wrong.voltage, fresh.voltage)  # the given tanh is really used
 
 
+def _observer_laws(seed: int, shape: tuple[int, ...]) -> LawsAtTemperature:
+    rng = np.random.default_rng(seed)
+    q = rng.uniform(0.5e-3, 3e-2, shape)
+    n = rng.uniform(1e-10, 2e-9, shape)
+    return LawsAtTemperature(q=q, n=n, inv_zsat=q * q / n, status=np.zeros(shape, np.int8))
+
+
+def _smooth_setpoints(laws: LawsAtTemperature, steps: int) -> list[np.ndarray]:
+    """A 10 Hz sine over most of each actuator's reach at 2 kHz, phases per actuator."""
+    phase = np.random.default_rng(5).uniform(0.0, 2.0 * np.pi, laws.q.shape)
+    return [laws.z_sat * (0.3 + 0.25 * np.sin(2.0 * np.pi * 10.0 * k / 2000.0 + phase))
+            for k in range(steps)]
+
+
+def _reference_loop(
+    integral: np.ndarray, laws: LawsAtTemperature, z: np.ndarray, kp: float, ki: float,
+    updates: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """observer_command's docstring, update by update: (integral, voltage)."""
+    target = np.sqrt(np.maximum(z, 0.0))
+    integral = np.clip(integral, 0.0, 350.0)
+    voltage = integral
+    for _ in range(updates):
+        t = np.tanh(laws.q * voltage)
+        gain = np.maximum(laws.sqrt_n * (1.0 - t * t), 1e-6 * laws.sqrt_n)
+        e = (target - laws.sqrt_z_sat * t) / gain
+        integral = np.clip(integral + ki * e, 0.0, 350.0)
+        voltage = integral if kp == 0.0 else np.clip(integral + kp * e, 0.0, 350.0)
+    return integral, voltage
+
+
+@pytest.mark.parametrize("backend", list(Backend))
+@pytest.mark.parametrize("kp", [0.0, 0.25])
+def test_zero_tolerance_runs_every_update(backend: Backend, kp: float) -> None:
+    laws = _observer_laws(12, (6, 7))
+    z = laws.z_sat * np.random.default_rng(2).uniform(0.0, 0.9, laws.q.shape)
+    start = np.random.default_rng(3).uniform(-5.0, 360.0, laws.q.shape)
+    out = observer_command(start, laws, z, v_limit=350.0, kp=kp, ki=1.0 - kp, iterations=5,
+                           tolerance=0.0, backend=backend)
+    assert out.updates == 5
+    integral, voltage = _reference_loop(start, laws, z, kp, 1.0 - kp, 5)
+    np.testing.assert_allclose(out.integral, integral, rtol=1e-13, atol=1e-12)
+    np.testing.assert_allclose(out.voltage, voltage, rtol=1e-13, atol=1e-12)
+    np.testing.assert_array_equal(out.tanh_of_voltage, np.tanh(laws.q * out.voltage))
+
+
+@pytest.mark.parametrize("backend", list(Backend))
+def test_the_loop_stops_when_the_next_update_would_move_nothing_worth_it(
+    backend: Backend,
+) -> None:
+    laws = _observer_laws(13, (9, 9))
+    tolerance = 1e-4
+    run = partial(observer_command, laws=laws, v_limit=350.0, kp=0.0, ki=1.0, iterations=6,
+                  backend=backend)
+    integral, tanh, counts = np.zeros(laws.q.shape), None, []
+    for z in _smooth_setpoints(laws, 40):
+        out = run(integral, z=z, tolerance=tolerance, tanh_of_integral=tanh)
+        counts.append(out.updates)
+        # exactly the first `updates` updates of a loop that does not stop early
+        same = run(integral, z=z, tolerance=0.0, iterations=max(out.updates, 1),
+                   tanh_of_integral=tanh)
+        if out.updates:
+            np.testing.assert_array_equal(out.integral, same.integral)
+        else:
+            np.testing.assert_array_equal(out.integral, np.clip(integral, 0.0, 350.0))
+        if out.updates < 6:  # stopped early: the next update moves nothing above tolerance
+            nxt = run(out.integral, z=z, tolerance=0.0, iterations=1)
+            assert np.max(np.abs(nxt.integral - out.integral)) <= tolerance
+        np.testing.assert_array_equal(out.tanh_of_voltage, np.tanh(laws.q * out.voltage))
+        integral, tanh = out.integral, out.tanh_of_voltage
+    assert max(counts[1:]) < 6 and min(counts[1:]) >= 1  # it converged early, never idle
+    held = run(integral, z=z, tolerance=tolerance, tanh_of_integral=tanh)
+    assert held.updates == 0  # the same set point again: nothing to do
+    np.testing.assert_array_equal(held.voltage, integral)
+
+
+def test_backends_stop_at_the_same_update_with_nan_and_saturated_set_points() -> None:
+    laws = _observer_laws(14, (10, 10))
+    outs: dict[Backend, list[tuple[int, np.ndarray, np.ndarray]]] = {}
+    for backend in Backend:
+        integral, tanh, seen = np.zeros(laws.q.shape), None, []
+        for k, z in enumerate(_smooth_setpoints(laws, 30)):
+            z = z.copy()
+            z.flat[:4] = [np.nan, -1e-9, 3.0 * laws.z_sat.flat[2], 0.0]
+            if k % 4 == 3:
+                z.flat[10] = np.nan
+            out = observer_command(integral, laws, z, v_limit=350.0, kp=0.0, ki=1.0,
+                                   iterations=6, tolerance=1e-4, backend=backend,
+                                   tanh_of_integral=tanh)
+            seen.append((out.updates, out.voltage.copy(), out.model_error.copy()))
+            integral, tanh = np.nan_to_num(out.integral), None
+        outs[backend] = seen
+    for (n_f, v_f, e_f), (n_n, v_n, e_n) in zip(outs[Backend.FUSED], outs[Backend.NUMPY],
+                                                strict=True):
+        assert n_f == n_n
+        np.testing.assert_array_equal(v_f, v_n)
+        np.testing.assert_array_equal(e_f, e_n)
+    assert {n for n, _, _ in outs[Backend.NUMPY][1:]} - {6}  # early stops despite NaN
+
+
 @pytest.mark.parametrize("T0", TEMPERATURES)
 def test_reach_status_equals_the_inverse_status(T0: float) -> None:
     rng = np.random.default_rng(int(T0))

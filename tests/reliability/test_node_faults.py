@@ -333,6 +333,7 @@ def test_faults_into_thermal_and_feedforward_nodes(
         "temperature_timeout negative": Parameter("temperature_timeout", value=-1.0),
         "rows changed (read-only)": Parameter("rows", value=5),
         "observer.iterations 0": Parameter("observer.iterations", value=0),
+        "observer.tolerance -1 V": Parameter("observer.tolerance", value=-1.0),
         "compensation.coupling 0.5": Parameter("compensation.coupling", value=0.5),
     }
     outcomes = watcher.set_parameters("feedforward", list(rejected.values()))

@@ -7,9 +7,10 @@ Pure numpy core of the feedforward node (no rclpy). Modes (``Mode``), all per ac
 - ``linearized_dmax``: V = V_max(T) + (z - z_sat(T)/3) / d_max(T), with the model's own error
   of that linearisation reported per actuator (:func:`linearization_error_bound` for a span);
 - ``observer``: the hyperbolic forward model as observer and a PI loop driving its output to
-  the set point; the loop runs ``iterations`` times per set point (the observer has no
-  dynamics, so it is a fast inner loop), its integrator warm-starts from the last set point
-  and its gain is scheduled on the observer's local gain;
+  the set point; the loop runs at most ``iterations`` times per set point, until an update
+  moves no actuator by more than ``tolerance`` (the observer has no dynamics, so it is a fast
+  inner loop), its integrator warm-starts from the last set point and its gain is scheduled
+  on the observer's local gain;
 - ``uncompensated``: the hyperbolic inverse at the fixed ``reference_temperature``, no
   temperature input needed: the baseline reports compare against.
 
@@ -438,7 +439,7 @@ class Feedforward:
         known = self._observer_tanh
         out = observer_command(
             self._integral, laws, z, v_limit=v_limit, kp=gains.kp, ki=gains.ki,
-            iterations=gains.iterations, backend=self.backend,
+            iterations=gains.iterations, tolerance=gains.tolerance, backend=self.backend,
             tanh_of_integral=known[2] if known and known[0] is laws and known[1] is self._integral
             else None,
         )  # fmt: skip
@@ -447,17 +448,19 @@ class Feedforward:
         if self.backend is Backend.FUSED and not laws.flagged and z.size:
             _, below, beyond = self._reach_bounds(laws)
             status = fused_reach_status(z, out.voltage, below, beyond, v_limit)
-        if status is None:
-            status = self._reach_status(laws, z)
-            result = limit_voltages(out.voltage, status, v_limit)
-        else:
-            result = InverseResult(out.voltage, status)
         # tanh(q I) starts the next set point's loop only if nothing changes I in place
         # (limit_voltages zeroes CLIPPED_LOW/INVALID; command substitutes invalid ones)
         reusable = gains.kp == 0.0 and not self._stages and not laws.flagged
-        worst = int(status.max()) if status.size else CODE_OK
-        if worst >= CODE_CLIPPED_LOW:
-            reusable = reusable and worst < CODE_INVALID and not np.any(status == CODE_CLIPPED_LOW)
+        if status is None:
+            status = self._reach_status(laws, z)
+            result = limit_voltages(out.voltage, status, v_limit)
+            worst = int(status.max()) if status.size else CODE_OK
+            if worst >= CODE_CLIPPED_LOW:
+                reusable = (
+                    reusable and worst < CODE_INVALID and not np.any(status == CODE_CLIPPED_LOW)
+                )
+        else:  # the fused statuses are OK or CLIPPED_HIGH only
+            result = InverseResult(out.voltage, status)
         self._observer_tanh = (laws, out.integral, out.tanh_of_voltage) if reusable else None
         return result, out.model_error
 

@@ -1,7 +1,9 @@
 """Inner loops of the feedforward modes: a pure-numpy path and a fused (numba) one.
 
-The observer's PI loop runs ``iterations`` updates per set point, each a ``tanh`` and about
-ten element-wise operations over the grid. In numpy every operation is one pass over the
+The observer's PI loop runs at most ``iterations`` updates per set point, each a ``tanh`` and
+about ten element-wise operations over the grid; it stops before an update that would move
+nothing by more than ``tolerance`` (from the last set point's command, a held set point
+takes no update, a smooth trajectory two or three). In numpy every operation is one pass over the
 grid and one call (about 1 us at 4096 actuators); the fused path compiles the arithmetic of
 one update into a single loop (:func:`numba.njit`), the set-up (sqrt of the set points,
 clipped integrator) and the model error into one loop each, and keeps ``np.tanh``, whose
@@ -9,7 +11,7 @@ SIMD loop is faster than the scalar ``tanh`` a compiled loop calls. Both paths d
 IEEE operations in the same order (no fast-math), so they give the same numbers. The tanh of
 the final command is the model error's and, with kp = 0, the next set point's first update
 (the integrator it starts from is that command): a caller that keeps it saves one of the
-``iterations + 1`` tanh passes exactly.
+``updates + 1`` tanh passes exactly.
 
 The hyperbolic inverse (the default mode) fuses the same way: one compiled pass checks the
 ratios z / z_sat and takes their square roots, numpy's SIMD ``arctanh`` runs in place, one
@@ -89,15 +91,19 @@ def default_backend() -> Backend:
     return backend
 
 
-ObserverStep = Callable[
-    [FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray,
-     float, float, float],
+ObserverPrep = Callable[
+    [FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, float],
     None,
 ]
-ObserverPrep = Callable[
+ObserverFirstStep = Callable[
     [FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray,
-     float, bool],
-    None,
+     FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, float, float, float, float],
+    int,
+]
+ObserverStep = Callable[
+    [FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray,
+     FloatArray, FloatArray, FloatArray, float, float, float, float],
+    int,
 ]
 ObserverFinish = Callable[[FloatArray, FloatArray, FloatArray, FloatArray], None]
 HyperbolicRoot = Callable[[FloatArray, FloatArray, FloatArray, float], int]
@@ -117,6 +123,8 @@ class ObserverOutput:
         model_error: z_model(voltage) - z [m], with z = sqrt(max(z, 0))^2.
         tanh_of_voltage: tanh(q voltage): with kp == 0 the next set point's first update
             can start from it (``tanh_of_integral`` of :func:`observer_command`).
+        updates: how many updates were applied (at most ``iterations``; fewer once the
+            next would move nothing by more than the tolerance).
 
     """
 
@@ -124,10 +132,11 @@ class ObserverOutput:
     integral: FloatArray
     model_error: FloatArray
     tanh_of_voltage: FloatArray
+    updates: int
 
 
 @cache
-def _fused_observer() -> tuple[ObserverPrep, ObserverStep, ObserverFinish]:
+def _fused_observer() -> tuple[ObserverPrep, ObserverFirstStep, ObserverStep, ObserverFinish]:
     """Compile (or load from numba's cache) the fused observer passes."""
     import numba
 
@@ -137,32 +146,96 @@ def _fused_observer() -> tuple[ObserverPrep, ObserverStep, ObserverFinish]:
     f64 = numba.float64
     jit = partial(numba.njit, cache=True, nogil=True, error_model="numpy")
 
-    @jit(numba.void(ro, ro, ro, ro, vec, vec, vec, f64, numba.boolean))
+    @numba.njit(inline="always", error_model="numpy")
+    def update(  # noqa: PLR0917
+        t: float,
+        integral: float,
+        target: float,
+        sqrt_n: float,
+        sqrt_z_sat: float,
+        v_limit: float,
+        ki: float,
+    ) -> tuple[float, float]:
+        """One element's next integral and its error."""
+        gain = max((1.0 - t * t) * sqrt_n, 1e-6 * sqrt_n)
+        error = (target - sqrt_z_sat * t) / gain
+        return min(max(integral + ki * error, 0.0), v_limit), error
+
+    @numba.njit(inline="always", error_model="numpy")
+    def start(z: float, integral: float, v_limit: float) -> tuple[float, float]:
+        """One element's sqrt(max(z, 0)) (a NaN stays NaN, as in np.clip) and clipped state."""
+        if z < 0.0:  # noqa: PLR1730
+            z = 0.0
+        return np.sqrt(z), min(max(integral, 0.0), v_limit)
+
+    @jit(numba.void(ro, ro, ro, vec, vec, vec, vec, f64))
     def prep(  # noqa: PLR0917 (numba calls are positional)
         z: FloatArray,
         integral: FloatArray,
         q: FloatArray,
-        known_tanh: FloatArray,
         target: FloatArray,
         state: FloatArray,
+        voltage: FloatArray,
         u: FloatArray,
         v_limit: float,
-        have_tanh: bool,
     ) -> None:
         for i in range(z.size):
-            zi = z[i]
-            if zi < 0.0:  # noqa: PLR1730 (a NaN stays NaN, as in np.clip)
-                zi = 0.0
-            target[i] = np.sqrt(zi)
-            held = min(max(integral[i], 0.0), v_limit)
+            target[i], held = start(z[i], integral[i], v_limit)
             state[i] = held
-            u[i] = known_tanh[i] if have_tanh else q[i] * held
+            voltage[i] = held
+            u[i] = q[i] * held
 
-    @jit(numba.void(vec, vec, vec, ro, ro, ro, vec, f64, f64, f64))
+    # The steps count the elements that move by more than the tolerance instead of taking
+    # the largest move: LLVM vectorises an integer sum but no float max without fast-math,
+    # and a NaN move (a NaN set point) compares false, so it does not count. With kp == 0
+    # the voltage is the integral: its buffers are neither read nor written.
+
+    @jit(numba.int64(ro, ro, ro, vec, vec, vec, vec, vec, vec, ro, ro, ro, f64, f64, f64, f64))
+    def first_step(  # noqa: PLR0917
+        z: FloatArray,
+        integral: FloatArray,
+        t: FloatArray,
+        target: FloatArray,
+        state: FloatArray,
+        voltage: FloatArray,
+        next_integral: FloatArray,
+        next_voltage: FloatArray,
+        next_u: FloatArray,
+        q: FloatArray,
+        sqrt_n: FloatArray,
+        sqrt_z_sat: FloatArray,
+        v_limit: float,
+        kp: float,
+        ki: float,
+        tolerance: float,
+    ) -> int:
+        """``prep`` and the first ``step`` in one pass, from the tanh the caller knows."""
+        moved = 0
+        for i in range(z.size):
+            root, before = start(z[i], integral[i], v_limit)
+            target[i] = root
+            state[i] = before
+            held, error = update(t[i], before, root, sqrt_n[i], sqrt_z_sat[i], v_limit, ki)
+            next_integral[i] = held
+            if kp == 0.0:
+                next_u[i] = q[i] * held
+                moved += abs(held - before) > tolerance
+            else:
+                voltage[i] = before
+                v = min(max(held + kp * error, 0.0), v_limit)
+                next_voltage[i] = v
+                next_u[i] = q[i] * v
+                moved += (abs(held - before) > tolerance) | (abs(v - before) > tolerance)
+        return moved
+
+    @jit(numba.int64(ro, ro, ro, vec, vec, vec, ro, ro, ro, ro, f64, f64, f64, f64))
     def step(  # noqa: PLR0917
-        u: FloatArray,
+        t: FloatArray,
         integral: FloatArray,
         voltage: FloatArray,
+        next_integral: FloatArray,
+        next_voltage: FloatArray,
+        next_u: FloatArray,
         q: FloatArray,
         sqrt_n: FloatArray,
         sqrt_z_sat: FloatArray,
@@ -170,24 +243,30 @@ def _fused_observer() -> tuple[ObserverPrep, ObserverStep, ObserverFinish]:
         v_limit: float,
         kp: float,
         ki: float,
-    ) -> None:
-        for i in range(u.size):
-            t = u[i]
-            gain = max((1.0 - t * t) * sqrt_n[i], 1e-6 * sqrt_n[i])
-            error = (target[i] - sqrt_z_sat[i] * t) / gain
-            held = min(max(integral[i] + ki * error, 0.0), v_limit)
-            integral[i] = held
-            v = held if kp == 0.0 else min(max(held + kp * error, 0.0), v_limit)
-            voltage[i] = v
-            u[i] = q[i] * v
+        tolerance: float,
+    ) -> int:
+        moved = 0
+        for i in range(t.size):
+            before = integral[i]
+            held, error = update(t[i], before, target[i], sqrt_n[i], sqrt_z_sat[i], v_limit, ki)
+            next_integral[i] = held
+            if kp == 0.0:
+                next_u[i] = q[i] * held
+                moved += abs(held - before) > tolerance
+            else:
+                v = min(max(held + kp * error, 0.0), v_limit)
+                next_voltage[i] = v
+                next_u[i] = q[i] * v
+                moved += (abs(held - before) > tolerance) | (abs(v - voltage[i]) > tolerance)
+        return moved
 
-    @jit(numba.void(vec, ro, vec, vec))
+    @jit(numba.void(ro, ro, ro, vec))
     def finish(t: FloatArray, inv_zsat: FloatArray, target: FloatArray, error: FloatArray) -> None:
         for i in range(t.size):
             e = t[i] * t[i]
             error[i] = e / inv_zsat[i] - target[i] * target[i]
 
-    return prep, step, finish
+    return prep, first_step, step, finish
 
 
 @cache
@@ -352,6 +431,7 @@ def observer_command(
     kp: float,
     ki: float,
     iterations: int,
+    tolerance: float = 0.0,
     backend: Backend = Backend.NUMPY,
     tanh_of_integral: FloatArray | None = None,
 ) -> ObserverOutput:
@@ -360,9 +440,11 @@ def observer_command(
     With target = sqrt(max(z, 0)), per update: t = tanh(q V), gain = max(sqrt_n (1 - t^2),
     1e-6 sqrt_n), e = (target - sqrt_z_sat t) / gain, I = clip(I + ki e, 0, v_limit),
     V = I (kp = 0) or clip(I + kp e, 0, v_limit), with q, sqrt_n and sqrt_z_sat of ``laws``;
-    V starts at clip(I, 0, v_limit). The model error takes t = tanh(q V) of the final V,
-    which the next call's first update reuses when kp == 0 (exactly the same number, one
-    tanh pass less per set point).
+    V starts at clip(I, 0, v_limit). The loop stops after ``iterations`` updates, or earlier
+    when the next update would move no element's I or V by more than ``tolerance`` (that
+    update is not applied; elements whose move is NaN do not count). The model error takes
+    t = tanh(q V) of the final V, which the next call's first update reuses when kp == 0
+    (exactly the same number, one tanh pass less per set point).
 
     Args:
         integral: integrator state [V], the grid's shape; not modified.
@@ -371,7 +453,9 @@ def observer_command(
         v_limit: largest voltage [V].
         kp: proportional gain (normalised by the local gain).
         ki: integral gain (normalised by the local gain).
-        iterations: updates to run (>= 1).
+        iterations: most updates to run (>= 1).
+        tolerance: largest move [V] of an update that is not worth applying (>= 0; 0 stops
+            only at a fixed point, where every further update would repeat it exactly).
         backend: which implementation runs (same numbers).
         tanh_of_integral: tanh(q clip(integral, 0, v_limit)) when the caller knows it (the
             ``tanh_of_voltage`` of the call that returned ``integral`` with kp == 0).
@@ -382,7 +466,9 @@ def observer_command(
     """
     shape = integral.shape
     if backend is Backend.FUSED and integral.size:
-        return _fused_command(integral, laws, z, v_limit, kp, ki, iterations, tanh_of_integral)
+        return _fused_command(
+            integral, laws, z, v_limit, kp, ki, iterations, tolerance, tanh_of_integral
+        )
     q, sqrt_n, sqrt_z_sat = laws.q, laws.sqrt_n, laws.sqrt_z_sat
     target = np.sqrt(np.clip(z, 0.0, None))
     zeros = np.zeros(shape)
@@ -390,15 +476,14 @@ def observer_command(
     floor = 1e-6 * sqrt_n
     new_integral = np.minimum(np.maximum(integral, zeros), limit)
     voltage = new_integral
-    t = np.empty(shape)
+    if tanh_of_integral is not None:
+        t = np.array(tanh_of_integral, np.float64)
+    else:
+        t = np.tanh(q * voltage)
     gain = np.empty(shape)
     error = np.empty(shape)
-    for k in range(iterations):
-        if k == 0 and tanh_of_integral is not None:
-            t[...] = tanh_of_integral
-        else:
-            np.multiply(q, voltage, out=t)
-            np.tanh(t, out=t)
+    updates = 0
+    while True:
         # local gain of sqrt(z) over V: sqrt(M/L) sech^2(u)
         np.multiply(t, t, out=gain)
         np.subtract(1.0, gain, out=gain)
@@ -407,18 +492,38 @@ def observer_command(
         np.multiply(sqrt_z_sat, t, out=error)
         np.subtract(target, error, out=error)
         error /= gain
-        new_integral += error if ki == 1.0 else ki * error
-        np.maximum(new_integral, zeros, out=new_integral)  # anti-windup
-        np.minimum(new_integral, limit, out=new_integral)
+        next_integral = new_integral + (error if ki == 1.0 else ki * error)
+        np.maximum(next_integral, zeros, out=next_integral)  # anti-windup
+        np.minimum(next_integral, limit, out=next_integral)
+        next_voltage = next_integral
         if kp != 0.0:
-            voltage = np.minimum(np.maximum(new_integral + kp * error, zeros), limit)
-    np.multiply(q, voltage, out=t)
-    np.tanh(t, out=t)
+            next_voltage = np.minimum(np.maximum(next_integral + kp * error, zeros), limit)
+        if not _moved(new_integral, next_integral, voltage, next_voltage, tolerance):
+            break  # converged: the update is not applied, t is still tanh(q voltage)
+        new_integral, voltage = next_integral, next_voltage
+        updates += 1
+        np.multiply(q, voltage, out=t)
+        np.tanh(t, out=t)
+        if updates == iterations:
+            break
     model_error = t * t
     model_error /= laws.inv_zsat
     target *= target
     model_error -= target
-    return ObserverOutput(voltage, new_integral, model_error, t)
+    return ObserverOutput(voltage, new_integral, model_error, t, updates)
+
+
+def _moved(
+    integral_before: FloatArray, integral: FloatArray, voltage_before: FloatArray,
+    voltage: FloatArray, tolerance: float,
+) -> int:
+    """Count the elements whose integrator or voltage moved by more than ``tolerance``.
+
+    The fused steps' rule: a NaN move compares false, so it does not count.
+    """
+    beyond = np.abs(integral - integral_before) > tolerance
+    beyond |= np.abs(voltage - voltage_before) > tolerance
+    return int(np.count_nonzero(beyond))
 
 
 def _fused_command(  # noqa: PLR0917 (the arguments of observer_command)
@@ -429,6 +534,7 @@ def _fused_command(  # noqa: PLR0917 (the arguments of observer_command)
     kp: float,
     ki: float,
     iterations: int,
+    tolerance: float,
     tanh_of_integral: FloatArray | None,
 ) -> ObserverOutput:
     """:func:`observer_command` in numba passes around numpy's SIMD ``tanh``."""
@@ -437,21 +543,38 @@ def _fused_command(  # noqa: PLR0917 (the arguments of observer_command)
         np.ascontiguousarray(a, np.float64).ravel()
         for a in (laws.q, laws.sqrt_n, laws.sqrt_z_sat, laws.inv_zsat, z, integral)
     )
-    have_tanh = tanh_of_integral is not None
-    known = np.ascontiguousarray(tanh_of_integral, np.float64).ravel() if have_tanh else q
-    prep, step, finish = _fused_observer()
-    target, held, u = np.empty(q.size), np.empty(q.size), np.empty(q.size)
-    prep(z_flat, state, q, known, target, held, u, v_limit, have_tanh)
-    # its own buffer even for kp = 0 (voltage == integral): a loop whose outputs may
-    # overlap is not vectorised
-    drive = np.empty_like(held)
-    for k in range(iterations):
-        if k or not have_tanh:
-            np.tanh(u, out=u)
-        step(u, held, drive, q, sqrt_n, sqrt_z_sat, target, v_limit, kp, ki)
-    np.tanh(u, out=u)
-    error = np.empty_like(u)
+    prep, first_step, step, finish = _fused_observer()
+    size = q.size
+    target = np.empty(size)
+    # the state and its next values: a step writes the next ones, and they become the state
+    # only if the step moved something by more than the tolerance
+    held, drive = np.empty(size), np.empty(size)
+    next_held, next_drive, next_u = np.empty(size), np.empty(size), np.empty(size)
+    if tanh_of_integral is None:
+        u = np.empty(size)
+        prep(z_flat, state, q, target, held, drive, u, v_limit)
+        np.tanh(u, out=u)
+    else:  # the first update needs no tanh: one pass sets up and takes it
+        u = np.ascontiguousarray(tanh_of_integral, np.float64).ravel()
+        moved = first_step(z_flat, state, u, target, held, drive, next_held, next_drive, next_u,
+                           q, sqrt_n, sqrt_z_sat, v_limit, kp, ki, tolerance)  # fmt: skip
+    updates = 0
+    while True:
+        if updates or tanh_of_integral is None:
+            moved = step(u, held, drive, next_held, next_drive, next_u, q, sqrt_n, sqrt_z_sat,
+                         target, v_limit, kp, ki, tolerance)  # fmt: skip
+        if not moved:
+            break  # converged: the update is not applied, u is still tanh(q voltage)
+        held, next_held = next_held, held
+        drive, next_drive = next_drive, drive
+        spare = u if updates or tanh_of_integral is None else np.empty(size)  # not the caller's
+        u, next_u = next_u, spare
+        updates += 1
+        np.tanh(u, out=u)
+        if updates == iterations:
+            break
+    error = next_u  # spent, and never the caller's
     finish(u, inv_zsat, target, error)
     new_integral = held.reshape(shape)
     voltage = new_integral if kp == 0.0 else drive.reshape(shape)
-    return ObserverOutput(voltage, new_integral, error.reshape(shape), u.reshape(shape))
+    return ObserverOutput(voltage, new_integral, error.reshape(shape), u.reshape(shape), updates)

@@ -20,6 +20,7 @@ from es_feedforward.feedforward import (
     Mode,
     ObserverGains,
 )
+from es_feedforward.feedforward_config import OBSERVER_ITERATIONS_RANGE, OBSERVER_TOLERANCE_RANGE
 from es_feedforward.param_file import LAW_FIELDS, LAW_PREFIX, OBSERVER_PREFIX
 from es_msgs_py.node_main import executor_spec
 from es_msgs_py.params import Check, ParameterSpec
@@ -35,7 +36,7 @@ MODE_MEANINGS: Final = {
     Mode.LINEARIZED_DMAX: "V = V_max(T) + (z - z_sat(T)/3) / d_max(T), linearised around the "
     "steepest point, its own error reported per actuator",
     Mode.OBSERVER: "the hyperbolic model as observer and a PI loop driving its output to the "
-    "set point (observer.kp, observer.ki, observer.iterations)",
+    "set point (observer.kp, observer.ki, observer.iterations, observer.tolerance)",
     Mode.UNCOMPENSATED: "hyperbolic inverse at the fixed reference_temperature, ignoring "
     "/dm/temperature (the baseline)",
 }
@@ -151,9 +152,15 @@ def parameter_specs() -> list[ParameterSpec]:
         ParameterSpec(
             OBSERVER_PREFIX + "iterations",
             observer_defaults.iterations,
-            "Observer PI iterations per set point (count; mode 'observer' only).",
-            1,
-            1000,
+            "Observer PI iterations per set point at most (count; mode 'observer' only).",
+            *OBSERVER_ITERATIONS_RANGE,
+        ),
+        ParameterSpec(
+            OBSERVER_PREFIX + "tolerance",
+            observer_defaults.tolerance,
+            "Observer stops after an update that moved no actuator by more than this, V "
+            "(0: every iteration runs; mode 'observer' only).",
+            *OBSERVER_TOLERANCE_RANGE,
         ),
     ]
     specs += [

@@ -3,7 +3,7 @@
 One flat set of parameter names (``docs/architecture.md``, README of es_feedforward):
 ``rows``, ``cols``, ``mode``, ``v_limit``, ``reference_temperature``, ``temperature_timeout``,
 ``law.<field>`` (double arrays, length 1 or rows*cols, row-major), ``compensation.<name>``
-and ``observer.<kp|ki|iterations>``. The calibration tool writes files with
+and ``observer.<kp|ki|iterations|tolerance>``. The calibration tool writes files with
 :func:`write_params_file`; the node is started with ``--ros-args --params-file FILE`` and
 checks every set with :func:`config_from_parameters`, the same code path as
 :func:`read_params_file`. Files are written with :func:`es_msgs_py.param_yaml.dump_parameters`
@@ -101,6 +101,7 @@ def _config_from_parameters(
         kp=typed.get_float(OBSERVER_PREFIX + "kp", gains.kp),
         ki=typed.get_float(OBSERVER_PREFIX + "ki", gains.ki),
         iterations=typed.get_int(OBSERVER_PREFIX + "iterations", gains.iterations),
+        tolerance=typed.get_float(OBSERVER_PREFIX + "tolerance", gains.tolerance),
     )
     config = FeedforwardConfig(
         shape=shape,
