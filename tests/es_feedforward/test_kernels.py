@@ -21,6 +21,7 @@ from es_feedforward.kernels import (
     default_backend,
     fused_available,
     fused_hyperbolic_inverse,
+    fused_linearized,
     fused_reach_status,
     observer_command,
 )
@@ -227,8 +228,8 @@ def test_backends_stop_at_the_same_update_with_nan_and_saturated_set_points() ->
     outs: dict[Backend, list[tuple[int, np.ndarray, np.ndarray]]] = {}
     for backend in Backend:
         integral, tanh, seen = np.zeros(laws.q.shape), None, []
-        for k, z in enumerate(_smooth_setpoints(laws, 30)):
-            z = z.copy()
+        for k, smooth in enumerate(_smooth_setpoints(laws, 30)):
+            z = smooth.copy()
             z.flat[:4] = [np.nan, -1e-9, 3.0 * laws.z_sat.flat[2], 0.0]
             if k % 4 == 3:
                 z.flat[10] = np.nan
@@ -267,6 +268,37 @@ def test_reach_status_equals_the_inverse_status(T0: float) -> None:
         np.testing.assert_array_equal(ff._reach_status(laws, z), expected)
 
 
+@pytest.mark.parametrize("T0", [42.0, 46.0, 50.0])
+def test_fused_linearized_is_the_numpy_path_bit_for_bit(T0: float) -> None:
+    rng = np.random.default_rng(int(T0))
+    config = FeedforwardConfig(shape=SHAPE, params=_params(rng), mode=Mode.LINEARIZED_DMAX)
+    cores = {b: Feedforward(config, backend=b) for b in Backend}
+    T = T0 + rng.uniform(-1.0, 1.0, SHAPE)
+    for core in cores.values():
+        core.update_temperature(T, 0.0)
+    laws = cores[Backend.FUSED]._laws
+    assert laws is not None and not laws.flagged
+    _, below, beyond = cores[Backend.FUSED]._reach_bounds(laws)
+    # clearly in reach (some driven past v_limit by the linearisation), and beyond reach
+    z = np.where(rng.random(SHAPE) < 0.7, below * rng.uniform(0.0, 0.999, SHAPE), 1.5 * beyond)
+    z.flat[0] = 0.0
+    fused = fused_linearized(laws, z, below, beyond, DEFAULT_V_LIMIT)
+    assert fused is not None
+    numpy_result = cores[Backend.NUMPY].command(z, 0.0)
+    fused_result = cores[Backend.FUSED].command(z, 0.0)
+    for result, error in ((fused[0], fused[1]), (fused_result, fused_result.model_error)):
+        np.testing.assert_array_equal(result.voltage, numpy_result.voltage)
+        np.testing.assert_array_equal(result.status, numpy_result.status)
+        np.testing.assert_array_equal(error, numpy_result.model_error)
+    assert {CODE_OK, CODE_CLIPPED_HIGH} <= set(np.unique(fused[0].status).tolist())
+    for bad in (0.5 * (below.flat[3] + beyond.flat[3]), -1e-9, np.nan):
+        unclear = z.copy()
+        unclear.flat[3] = bad
+        assert fused_linearized(laws, unclear, below, beyond, DEFAULT_V_LIMIT) is None
+        np.testing.assert_array_equal(cores[Backend.FUSED].command(unclear, 0.0).voltage,
+                                      cores[Backend.NUMPY].command(unclear, 0.0).voltage)
+
+
 def test_fused_reach_status_takes_clear_set_points_and_leaves_unclear_ones() -> None:
     rng = np.random.default_rng(5)
     ff = Feedforward(FeedforwardConfig(shape=SHAPE, params=_params(rng)), backend=Backend.FUSED)
@@ -283,12 +315,6 @@ def test_fused_reach_status_takes_clear_set_points_and_leaves_unclear_ones() -> 
     expected[limited == DEFAULT_V_LIMIT] = CODE_CLIPPED_HIGH
     np.testing.assert_array_equal(status, expected)
     np.testing.assert_array_equal(voltage, limited)
-    voltage = rng.uniform(0.0, 300.0, SHAPE)
-    saturated = fused_reach_status(clear, voltage, below, beyond, DEFAULT_V_LIMIT,
-                                   saturate_high=True)
-    assert saturated is not None
-    assert np.all(voltage[saturated == CODE_CLIPPED_HIGH] == DEFAULT_V_LIMIT)
-    assert np.all(voltage[saturated == CODE_OK] <= 300.0)
     for bad in (0.5 * (below + beyond), -1e-9, np.nan):
         z = clear.copy()
         z.flat[4] = bad if np.isscalar(bad) else bad.flat[4]  # type: ignore[union-attr]

@@ -49,6 +49,7 @@ from es_feedforward.kernels import (
     Backend,
     default_backend,
     fused_hyperbolic_inverse,
+    fused_linearized,
     fused_reach_status,
     observer_command,
     prepare,
@@ -410,16 +411,16 @@ class Feedforward:
     ) -> tuple[InverseResult, FloatArray]:
         """Bias at V_max(T), drive z - z_sat/3 through 1 / d_max(T)."""
         v_limit = self.config.v_limit
+        if self.backend is Backend.FUSED and not laws.flagged and z.size:
+            _, below, beyond = self._reach_bounds(laws)
+            fused = fused_linearized(laws, z, below, beyond, v_limit)
+            if fused is not None:
+                return fused
         voltage = np.maximum(z, 0.0)
         voltage /= laws.d_max
         voltage += laws.linear_offset
         if voltage.size and not (voltage.min() >= 0.0 and voltage.max() <= v_limit):
             np.clip(voltage, 0.0, v_limit, out=voltage)
-        if self.backend is Backend.FUSED and not laws.flagged and z.size:
-            _, below, beyond = self._reach_bounds(laws)
-            fused = fused_reach_status(z, voltage, below, beyond, v_limit, saturate_high=True)
-            if fused is not None:
-                return InverseResult(voltage, fused), self._model_error(laws, voltage, z)
         status = self._reach_status(laws, z)  # statuses of the set point
         if status.size and status.max() >= CODE_CLIPPED_HIGH:
             voltage[status == CODE_CLIPPED_HIGH] = v_limit

@@ -108,9 +108,13 @@ ObserverStep = Callable[
 ObserverFinish = Callable[[FloatArray, FloatArray, FloatArray, FloatArray], None]
 HyperbolicRoot = Callable[[FloatArray, FloatArray, FloatArray, float], int]
 HyperbolicScale = Callable[[FloatArray, FloatArray, StatusArray, float], int]
-ReachLimit = Callable[
-    [FloatArray, FloatArray, FloatArray, FloatArray, StatusArray, float, bool], int
+ReachLimit = Callable[[FloatArray, FloatArray, FloatArray, FloatArray, StatusArray, float], int]
+LinearizedDrive = Callable[
+    [FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray,
+     StatusArray, FloatArray, float],
+    int,
 ]
+ForwardError = Callable[[FloatArray, FloatArray, FloatArray, FloatArray], None]
 
 
 @dataclass(frozen=True)
@@ -278,7 +282,7 @@ def _fused_reach_limit() -> ReachLimit:
     ro = numba.types.Array(numba.float64, 1, "C", readonly=True)
     high_code = np.int8(CODE_CLIPPED_HIGH)
 
-    @numba.njit(numba.int64(ro, ro, ro, vec, numba.int8[::1], numba.float64, numba.boolean),
+    @numba.njit(numba.int64(ro, ro, ro, vec, numba.int8[::1], numba.float64),
                 cache=True, nogil=True, error_model="numpy")
     def reach_limit(  # noqa: PLR0917 (numba calls are positional)
         z: FloatArray,
@@ -287,7 +291,6 @@ def _fused_reach_limit() -> ReachLimit:
         voltage: FloatArray,
         status: StatusArray,
         v_limit: float,
-        saturate_high: bool,
     ) -> int:
         unclear = 0
         for i in range(z.size):
@@ -298,12 +301,60 @@ def _fused_reach_limit() -> ReachLimit:
         if unclear:
             return unclear
         for i in range(z.size):
-            if not voltage[i] < v_limit or (saturate_high and status[i] == high_code):
+            if not voltage[i] < v_limit:
                 status[i] = high_code
                 voltage[i] = v_limit
         return 0
 
     return reach_limit
+
+
+@cache
+def _fused_linearized() -> tuple[LinearizedDrive, ForwardError]:
+    """Compile (or load from numba's cache) the passes around linearized_dmax's tanh."""
+    import numba
+
+    vec = numba.float64[::1]
+    ro = numba.types.Array(numba.float64, 1, "C", readonly=True)
+    high_code = np.int8(CODE_CLIPPED_HIGH)
+    jit = partial(numba.njit, cache=True, nogil=True, error_model="numpy")
+
+    # branch-free (selects and a counted reduction) so that LLVM vectorises it
+    @jit(numba.int64(ro, ro, ro, ro, ro, ro, vec, numba.int8[::1], vec, numba.float64))
+    def drive(  # noqa: PLR0917 (numba calls are positional)
+        z: FloatArray,
+        d_max: FloatArray,
+        offset: FloatArray,
+        q: FloatArray,
+        below: FloatArray,
+        beyond: FloatArray,
+        voltage: FloatArray,
+        status: StatusArray,
+        u: FloatArray,
+        v_limit: float,
+    ) -> int:
+        unclear = 0
+        for i in range(z.size):
+            zi = z[i]
+            high = zi >= beyond[i]
+            unclear += not (high or zi < below[i]) or not zi >= 0.0
+            v = min(max(max(zi, 0.0) / d_max[i] + offset[i], 0.0), v_limit)
+            over = not v < v_limit or high
+            v = v_limit if over else v
+            voltage[i] = v
+            status[i] = high_code if over else np.int8(0)
+            u[i] = q[i] * v
+        return unclear
+
+    @jit(numba.void(ro, ro, ro, vec))
+    def forward_error(
+        t: FloatArray, inv_zsat: FloatArray, z: FloatArray, error: FloatArray
+    ) -> None:
+        for i in range(t.size):
+            e = t[i] * t[i]
+            error[i] = e / inv_zsat[i] - z[i]
+
+    return drive, forward_error
 
 
 @cache
@@ -346,6 +397,7 @@ def prepare(backend: Backend) -> None:
     if backend is Backend.FUSED:
         _fused_observer()
         _fused_reach_limit()
+        _fused_linearized()
         _fused_hyperbolic()
 
 
@@ -388,15 +440,12 @@ def fused_reach_status(
     below: FloatArray,
     beyond: FloatArray,
     v_limit: float,
-    *,
-    saturate_high: bool = False,
 ) -> StatusArray | None:
     """Return the statuses of set points that are clearly in or beyond reach, and limit.
 
     One fused pass (numba) for laws that flag no actuator: status CLIPPED_HIGH where
     z >= ``beyond``, OK where z < ``below``; then, as :func:`es_physics.laws.limit_voltages`,
-    voltages not below ``v_limit`` become ``v_limit`` (CLIPPED_HIGH), and so do the
-    CLIPPED_HIGH set points' voltages with ``saturate_high``. Needs the fused backend.
+    voltages not below ``v_limit`` become ``v_limit`` (CLIPPED_HIGH). Needs the fused backend.
 
     Args:
         z: set points [m], the grid's shape.
@@ -404,7 +453,6 @@ def fused_reach_status(
         below: set points [m] that ``v_limit`` surely reaches (same shape).
         beyond: set points [m] that ``v_limit`` surely does not reach (same shape).
         v_limit: largest voltage [V].
-        saturate_high: drive the set points beyond reach at ``v_limit``.
 
     Returns:
         The statuses, or ``None`` (``voltage`` untouched) when a set point is negative, not
@@ -416,10 +464,49 @@ def fused_reach_status(
         np.ascontiguousarray(a, np.float64).ravel() for a in (z, below, beyond)
     )
     unclear = _fused_reach_limit()(
-        z_flat, below_flat, beyond_flat, voltage.reshape(-1), status.reshape(-1), v_limit,
-        saturate_high,
+        z_flat, below_flat, beyond_flat, voltage.reshape(-1), status.reshape(-1), v_limit
     )
     return None if unclear else status
+
+
+def fused_linearized(
+    laws: LawsAtTemperature, z: FloatArray, below: FloatArray, beyond: FloatArray,
+    v_limit: float,
+) -> tuple[InverseResult, FloatArray] | None:
+    """Return the ``linearized_dmax`` command and its model error in three passes.
+
+    V = clip(max(z, 0) / d_max + linear_offset, 0, v_limit), driven at ``v_limit`` where z is
+    beyond reach (status CLIPPED_HIGH, as where V reaches the limit), and z_model(V) - z: one
+    compiled pass for the voltage, statuses and q V, numpy's SIMD ``tanh`` in place, one
+    compiled pass for the error. The numpy path's IEEE operations in the same order, so the
+    same numbers. For laws that flag no actuator.
+
+    Args:
+        laws: the model at the temperatures, no actuator flagged.
+        z: free-displacement set points [m], the laws' shape.
+        below: set points [m] that ``v_limit`` surely reaches (same shape).
+        beyond: set points [m] that ``v_limit`` surely does not reach (same shape).
+        v_limit: largest voltage [V].
+
+    Returns:
+        (voltages and statuses, model error [m]), or ``None`` when a set point is negative,
+        not finite or between ``below`` and ``beyond`` (the caller takes the numpy path).
+
+    """
+    z_flat, d_max, offset, q, inv_zsat, below_flat, beyond_flat = (
+        np.ascontiguousarray(a, np.float64).ravel()
+        for a in (z, laws.d_max, laws.linear_offset, laws.q, laws.inv_zsat, below, beyond)
+    )
+    drive, forward_error = _fused_linearized()
+    voltage, u = np.empty(z_flat.size), np.empty(z_flat.size)
+    status = np.empty(z_flat.size, np.int8)
+    if drive(z_flat, d_max, offset, q, below_flat, beyond_flat, voltage, status, u, v_limit):
+        return None
+    np.tanh(u, out=u)
+    error = np.empty(z_flat.size)  # not u: a loop whose output may overlap is not vectorised
+    forward_error(u, inv_zsat, z_flat, error)
+    shape = z.shape
+    return InverseResult(voltage.reshape(shape), status.reshape(shape)), error.reshape(shape)
 
 
 def observer_command(
