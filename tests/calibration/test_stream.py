@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import pickle
 import subprocess
 import sys
@@ -167,6 +168,25 @@ def test_two_dask_workers_equal_the_serial_run(bag: Path, tmp_path: Path) -> Non
     assert dask["effects"][0]["parameters"] == serial["effects"][0]["parameters"]
     assert dask["law"] == serial["law"]
     assert dask["heldout_rms_after_m"] == serial["heldout_rms_after_m"]
+
+
+def test_local_workers_keep_the_dynamic_mmap_threshold() -> None:
+    """Dask's MALLOC_TRIM_THRESHOLD_ is not in the local workers (dask_tiles.py: it cost 1.7x
+    the tile fits' CPU in page faults); its one-thread BLAS limit is. In a child process: the
+    nanny writes its pre-spawn environment into the process that starts it."""
+    code = (
+        "import os\n"
+        "from es_feedforward.calibration.dask_tiles import dask_map\n"
+        "names = ('MALLOC_TRIM_THRESHOLD_', 'OPENBLAS_NUM_THREADS')\n"
+        "with dask_map(workers=1) as run:\n"
+        "    print(run(lambda job: [os.environ.get(n) for n in names], [0]))\n"
+    )
+    env = {k: v for k, v in os.environ.items()
+           if k not in ("MALLOC_TRIM_THRESHOLD_", "OPENBLAS_NUM_THREADS")}
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          check=False, timeout=300, env=env)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip().splitlines()[-1] == "[[None, '1']]"
 
 
 def test_no_dask_import_without_workers(bag: Path, tmp_path: Path) -> None:
