@@ -16,7 +16,9 @@ the final command is the model error's and, with kp = 0, the next set point's fi
 The hyperbolic inverse (the default mode) fuses the same way: one compiled pass checks the
 ratios z / z_sat and takes their square roots, numpy's SIMD ``arctanh`` runs in place, one
 compiled pass divides by q and limits (:func:`fused_hyperbolic_inverse`): three passes
-instead of about ten numpy calls, reductions included.
+instead of about ten numpy calls, reductions included. ``linearized_dmax`` likewise: one
+compiled pass for the voltage, statuses and q V, numpy's ``tanh``, one compiled pass for the
+model error (:func:`fused_linearized`).
 
 Which path runs (:func:`default_backend`): ``fused`` when numba is importable, else
 ``numpy``; the environment variable ``ES_DM_FEEDFORWARD_KERNELS=numpy`` forces numpy
