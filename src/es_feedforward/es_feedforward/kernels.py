@@ -35,7 +35,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from enum import StrEnum
 from functools import cache, partial
-from typing import Final
+from typing import Any, Final, NamedTuple
 
 import numpy as np
 
@@ -141,31 +141,55 @@ class ObserverOutput:
     updates: int
 
 
+class _Compiler(NamedTuple):
+    """numba, the array types of the kernels' signatures and the jit they compile with."""
+
+    numba: Any
+    vec: Any  # a writable 1-d float64 array
+    ro: Any  # a read-only one: inputs may be frozen arrays (the node's last command is)
+    jit: Callable[..., Any]
+
+
+def _compiler() -> _Compiler:
+    """Import numba (only the fused backend needs it) and return what the kernels use."""
+    import numba
+
+    return _Compiler(
+        numba,
+        numba.float64[::1],
+        numba.types.Array(numba.float64, 1, "C", readonly=True),
+        partial(numba.njit, cache=True, nogil=True, error_model="numpy"),
+    )
+
+
 @cache
 def _fused_observer() -> tuple[ObserverPrep, ObserverFirstStep, ObserverStep, ObserverFinish]:
     """Compile (or load from numba's cache) the fused observer passes."""
-    import numba
-
-    vec = numba.float64[::1]
-    # inputs may be frozen arrays (the node's last command is read-only)
-    ro = numba.types.Array(numba.float64, 1, "C", readonly=True)
+    numba, vec, ro, jit = _compiler()
     f64 = numba.float64
-    jit = partial(numba.njit, cache=True, nogil=True, error_model="numpy")
 
     @numba.njit(inline="always", error_model="numpy")
     def update(  # noqa: PLR0917
         t: float,
         integral: float,
+        voltage: float,
         target: float,
-        sqrt_n: float,
-        sqrt_z_sat: float,
+        coefficients: tuple[float, float, float],
         v_limit: float,
+        kp: float,
         ki: float,
-    ) -> tuple[float, float]:
-        """One element's next integral and its error."""
+        tolerance: float,
+    ) -> tuple[float, float, float, bool]:
+        """One element's next integral, voltage and q voltage, and whether it moved."""
+        q, sqrt_n, sqrt_z_sat = coefficients
         gain = max((1.0 - t * t) * sqrt_n, 1e-6 * sqrt_n)
         error = (target - sqrt_z_sat * t) / gain
-        return min(max(integral + ki * error, 0.0), v_limit), error
+        held = min(max(integral + ki * error, 0.0), v_limit)
+        moved = abs(held - integral) > tolerance
+        if kp == 0.0:
+            return held, held, q * held, moved
+        v = min(max(held + kp * error, 0.0), v_limit)
+        return held, v, q * v, moved | (abs(v - voltage) > tolerance)
 
     @numba.njit(inline="always", error_model="numpy")
     def start(z: float, integral: float, v_limit: float) -> tuple[float, float]:
@@ -221,17 +245,15 @@ def _fused_observer() -> tuple[ObserverPrep, ObserverFirstStep, ObserverStep, Ob
             root, before = start(z[i], integral[i], v_limit)
             target[i] = root
             state[i] = before
-            held, error = update(t[i], before, root, sqrt_n[i], sqrt_z_sat[i], v_limit, ki)
+            held, v, u, beyond = update(t[i], before, before, root,
+                                        (q[i], sqrt_n[i], sqrt_z_sat[i]), v_limit, kp, ki,
+                                        tolerance)  # fmt: skip
             next_integral[i] = held
-            if kp == 0.0:
-                next_u[i] = q[i] * held
-                moved += abs(held - before) > tolerance
-            else:
+            next_u[i] = u
+            if kp != 0.0:
                 voltage[i] = before
-                v = min(max(held + kp * error, 0.0), v_limit)
                 next_voltage[i] = v
-                next_u[i] = q[i] * v
-                moved += (abs(held - before) > tolerance) | (abs(v - before) > tolerance)
+            moved += beyond
         return moved
 
     @jit(numba.int64(ro, ro, ro, vec, vec, vec, ro, ro, ro, ro, f64, f64, f64, f64))
@@ -254,16 +276,14 @@ def _fused_observer() -> tuple[ObserverPrep, ObserverFirstStep, ObserverStep, Ob
         moved = 0
         for i in range(t.size):
             before = integral[i]
-            held, error = update(t[i], before, target[i], sqrt_n[i], sqrt_z_sat[i], v_limit, ki)
+            held, v, u, beyond = update(t[i], before, before if kp == 0.0 else voltage[i],
+                                        target[i], (q[i], sqrt_n[i], sqrt_z_sat[i]), v_limit,
+                                        kp, ki, tolerance)  # fmt: skip
             next_integral[i] = held
-            if kp == 0.0:
-                next_u[i] = q[i] * held
-                moved += abs(held - before) > tolerance
-            else:
-                v = min(max(held + kp * error, 0.0), v_limit)
+            next_u[i] = u
+            if kp != 0.0:
                 next_voltage[i] = v
-                next_u[i] = q[i] * v
-                moved += (abs(held - before) > tolerance) | (abs(v - voltage[i]) > tolerance)
+            moved += beyond
         return moved
 
     @jit(numba.void(ro, ro, ro, vec))
@@ -278,14 +298,10 @@ def _fused_observer() -> tuple[ObserverPrep, ObserverFirstStep, ObserverStep, Ob
 @cache
 def _fused_reach_limit() -> ReachLimit:
     """Compile (or load from numba's cache) the fused reach status and voltage limit."""
-    import numba
-
-    vec = numba.float64[::1]
-    ro = numba.types.Array(numba.float64, 1, "C", readonly=True)
+    numba, vec, ro, jit = _compiler()
     high_code = np.int8(CODE_CLIPPED_HIGH)
 
-    @numba.njit(numba.int64(ro, ro, ro, vec, numba.int8[::1], numba.float64),
-                cache=True, nogil=True, error_model="numpy")
+    @jit(numba.int64(ro, ro, ro, vec, numba.int8[::1], numba.float64))
     def reach_limit(  # noqa: PLR0917 (numba calls are positional)
         z: FloatArray,
         below: FloatArray,
@@ -314,12 +330,8 @@ def _fused_reach_limit() -> ReachLimit:
 @cache
 def _fused_linearized() -> tuple[LinearizedDrive, ForwardError]:
     """Compile (or load from numba's cache) the passes around linearized_dmax's tanh."""
-    import numba
-
-    vec = numba.float64[::1]
-    ro = numba.types.Array(numba.float64, 1, "C", readonly=True)
+    numba, vec, ro, jit = _compiler()
     high_code = np.int8(CODE_CLIPPED_HIGH)
-    jit = partial(numba.njit, cache=True, nogil=True, error_model="numpy")
 
     # branch-free (selects and a counted reduction) so that LLVM vectorises it
     @jit(numba.int64(ro, ro, ro, ro, ro, ro, vec, numba.int8[::1], vec, numba.float64))
@@ -362,12 +374,8 @@ def _fused_linearized() -> tuple[LinearizedDrive, ForwardError]:
 @cache
 def _fused_hyperbolic() -> tuple[HyperbolicRoot, HyperbolicScale]:
     """Compile (or load from numba's cache) the passes around the hyperbolic inverse's arctanh."""
-    import numba
-
-    vec = numba.float64[::1]
-    ro = numba.types.Array(numba.float64, 1, "C", readonly=True)
+    numba, vec, ro, jit = _compiler()
     high_code = np.int8(CODE_CLIPPED_HIGH)
-    jit = partial(numba.njit, cache=True, nogil=True, error_model="numpy")
 
     # Both loops are branch-free (selects and a counted reduction) so that LLVM vectorises
     # them; an early exit or a conditional store would keep them scalar, 2-3x slower.
