@@ -3,10 +3,10 @@
 The observer's PI loop runs at most ``iterations`` updates per set point, each a ``tanh`` and
 about ten element-wise operations over the grid; it stops before an update that would move
 nothing by more than ``tolerance`` (from the last set point's command, a held set point
-takes no update, a smooth trajectory two or three). In numpy every operation is one pass over the
-grid and one call (about 1 us at 4096 actuators); the fused path compiles the arithmetic of
-one update into a single loop (:func:`numba.njit`), the set-up (sqrt of the set points,
-clipped integrator) and the model error into one loop each, and keeps ``np.tanh``, whose
+takes no update, a 10 Hz full-range sine at 2 kHz three). In numpy every operation is one
+pass over the grid and one call (about 1 us at 4096 actuators); the fused path compiles the
+arithmetic of one update into a single loop (:func:`numba.njit`), the set-up (sqrt of the
+set points, clipped integrator) and the model error into one loop each, and keeps ``np.tanh``, whose
 SIMD loop is faster than the scalar ``tanh`` a compiled loop calls. Both paths do the same
 IEEE operations in the same order (no fast-math), so they give the same numbers. The tanh of
 the final command is the model error's and, with kp = 0, the next set point's first update
