@@ -206,6 +206,10 @@ def test_output_is_always_finite_and_within_the_limit(
         ({"params": ActuatorParams(k2=np.full(SHAPE, -1e-6))}, "not positive"),
         ({"compensation": CompensationParams(coupling=0.5)}, "coupling"),
         ({"observer": ObserverGains(kp=0.8, ki=0.8)}, "observer"),
+        ({"observer": ObserverGains(iterations=0)}, "observer.iterations"),
+        ({"observer": ObserverGains(tolerance=-1e-4)}, "observer.tolerance"),
+        ({"observer": ObserverGains(tolerance=float("nan"))}, "observer.tolerance"),
+        ({"observer": ObserverGains(tolerance=2.0)}, "observer.tolerance"),
     ],
 )
 def test_invalid_configurations_are_rejected_with_a_reason(change: dict, match: str) -> None:

@@ -647,25 +647,25 @@ def _fused_command(  # noqa: PLR0917 (the arguments of observer_command)
     # only if the step moved something by more than the tolerance
     held, drive = np.empty(size), np.empty(size)
     next_held, next_drive, next_u = np.empty(size), np.empty(size), np.empty(size)
+    known = None
     if tanh_of_integral is None:
         u = np.empty(size)
         prep(z_flat, state, q, target, held, drive, u, v_limit)
         np.tanh(u, out=u)
     else:  # the first update needs no tanh: one pass sets up and takes it
-        u = np.ascontiguousarray(tanh_of_integral, np.float64).ravel()
+        u = known = np.ascontiguousarray(tanh_of_integral, np.float64).ravel()
         moved = first_step(z_flat, state, u, target, held, drive, next_held, next_drive, next_u,
                            q, sqrt_n, sqrt_z_sat, v_limit, kp, ki, tolerance)  # fmt: skip
     updates = 0
     while True:
-        if updates or tanh_of_integral is None:
+        if updates or known is None:
             moved = step(u, held, drive, next_held, next_drive, next_u, q, sqrt_n, sqrt_z_sat,
                          target, v_limit, kp, ki, tolerance)  # fmt: skip
         if not moved:
             break  # converged: the update is not applied, u is still tanh(q voltage)
         held, next_held = next_held, held
         drive, next_drive = next_drive, drive
-        spare = u if updates or tanh_of_integral is None else np.empty(size)  # not the caller's
-        u, next_u = next_u, spare
+        u, next_u = next_u, (np.empty(size) if u is known else u)  # never write the caller's
         updates += 1
         np.tanh(u, out=u)
         if updates == iterations:
