@@ -144,6 +144,20 @@ def test_setpoints_outside_the_domain_are_clipped_and_reported() -> None:
     assert result.voltage[0, 2] == good.voltage[0, 2]
     assert result.voltage[0, 3] == good.voltage[0, 3]
     np.testing.assert_array_equal(result.voltage[1:], good.voltage[1:])
+    assert (good.worst, result.worst) == (Status.OK, Status.INVALID)
+
+
+def test_a_held_command_reports_the_worst_status_of_the_command_it_repeats() -> None:
+    config = FeedforwardConfig(shape=SHAPE, params=PARAMS, temperature_timeout=0.5)
+    ff = Feedforward(config)
+    assert ff.command(setpoints(1, 100 * NM), 0.0).worst == Status.OK  # 0 V, nothing clipped
+    ff.update_temperature(TEMPERATURE, 1.0)
+    z = setpoints(1, 100 * NM)
+    z[1, 1] = 2 * float(np.max(z_sat(TEMPERATURE, PARAMS)))
+    clipped = ff.command(z, 1.0)
+    stale = ff.command(setpoints(2, 100 * NM), 1.6)
+    assert not clipped.held and stale.held
+    assert clipped.worst == stale.worst == Status.CLIPPED_HIGH
 
 
 def test_missing_stale_and_invalid_temperature_hold_the_last_good_command() -> None:

@@ -7,6 +7,7 @@ from functools import partial
 import numpy as np
 import pytest
 
+from es_feedforward import kernels
 from es_feedforward.feedforward import (
     REACH_MARGIN,
     Feedforward,
@@ -97,6 +98,8 @@ def test_fused_equals_numpy_over_temperatures_and_set_points(
             assert fused_result.model_error is not None
             np.testing.assert_allclose(fused_result.model_error, numpy_result.model_error,
                                        rtol=1e-12, atol=1e-24)
+        for result in (numpy_result, fused_result):  # counted or taken, the largest code
+            assert result.worst == int(result.status.max())
         saw.update(np.unique(numpy_result.status).tolist())
         assert np.all(np.isfinite(fused_result.voltage))
         assert fused_result.voltage.min() >= 0.0
@@ -361,6 +364,35 @@ def test_fused_hyperbolic_inverse_leaves_unclean_set_points_to_numpy(bad: float)
     fused_result, numpy_result = ff.command(z, 0.0), numpy_ff.command(z, 0.0)
     np.testing.assert_array_equal(fused_result.voltage, numpy_result.voltage)
     np.testing.assert_array_equal(fused_result.status, numpy_result.status)
+
+
+def test_fused_hyperbolic_inverse_refuses_set_points_above_the_callers_ceiling() -> None:
+    # a model whose saturation (10 m) lies beyond the ceiling: only the ceiling refuses
+    ones = np.ones(SHAPE)
+    laws = LawsAtTemperature(q=ones * 0.01, n=ones * 1e-5, inv_zsat=ones * 0.1,
+                             status=np.zeros(SHAPE, np.int8), flagged=False)
+    z = np.full(SHAPE, 0.5)
+    z.flat[5] = 1.5
+    assert fused_hyperbolic_inverse(laws, z, DEFAULT_V_LIMIT, ceiling=1.0) is None
+    taken = fused_hyperbolic_inverse(laws, z, DEFAULT_V_LIMIT)
+    assert taken is not None
+    expected = laws.hyperbolic_inverse(z, DEFAULT_V_LIMIT)
+    np.testing.assert_array_equal(taken.voltage, expected.voltage)
+    assert taken.worst == int(taken.status.max())
+
+
+@pytest.mark.parametrize(("mode", "loaders"), [
+    (Mode.INVERSE_HYPERBOLIC, [kernels._fused_hyperbolic]),
+    (Mode.UNCOMPENSATED, [kernels._fused_hyperbolic]),
+    (Mode.LINEARIZED_DMAX, [kernels._fused_linearized]),
+    (Mode.OBSERVER, [kernels._fused_observer, kernels._fused_reach_limit]),
+])  # fmt: skip
+def test_a_feedforward_loads_its_modes_kernels_when_built(mode: Mode, loaders: list) -> None:
+    for loader in loaders:
+        loader.cache_clear()
+    Feedforward(FeedforwardConfig(shape=SHAPE, mode=mode), backend=Backend.FUSED)
+    # loaded before any set point: the first one is not held up by numba (0.1-1.7 s)
+    assert all(loader.cache_info().currsize == 1 for loader in loaders)
 
 
 def test_default_mode_backends_agree_on_a_clean_stream() -> None:

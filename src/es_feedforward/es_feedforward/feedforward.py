@@ -101,6 +101,7 @@ class CommandResult:
         held: the whole command is the last good one (``problem`` says why).
         problem: why no new command could be computed, or ``None``.
         model_error: linearized_dmax and observer: z_model(V) - z_wanted [m] per actuator.
+        worst: the largest code in ``status`` (a plain int).
 
     """
 
@@ -109,6 +110,7 @@ class CommandResult:
     held: bool = False
     problem: str | None = None
     model_error: FloatArray | None = None
+    worst: int = CODE_OK
 
 
 def linearization_error_bound(laws: LawsAtTemperature, amplitude: npt.ArrayLike) -> FloatArray:
@@ -141,6 +143,7 @@ class Feedforward:
     _integral: FloatArray
     _last_voltage: FloatArray
     _last_status: StatusArray
+    _last_worst: int
     _temperature: FloatArray | None
     _temperature_time: float | None
     _temperature_problem: str | None
@@ -169,8 +172,7 @@ class Feedforward:
             raise FeedforwardConfigError(reason)
         self.config = config
         self.backend = default_backend() if backend is None else backend
-        if config.mode is Mode.OBSERVER:
-            prepare(self.backend)  # compile now, not on the first set point
+        prepare(self.backend, config.mode)  # compile now, not on the first set point
         self._reach: tuple[LawsAtTemperature, tuple[float, FloatArray, FloatArray]] | None = None
         #: (laws, integral, tanh(q integral)) of the observer's last set point, or None
         self._observer_tanh: tuple[LawsAtTemperature, FloatArray, FloatArray] | None = None
@@ -195,10 +197,18 @@ class Feedforward:
                 self._stages[effect.name] = stage
         #: the stages that reshape the drive, in model order
         self._drive_stages = [s for s in self._stages.values() if s.reshapes_drive]
+        #: the plain hyperbolic inverse in the fused kernels, which also refuse every set point
+        #: the cleaning in :meth:`command` would change: tried first, for the whole command
+        self._fused_first = (
+            self.backend is Backend.FUSED
+            and config.mode in (Mode.INVERSE_HYPERBOLIC, Mode.UNCOMPENSATED)
+            and not self._stages
+        )
         if previous is not None and carry:
             self._integral = previous._integral
             self._last_voltage = previous._last_voltage
             self._last_status = previous._last_status
+            self._last_worst = previous._last_worst
             self._temperature = previous._temperature
             self._temperature_time = previous._temperature_time
             self._temperature_problem = previous._temperature_problem
@@ -209,6 +219,7 @@ class Feedforward:
             self._integral = np.zeros(shape)
             self._last_voltage = np.zeros(shape)
             self._last_status = np.zeros(shape, np.int8)
+            self._last_worst = CODE_OK
             self._last_voltage.flags.writeable = False
             self._last_status.flags.writeable = False
             self._temperature = None
@@ -288,12 +299,19 @@ class Feedforward:
             )
         problem = self.temperature_problem(t)
         if problem is not None:
-            return CommandResult(self._last_voltage, self._last_status, True, problem)
+            return CommandResult(
+                self._last_voltage, self._last_status, True, problem, worst=self._last_worst
+            )
         if self.needs_temperature:
             assert self._laws is not None and self._temperature is not None
             laws, T = self._laws, self._temperature
         else:
             laws, T = self._reference_laws, self._reference_T
+        if self._fused_first and not laws.flagged and z.size:
+            fused = fused_hyperbolic_inverse(laws, z, self.config.v_limit, SETPOINT_CEILING)
+            if fused is not None:
+                assert fused.worst is not None
+                return self._keep(fused.voltage, fused.status, fused.worst)
         T_law = T
         for stage in self._stages.values():
             T_law = stage.law_temperature(T_law, t)
@@ -324,15 +342,17 @@ class Feedforward:
 
         # the model inverses already return finite voltages in [0, v_limit]; only the
         # drive's inverses can leave that range
-        voltage, status = result.voltage, result.status
-        reshaped = bool(self._drive_stages)
-        if reshaped:
+        voltage, status, worst = result.voltage, result.status, result.worst
+        if self._drive_stages:
             voltage, status = self._drive_and_limits(result, t)
+            worst = None  # the limits may have raised statuses
         if raw_status is not None:
             np.maximum(status, raw_status, out=status)
             self._observer_tanh = None
-        maybe_invalid = raw_status is not None or laws.flagged or reshaped
-        if maybe_invalid and status.size and status.max() >= CODE_INVALID:
+            worst = None
+        if worst is None:
+            worst = int(status.max()) if status.size else CODE_OK
+        if worst >= CODE_INVALID:
             invalid = status == CODE_INVALID
             voltage[invalid] = self._last_voltage[invalid]
             if model_error is not None:
@@ -340,12 +360,20 @@ class Feedforward:
         drive = voltage
         for stage in self._stages.values():
             drive = stage.commit(voltage, drive, t)
+        return self._keep(voltage, status, worst, model_error)
+
+    def _keep(
+        self, voltage: FloatArray, status: StatusArray, worst: int,
+        model_error: FloatArray | None = None,
+    ) -> CommandResult:
+        """Make this command the last good one and return it."""
         # shared with the caller without a copy: frozen so that nobody changes the state
         voltage.flags.writeable = False
         status.flags.writeable = False
         self._last_voltage = voltage
         self._last_status = status
-        return CommandResult(voltage, status, model_error=model_error)
+        self._last_worst = worst
+        return CommandResult(voltage, status, model_error=model_error, worst=worst)
 
     def _hyperbolic(self, laws: LawsAtTemperature, z: FloatArray) -> InverseResult:
         """Return the hyperbolic inverse of ``z``, fused where the kernels and the laws allow."""

@@ -39,8 +39,10 @@ from typing import Any, Final, NamedTuple
 
 import numpy as np
 
+from es_feedforward.feedforward_config import Mode
 from es_physics.laws import (
     CODE_CLIPPED_HIGH,
+    CODE_OK,
     RATIO_CAP,
     InverseResult,
     LawsAtTemperature,
@@ -108,7 +110,7 @@ ObserverStep = Callable[
     int,
 ]
 ObserverFinish = Callable[[FloatArray, FloatArray, FloatArray, FloatArray], None]
-HyperbolicRoot = Callable[[FloatArray, FloatArray, FloatArray, float], int]
+HyperbolicRoot = Callable[[FloatArray, FloatArray, FloatArray, float, float], int]
 HyperbolicScale = Callable[[FloatArray, FloatArray, StatusArray, float], int]
 ReachLimit = Callable[[FloatArray, FloatArray, FloatArray, FloatArray, StatusArray, float], int]
 LinearizedDrive = Callable[
@@ -379,12 +381,15 @@ def _fused_hyperbolic() -> tuple[HyperbolicRoot, HyperbolicScale]:
 
     # Both loops are branch-free (selects and a counted reduction) so that LLVM vectorises
     # them; an early exit or a conditional store would keep them scalar, 2-3x slower.
-    @jit(numba.int64(ro, ro, vec, numba.float64))
-    def root(z: FloatArray, inv_zsat: FloatArray, out: FloatArray, cap: float) -> int:
+    @jit(numba.int64(ro, ro, vec, numba.float64, numba.float64))
+    def root(
+        z: FloatArray, inv_zsat: FloatArray, out: FloatArray, cap: float, ceiling: float
+    ) -> int:
         bad = 0
         for i in range(z.size):
-            ratio = z[i] * inv_zsat[i]
-            bad += not (ratio >= 0.0 and ratio < cap)  # NaN fails too
+            zi = z[i]
+            ratio = zi * inv_zsat[i]
+            bad += not (ratio >= 0.0 and ratio < cap and zi <= ceiling)  # NaN fails too
             out[i] = np.sqrt(ratio)
         return bad
 
@@ -402,17 +407,28 @@ def _fused_hyperbolic() -> tuple[HyperbolicRoot, HyperbolicScale]:
     return root, scale
 
 
-def prepare(backend: Backend) -> None:
-    """Compile the kernels of ``backend`` now (a no-op for numpy and after the first call)."""
-    if backend is Backend.FUSED:
-        _fused_observer()
-        _fused_reach_limit()
-        _fused_linearized()
-        _fused_hyperbolic()
+def prepare(backend: Backend, mode: Mode | None = None) -> None:
+    """Compile (or load) now the kernels ``mode`` uses, every kernel for ``None``.
+
+    A no-op for numpy and for kernels already loaded. Loading takes 0.1-1.7 s, which a
+    feedforward pays when it is built, not on its first set point.
+    """
+    if backend is not Backend.FUSED:
+        return
+    uses = {
+        Mode.INVERSE_HYPERBOLIC: (_fused_hyperbolic,),
+        Mode.UNCOMPENSATED: (_fused_hyperbolic,),
+        Mode.INVERSE_QUADRATIC: (),
+        Mode.LINEARIZED_DMAX: (_fused_linearized,),
+        Mode.OBSERVER: (_fused_observer, _fused_reach_limit),
+    }
+    every = (_fused_hyperbolic, _fused_linearized, _fused_observer, _fused_reach_limit)
+    for load in every if mode is None else uses[mode]:
+        load()
 
 
 def fused_hyperbolic_inverse(
-    laws: LawsAtTemperature, z: FloatArray, v_limit: float
+    laws: LawsAtTemperature, z: FloatArray, v_limit: float, ceiling: float = np.inf
 ) -> InverseResult | None:
     """Return ``laws.hyperbolic_inverse(z, v_limit)`` in three passes instead of about ten.
 
@@ -425,23 +441,26 @@ def fused_hyperbolic_inverse(
         laws: the model at the temperatures, no actuator flagged.
         z: free-displacement set points [m], the laws' shape.
         v_limit: largest voltage [V].
+        ceiling: largest set point [m] taken here (a caller's own cleaning limit).
 
     Returns:
-        Voltages and statuses, or ``None`` when a set point is negative, not finite or at or
-        beyond saturation (the numpy path's cleaning then applies).
+        Voltages and statuses (their largest code in ``worst``), or ``None`` when a set point
+        is negative, not finite, above ``ceiling``, or at or beyond saturation (the numpy
+        path's cleaning then applies).
 
     """
-    z_flat, inv_zsat, q = (
-        np.ascontiguousarray(a, np.float64).ravel() for a in (z, laws.inv_zsat, laws.q)
-    )
     root, scale = _fused_hyperbolic()
-    voltage = np.empty(z_flat.size)
-    if root(z_flat, inv_zsat, voltage, RATIO_CAP):
+    voltage = np.empty(z.shape)
+    flat = voltage.reshape(-1)
+    z_flat = np.ascontiguousarray(z, np.float64).reshape(-1)
+    inv_zsat = np.ascontiguousarray(laws.inv_zsat, np.float64).reshape(-1)
+    if root(z_flat, inv_zsat, flat, RATIO_CAP, ceiling):
         return None
-    np.arctanh(voltage, out=voltage)
-    status = np.empty(z_flat.size, np.int8)
-    scale(voltage, q, status, v_limit)
-    return InverseResult(voltage.reshape(z.shape), status.reshape(z.shape))
+    np.arctanh(flat, out=flat)
+    status = np.empty(z.shape, np.int8)
+    q = np.ascontiguousarray(laws.q, np.float64).reshape(-1)
+    clipped = scale(flat, q, status.reshape(-1), v_limit)
+    return InverseResult(voltage, status, CODE_CLIPPED_HIGH if clipped else CODE_OK)
 
 
 def fused_reach_status(

@@ -57,10 +57,15 @@ CODE_INVALID: Final = int(Status.INVALID)
 
 @dataclass(frozen=True)
 class InverseResult:
-    """Voltages [V] and per-element :class:`Status` codes (int8) of an inverse model."""
+    """Voltages [V] and per-element :class:`Status` codes (int8) of an inverse model.
+
+    ``worst`` is the largest code of ``status`` when the producer counted it on the way (a
+    compiled pass does), else ``None``: the caller then takes ``status.max()`` if it needs it.
+    """
 
     voltage: FloatArray
     status: StatusArray
+    worst: int | None = None
 
 
 def z_sat(T: npt.ArrayLike, params: ActuatorParams) -> FloatArray:
