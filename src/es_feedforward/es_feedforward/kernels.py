@@ -16,15 +16,17 @@ the final command is the model error's and, with kp = 0, the next set point's fi
 The hyperbolic inverse (the default mode) fuses the same way: one compiled pass checks the
 ratios z / z_sat and takes their square roots, numpy's SIMD ``arctanh`` runs in place, one
 compiled pass divides by q and limits (:func:`fused_hyperbolic_inverse`): three passes
-instead of about ten numpy calls, reductions included. ``linearized_dmax`` likewise: one
-compiled pass for the voltage, statuses and q V, numpy's ``tanh``, one compiled pass for the
-model error (:func:`fused_linearized`).
+instead of about ten numpy calls, reductions included. The first pass refuses any set point
+the feedforward's cleaning would change (negative, not finite, above its ceiling) and the last
+counts the clipped ones, so the feedforward's default path takes no other pass over the grid.
+``linearized_dmax`` likewise: one compiled pass for the voltage, statuses and q V, numpy's
+``tanh``, one compiled pass for the model error (:func:`fused_linearized`).
 
 Which path runs (:func:`default_backend`): ``fused`` when numba is importable, else
 ``numpy``; the environment variable ``ES_DM_FEEDFORWARD_KERNELS=numpy`` forces numpy
-(``fused`` demands numba and fails when it is missing). The fused loop is compiled once per
-machine (cached beside the module, or in numba's user cache) when a feedforward that needs
-it is built, not on the first set point.
+(``fused`` demands numba and fails when it is missing). The fused loops are compiled once per
+machine (cached beside the module, or in numba's user cache) and loaded when a feedforward
+whose mode uses them is built (:func:`prepare`), not on the first set point.
 """
 
 from __future__ import annotations
