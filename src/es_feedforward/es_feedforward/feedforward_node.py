@@ -100,6 +100,8 @@ class FeedforwardNode(Node):
         clock = self.get_clock()
         assert isinstance(clock, ROSClock)  # a node's own clock is
         self._ros_clock: ROSClock = clock
+        #: whether /clock drives the ROS time (use_sim_time), kept at each parameter change
+        self._ros_time_active = clock.ros_time_is_active
         specs = parameter_specs()
         self._names = [spec.name for spec in specs]
         try:
@@ -170,7 +172,7 @@ class FeedforwardNode(Node):
 
     def _now(self) -> float:
         """Return the node's (ROS) time [s]."""
-        if self._ros_clock.ros_time_is_active:  # /clock drives it (use_sim_time)
+        if self._ros_time_active:
             return float(self._ros_clock.now().nanoseconds) * 1e-9
         # else the ROS clock reads the system clock: read it without an rclpy Time, which
         # costs 5 us on a warm core and about 20 us between set points (measured at 2 kHz)
@@ -328,6 +330,8 @@ class FeedforwardNode(Node):
 
     def _swap_configuration(self, params: list[Parameter]) -> None:
         """Swap the validated core in (same executor thread: never inside a set point)."""
+        # rclpy's time source has applied any use_sim_time of this set to the clock
+        self._ros_time_active = self._ros_clock.ros_time_is_active
         changed = {p.name: p.value for p in params if p.name in self._names}
         self._values = ParameterValues({**self._values, **changed})
         if self._pending is not None:

@@ -15,7 +15,7 @@ from __future__ import annotations
 from dataclasses import dataclass, fields
 from enum import IntEnum
 from functools import cached_property
-from typing import Final
+from typing import Final, NamedTuple
 
 import numpy as np
 import numpy.typing as npt
@@ -55,12 +55,12 @@ CODE_CLIPPED_HIGH: Final = int(Status.CLIPPED_HIGH)
 CODE_INVALID: Final = int(Status.INVALID)
 
 
-@dataclass(frozen=True)
-class InverseResult:
+class InverseResult(NamedTuple):
     """Voltages [V] and per-element :class:`Status` codes (int8) of an inverse model.
 
     ``worst`` is the largest code of ``status`` when the producer counted it on the way (a
     compiled pass does), else ``None``: the caller then takes ``status.max()`` if it needs it.
+    A named tuple: a feedforward builds one per set point.
     """
 
     voltage: FloatArray
