@@ -57,6 +57,11 @@ def test_decode_returns_an_aligned_copy_without_rclpy(
     assert calls == []
 
 
+def test_encode_refuses_a_grid_of_another_shape() -> None:
+    with pytest.raises(ValueError, match=r"grid is \(3, 4\), expected \(4, 3\)"):
+        GridWire((4, 3)).encode(np.zeros((3, 4)))
+
+
 def _with(msg: Float64MultiArray, **change: object) -> bytes:
     for name, value in change.items():
         if name == "data_offset":

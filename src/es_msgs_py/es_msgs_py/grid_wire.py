@@ -67,10 +67,7 @@ class GridWire:
                 f"expected {self._length}"
             )
         self._head = template[:head_end]  # the padding after it is not defined by CDR
-        self._out = bytearray(template)
-        self._out_values = np.frombuffer(
-            self._out, np.float64, count=self._size, offset=self._data_start
-        ).reshape(self.shape)
+        self._prefix = bytes(template[: self._data_start])  # head and padding, as rclpy's
 
     def decode(self, raw: bytes) -> FloatArray:
         """Return the grid of one serialised message as a new float64 array.
@@ -93,6 +90,14 @@ class GridWire:
         return msg_to_grid(msg, self.shape)
 
     def encode(self, grid: FloatArray) -> bytes:
-        """Return the serialised contract message of ``grid`` (the class's shape)."""
-        self._out_values[...] = grid
-        return bytes(self._out)
+        """Return the serialised contract message of ``grid`` (the class's shape).
+
+        Raises:
+            ValueError: ``grid`` is not of the class's shape.
+
+        """
+        values = np.ascontiguousarray(grid, np.float64)
+        if values.shape != self.shape:
+            raise ValueError(f"grid is {values.shape}, expected {self.shape}")
+        # the values go from the array's buffer into the new bytes: one copy
+        return b"".join((self._prefix, values.data))
