@@ -418,16 +418,19 @@ def prepare(backend: Backend, mode: Mode | None = None) -> None:
     """
     if backend is not Backend.FUSED:
         return
-    uses = {
-        Mode.INVERSE_HYPERBOLIC: (_fused_hyperbolic,),
-        Mode.UNCOMPENSATED: (_fused_hyperbolic,),
-        Mode.INVERSE_QUADRATIC: (),
-        Mode.LINEARIZED_DMAX: (_fused_linearized,),
-        Mode.OBSERVER: (_fused_observer, _fused_reach_limit),
-    }
-    every = (_fused_hyperbolic, _fused_linearized, _fused_observer, _fused_reach_limit)
-    for load in every if mode is None else uses[mode]:
+    modes = list(Mode) if mode is None else [mode]
+    for load in dict.fromkeys(load for m in modes for load in _KERNELS_OF_MODE[m]):
         load()
+
+
+#: The compiled families each mode's command uses (the quadratic inverse uses none).
+_KERNELS_OF_MODE: Final[dict[Mode, tuple[Callable[[], object], ...]]] = {
+    Mode.INVERSE_HYPERBOLIC: (_fused_hyperbolic,),
+    Mode.UNCOMPENSATED: (_fused_hyperbolic,),
+    Mode.INVERSE_QUADRATIC: (),
+    Mode.LINEARIZED_DMAX: (_fused_linearized,),
+    Mode.OBSERVER: (_fused_observer, _fused_reach_limit),
+}
 
 
 def fused_hyperbolic_inverse(
