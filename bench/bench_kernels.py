@@ -17,6 +17,11 @@ For each grid size N (a near-square R x C grid with per-actuator parameter maps,
   no update runs), ``observer_10hz`` follows a 10 Hz sine over 0-150 nm at 2 kHz with a
   phase per actuator (a smooth trajectory: two or three updates), ``observer_jumps`` takes a
   new random set point every call (the worst case: every update up to ``observer.iterations``);
+- ``observer_10hz_floor`` and ``observer_jumps_floor``: the least arithmetic any
+  implementation of the observer on numpy's SIMD functions needs for the same set points,
+  each with its own number of updates (a sqrt, a tanh per update, a divide per step and one
+  for the model error; :func:`_observer_arithmetic`): how close the observer is to its
+  floor, and whether the 10x target can be met on that workload at all;
 - ``observer_numpy`` (``--numpy-too``): the observer on the pure-numpy path
   (``kernels.Backend.NUMPY``) beside the default (fused when numba is importable; see
   ``ES_DM_FEEDFORWARD_KERNELS`` in :mod:`es_feedforward.kernels`);
@@ -41,7 +46,7 @@ from functools import partial
 import numpy as np
 
 from es_feedforward.feedforward import Feedforward, FeedforwardConfig, Mode
-from es_feedforward.kernels import Backend
+from es_feedforward.kernels import Backend, observer_command
 from es_physics.laws import DEFAULT_V_LIMIT, CompiledLaws
 from es_physics.params import ActuatorParams
 
@@ -114,6 +119,52 @@ def _cycling(ff: Feedforward, trajectory: np.ndarray) -> Callable[[], object]:
     return lambda: ff.command(next(frames), 0.0)
 
 
+def _update_counts(config: FeedforwardConfig, T: np.ndarray, trajectory: np.ndarray) -> list[int]:
+    """Return the observer updates each frame of ``trajectory`` takes, in order.
+
+    The observer's loop as :func:`_cycling` drives it (from rest to the last frame, then once
+    round), through :func:`es_feedforward.kernels.observer_command` directly.
+    """
+    gains = config.observer
+    laws = CompiledLaws(config.params, config.shape).at(T)
+    integral = np.zeros(config.shape)
+    counts = []
+    for frame in (trajectory[-1], *trajectory):
+        out = observer_command(integral, laws, frame, v_limit=config.v_limit, kp=gains.kp,
+                               ki=gains.ki, iterations=gains.iterations,
+                               tolerance=gains.tolerance)  # fmt: skip
+        integral = out.integral
+        counts.append(out.updates)
+    return counts[1:]
+
+
+def _observer_arithmetic(size: int, counts: list[int], iterations: int) -> Callable[[], object]:
+    """Return the numpy SIMD passes the observer's arithmetic needs, set point after set point.
+
+    For a set point of k updates (``counts``, round and round, as :func:`_cycling` goes):
+    one ``np.sqrt`` (the targets), a ``np.divide`` per step (its error over the local gain),
+    a ``np.tanh`` per update (the model at the new command), and a ``np.divide`` for the
+    model error; k + 1 steps (the last finds nothing to move) unless k is ``iterations``.
+    Nothing else (no clipping, no comparisons, no buffers, no Python around it): no
+    implementation on numpy's SIMD functions does less, so this is the observer's floor.
+    """
+    rng = np.random.default_rng(size)
+    a, b = rng.uniform(0.1, 0.9, size), rng.uniform(0.1, 0.9, size)
+    out = np.empty(size)
+    work = itertools.cycle([(k + (k < iterations), k) for k in counts])
+
+    def arithmetic() -> None:
+        steps, updates = next(work)
+        np.sqrt(a, out=out)
+        for _ in range(steps):
+            np.divide(a, b, out=out)
+        for _ in range(updates):
+            np.tanh(a, out=out)
+        np.divide(a, b, out=out)
+
+    return arithmetic
+
+
 def bench_kernels(
     sizes: Sequence[int] = DEFAULT_SIZES, repeats: int = 5, numpy_too: bool = False
 ) -> list[KernelTiming]:
@@ -151,6 +202,10 @@ def bench_kernels(
                     moving = Feedforward(ff.config)
                     moving.update_temperature(T, 0.0)
                     kernels[f"{mode.value}_{workload}"] = _cycling(moving, trajectory)
+                    counts = _update_counts(ff.config, T, trajectory)
+                    kernels[f"{mode.value}_{workload}_floor"] = _observer_arithmetic(
+                        size, counts, ff.config.observer.iterations
+                    )
             if numpy_too and mode is Mode.OBSERVER and ff.backend is not Backend.NUMPY:
                 plain = Feedforward(ff.config, backend=Backend.NUMPY)
                 plain.update_temperature(T, 0.0)

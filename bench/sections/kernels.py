@@ -25,6 +25,10 @@ def run(context: Context) -> None:
     results.notes.append(
         "kernel_<mode>: Feedforward.command of that mode with the temperature laws already "
         "evaluated (the cost per set point); kernel_laws_inverse_hyperbolic: laws and "
-        "hyperbolic inverse together; kernel_update_temperature: laws at a new temperature. "
+        "hyperbolic inverse together; kernel_update_temperature: laws at a new temperature; "
+        "kernel_observer_10hz / _jumps: the observer following a moving set point, and "
+        "kernel_observer_*_floor: the numpy SIMD passes its arithmetic needs for the same "
+        "updates (sqrt, a tanh per update, a divide per step and for the model error), "
+        "nothing else. "
         "ratio = time / one np.sqrt over the same N, measured alternately in the same run."
     )
