@@ -51,6 +51,8 @@ from es_physics.laws import DEFAULT_V_LIMIT, CompiledLaws
 from es_physics.params import ActuatorParams
 
 DEFAULT_SIZES = (1, 144, 1024, 4096, 16384)
+#: Ends the name of a row that is a floor of the row it extends (its arithmetic alone).
+FLOOR_SUFFIX = "_floor"
 #: CPU time of this thread: time the process waits for a core (other load) does not count.
 CPU_TIMER = time.thread_time
 
@@ -203,7 +205,7 @@ def bench_kernels(
                     moving.update_temperature(T, 0.0)
                     kernels[f"{mode.value}_{workload}"] = _cycling(moving, trajectory)
                     counts = _update_counts(ff.config, T, trajectory)
-                    kernels[f"{mode.value}_{workload}_floor"] = _observer_arithmetic(
+                    kernels[f"{mode.value}_{workload}{FLOOR_SUFFIX}"] = _observer_arithmetic(
                         size, counts, ff.config.observer.iterations
                     )
             if numpy_too and mode is Mode.OBSERVER and ff.backend is not Backend.NUMPY:
