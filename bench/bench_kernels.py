@@ -17,11 +17,11 @@ For each grid size N (a near-square R x C grid with per-actuator parameter maps,
   no update runs), ``observer_10hz`` follows a 10 Hz sine over 0-150 nm at 2 kHz with a
   phase per actuator (a smooth trajectory: two or three updates), ``observer_jumps`` takes a
   new random set point every call (the worst case: every update up to ``observer.iterations``);
-- ``observer_10hz_floor`` and ``observer_jumps_floor``: the least arithmetic any
-  implementation of the observer on numpy's SIMD functions needs for the same set points,
-  each with its own number of updates (a sqrt, a tanh per update, a divide per step and one
-  for the model error; :func:`_observer_arithmetic`): how close the observer is to its
-  floor, and whether the 10x target can be met on that workload at all;
+- ``observer_10hz_floor`` and ``observer_jumps_floor``: the least arithmetic the observer's
+  updates (the model's tanh, the error over the local gain) need on numpy's SIMD functions
+  for the same set points, each with its own number of updates (a sqrt, a tanh per update, a
+  divide per step and one for the model error; :func:`_observer_arithmetic`): how close the
+  observer is to its floor, and whether the 10x target can be met on that workload at all;
 - ``observer_numpy`` (``--numpy-too``): the observer on the pure-numpy path
   (``kernels.Backend.NUMPY``) beside the default (fused when numba is importable; see
   ``ES_DM_FEEDFORWARD_KERNELS`` in :mod:`es_feedforward.kernels`);
@@ -148,7 +148,7 @@ def _observer_arithmetic(size: int, counts: list[int], iterations: int) -> Calla
     a ``np.tanh`` per update (the model at the new command), and a ``np.divide`` for the
     model error; k + 1 steps (the last finds nothing to move) unless k is ``iterations``.
     Nothing else (no clipping, no comparisons, no buffers, no Python around it): no
-    implementation on numpy's SIMD functions does less, so this is the observer's floor.
+    implementation of these updates on numpy's SIMD functions does less.
     """
     rng = np.random.default_rng(size)
     a, b = rng.uniform(0.1, 0.9, size), rng.uniform(0.1, 0.9, size)
