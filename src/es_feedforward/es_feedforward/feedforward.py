@@ -197,12 +197,11 @@ class Feedforward:
                 self._stages[effect.name] = stage
         #: the stages that reshape the drive, in model order
         self._drive_stages = [s for s in self._stages.values() if s.reshapes_drive]
-        #: the plain hyperbolic inverse in the fused kernels, which also refuse every set point
-        #: the cleaning in :meth:`command` would change: tried first, for the whole command
-        self._fused_first = (
-            self.backend is Backend.FUSED
-            and config.mode in (Mode.INVERSE_HYPERBOLIC, Mode.UNCOMPENSATED)
-            and not self._stages
+        #: the command is the plain hyperbolic inverse: where the fused kernels take it (their
+        #: first pass also refuses every set point the cleaning in :meth:`command` would
+        #: change), it is tried first, for the whole command
+        self._plain_hyperbolic = (
+            config.mode in (Mode.INVERSE_HYPERBOLIC, Mode.UNCOMPENSATED) and not self._stages
         )
         if previous is not None and carry:
             self._integral = previous._integral
@@ -307,7 +306,7 @@ class Feedforward:
             laws, T = self._laws, self._temperature
         else:
             laws, T = self._reference_laws, self._reference_T
-        if self._fused_first and not laws.flagged and z.size:
+        if self._plain_hyperbolic and self._fusable(laws, z):
             fused = fused_hyperbolic_inverse(laws, z, self.config.v_limit, SETPOINT_CEILING)
             if fused is not None:
                 assert fused.worst is not None
@@ -375,10 +374,14 @@ class Feedforward:
         self._last_worst = worst
         return CommandResult(voltage, status, model_error=model_error, worst=worst)
 
+    def _fusable(self, laws: LawsAtTemperature, z: FloatArray) -> bool:
+        """Whether the fused kernels take these laws and set points (they flag no actuator)."""
+        return self.backend is Backend.FUSED and not laws.flagged and z.size > 0
+
     def _hyperbolic(self, laws: LawsAtTemperature, z: FloatArray) -> InverseResult:
         """Return the hyperbolic inverse of ``z``, fused where the kernels and the laws allow."""
         v_limit = self.config.v_limit
-        if self.backend is Backend.FUSED and not laws.flagged and z.size:
+        if self._fusable(laws, z):
             fused = fused_hyperbolic_inverse(laws, z, v_limit)
             if fused is not None:
                 return fused
@@ -439,7 +442,7 @@ class Feedforward:
     ) -> tuple[InverseResult, FloatArray]:
         """Bias at V_max(T), drive z - z_sat/3 through 1 / d_max(T)."""
         v_limit = self.config.v_limit
-        if self.backend is Backend.FUSED and not laws.flagged and z.size:
+        if self._fusable(laws, z):
             _, below, beyond = self._reach_bounds(laws)
             fused = fused_linearized(laws, z, below, beyond, v_limit)
             if fused is not None:
@@ -474,7 +477,7 @@ class Feedforward:
         )  # fmt: skip
         self._integral = out.integral
         status = None
-        if self.backend is Backend.FUSED and not laws.flagged and z.size:
+        if self._fusable(laws, z):
             _, below, beyond = self._reach_bounds(laws)
             status = fused_reach_status(z, out.voltage, below, beyond, v_limit)
         # tanh(q I) starts the next set point's loop only if nothing changes I in place

@@ -409,18 +409,16 @@ def _fused_hyperbolic() -> tuple[HyperbolicRoot, HyperbolicScale]:
     return root, scale
 
 
-def prepare(backend: Backend, mode: Mode | None = None) -> None:
-    """Compile (or load) now the kernels ``mode`` uses, every kernel for ``None``.
+def prepare(backend: Backend, mode: Mode) -> None:
+    """Compile (or load) now the kernels ``mode`` uses.
 
     A no-op for numpy and for kernels already loaded. Loading from numba's cache took 0.6 s
     here for the default mode's (numba's import included) and 1.7 s more for the others: a
     feedforward pays it when it is built, not on its first set point.
     """
-    if backend is not Backend.FUSED:
-        return
-    modes = list(Mode) if mode is None else [mode]
-    for load in dict.fromkeys(load for m in modes for load in _KERNELS_OF_MODE[m]):
-        load()
+    if backend is Backend.FUSED:
+        for load in _KERNELS_OF_MODE[mode]:
+            load()
 
 
 #: The compiled families each mode's command uses (the quadratic inverse uses none).
