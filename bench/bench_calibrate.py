@@ -8,7 +8,7 @@ so generating a 32 x 32 bag needs no full-size array. Run:
 
     .venv/bin/python bench/bench_calibrate.py [--grid 32] [--duration 300] [--rate 500]
 
-The timed part is what ``es_feedforward-calibrate BAG -o OUT`` does (read the bag, calibrate,
+The timed part is what ``es_calibration-calibrate BAG -o OUT`` does (read the bag, calibrate,
 write report, JSON and YAML), in this process. Nothing is asserted.
 """
 
@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from es_feedforward.calibrate import run
+from es_calibration.calibrate import run
 from es_msgs_py.bag import FLOAT64_MULTI_ARRAY, BagWriter, encode_float64_multi_array
 from es_physics.laws import hyperbolic_forward
 from es_physics.params import ActuatorParams

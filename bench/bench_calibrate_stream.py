@@ -109,7 +109,7 @@ def measure(name: str, bag: Path, edge: int, workers: int | None, tile: int, *,
 
     ``search_budget`` None: the tool's default (calibration/searchspan.py).
     """
-    exe = Path(sys.executable).with_name("es_feedforward-calibrate")
+    exe = Path(sys.executable).with_name("es_calibration-calibrate")
     with tempfile.TemporaryDirectory(prefix="bench_stream_") as out:
         cmd = ["/usr/bin/time", "-v", str(exe), str(bag), "-o", out, "-q", "--tile", str(tile)]
         if workers:

@@ -1,14 +1,14 @@
 """End-to-end calibration loop per effect family: characterise, calibrate, closed loop.
 
 For every effect the feedforward compensates (the calibration's candidates,
-``es_feedforward.calibration.model.CANDIDATES``, read from the code), the main job's
+``es_calibration.model.CANDIDATES``, read from the code), the main job's
 calibration loop (the demo's step 4) runs on the plant core, offline:
 
 1. characterise: the demo's test stand for the hardware of ``LOOP_SCENARIO``
    (``characterisation_scenario``) with only this effect on, on a ``GRID`` grid (so that
    coupling has neighbours), simulated without ROS and written as a measured-data bag
    (command k at t_k, the displacement it produces at t_k+1, the raw sensor temperatures);
-2. calibrate: ``es_feedforward calibrate`` on that bag (in this process), told nothing;
+2. calibrate: ``es_calibration calibrate`` on that bag (in this process), told nothing;
 3. closed loop: ``LOOP_SCENARIO`` with the same effect at the demo's control rate, the
    feedforward core (inverse_hyperbolic) configured from the calibrated parameters YAML and
    fed each actuator's raw sensor temperature when a sample arrives (no thermal estimator:
@@ -56,8 +56,8 @@ from es_bringup.demo_calibration import (
 )
 from es_bringup.demo_options import DEFAULT_CONTROL_RATE
 from es_bringup.metrics import AlignedRun, run_metrics
-from es_feedforward.calibrate import run as calibrate_run
-from es_feedforward.calibration.model import CANDIDATES
+from es_calibration.calibrate import run as calibrate_run
+from es_calibration.model import CANDIDATES
 from es_feedforward.feedforward import Feedforward, Mode
 from es_feedforward.param_file import read_params_file
 from es_msgs_py.bag import write_array_bag

@@ -10,7 +10,7 @@ effect family alone, every pair; command rates 250 Hz - 5 kHz with delays that a
 samples, grids 1 x 1 - 8 x 8, MCAP and sqlite3, 2 % of displacement messages dropped, gaps in
 the temperature topic, a few holes in the command topic) the generator :mod:`standgen`
 writes a measured-data bag into a temporary directory, the calibration tool
-(``es_feedforward.calibrate.run``, the ``calibrate BAG -o OUT`` CLI) runs on it in a
+(``es_calibration.calibrate.run``, the ``calibrate BAG -o OUT`` CLI) runs on it in a
 subprocess with a timeout, and its ``calibration.json`` is compared with the truth: the
 accepted effect set against the true set, the held-out RMS after against the tool's noise
 floor and against the generator's true interferometer noise.
@@ -45,7 +45,7 @@ from standgen.sweep import Case, Outcome, build_cases, by_condition, summarise
 #: Wall-time limit of one calibration run [s] (generous: the machine is shared).
 CALIBRATE_TIMEOUT_S: Final = 600.0
 #: The calibration tool, run as ``python -c CALIBRATE BAG -o OUT -q``.
-CALIBRATE: Final = ("import sys; from es_feedforward.calibrate import run; "
+CALIBRATE: Final = ("import sys; from es_calibration.calibrate import run; "
                     "sys.exit(run(sys.argv[1:]))")
 #: Goals of the issue: (figure, comparison, bound, label).
 GOALS: Final = (

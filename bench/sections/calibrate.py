@@ -37,7 +37,7 @@ def _profile_calibration(rate: float) -> str:
 
     from bench_calibrate import write_measured_bag
 
-    from es_feedforward.calibrate import run
+    from es_calibration.calibrate import run
 
     with tempfile.TemporaryDirectory(prefix="bench_calibrate_profile_") as tmp:
         bag = Path(tmp) / "bag"

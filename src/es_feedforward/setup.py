@@ -6,8 +6,9 @@ PACKAGE = "es_feedforward"
 # executable name (under lib/es_feedforward/, for `ros2 run`) -> module with main()
 EXECUTABLES = {
     "feedforward_node": "es_feedforward.feedforward_node",
-    "calibrate": "es_feedforward.calibrate",
 }
+# launchers kept for one release under an old name: they say where the executable moved
+MOVED = ["calibrate"]
 
 setup(
     name=PACKAGE,
@@ -17,7 +18,7 @@ setup(
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
-        (f"lib/{PACKAGE}", [f"scripts/{exe}" for exe in EXECUTABLES]),
+        (f"lib/{PACKAGE}", [f"scripts/{exe}" for exe in [*EXECUTABLES, *MOVED]]),
         *[
             (f"share/{PACKAGE}/{d}", glob(f"{d}/*"))
             for d in ("launch", "scenarios", "config")
@@ -28,7 +29,7 @@ setup(
     zip_safe=False,
     maintainer="es_dm developers",
     maintainer_email="es-dm@example.com",
-    description="Electrostrictive actuator models, temperature-compensated feedforward node and calibration tool.",
+    description="Temperature-compensated feedforward node for the electrostrictive actuator grid.",
     license="Apache-2.0",
     entry_points={
         "console_scripts": [

@@ -227,7 +227,7 @@ def test_the_node_spins_with_its_start_up_objects_frozen_out_of_the_collector() 
     [
         ("es_sim_plant", "plant_node"), ("es_thermal", "thermal_node"),
         ("es_feedforward", "feedforward_node"), ("es_msgs_py", "record"),
-        ("es_feedforward", "calibrate"), ("es_bringup", "bringup"), ("es_bringup", "demo"),
+        ("es_calibration", "calibrate"), ("es_bringup", "bringup"), ("es_bringup", "demo"),
     ],
 )  # fmt: skip
 def test_every_executable_answers_help_without_starting_a_node(package: str, name: str) -> None:

@@ -63,7 +63,8 @@ def assert_installed(prefix: Path, package: str) -> None:
 
 def test_every_package_lists_executables_with_modules() -> None:
     assert PACKAGES == [
-        "es_bringup", "es_feedforward", "es_msgs_py", "es_physics", "es_sim_plant", "es_thermal"
+        "es_bringup", "es_calibration", "es_feedforward", "es_msgs_py", "es_physics",
+        "es_sim_plant", "es_thermal",
     ]
     for package, exe in ALL_EXECUTABLES:
         module = executable_modules(package)[exe]

@@ -2,7 +2,9 @@
 
 Layer 1 is the contract (es_msgs_py) and the shared physics (es_physics), layer 2 the three
 roles (es_sim_plant, es_thermal, es_feedforward: they never import each other), layer 3 the
-bring-up and evaluation (es_bringup, imported by nothing under src/). Read from the source
+offline calibration (es_calibration) beside the bring-up and evaluation (es_bringup): nothing
+under src/ imports either, and they never import each other (the bring-up runs the calibration
+tool as an executable). Read from the source
 with ast, every module of every package (launch files included), so a new import that breaks
 the rule fails here with its file and line.
 """
@@ -22,6 +24,7 @@ LAYER = {
     "es_sim_plant": 2,
     "es_thermal": 2,
     "es_feedforward": 2,
+    "es_calibration": 3,
     "es_bringup": 3,
 }
 
@@ -87,7 +90,8 @@ def test_the_roles_and_the_bottom_use_what_the_doc_says() -> None:
     assert uses["es_sim_plant"] <= {"es_msgs_py", "es_physics"}
     assert uses["es_feedforward"] <= {"es_msgs_py", "es_physics"}
     assert uses["es_thermal"] <= {"es_msgs_py", "es_physics"}
-    assert not any("es_bringup" in used for used in uses.values())
+    assert uses["es_calibration"] <= {"es_msgs_py", "es_physics", "es_feedforward"}
+    assert not any({"es_bringup", "es_calibration"} & used for used in uses.values())
 
 
 def test_package_xml_declares_every_package_it_imports() -> None:

@@ -108,7 +108,7 @@ def test_bad_bags_give_one_line_and_non_zero_exit(tmp_path: Path, fault_cases: F
     kinds = ("missing", "empty directory", "truncated", "garbage", "not YAML", "source")
     chosen = [next(n for n in refused if kind in n) for kind in kinds
               if any(kind in n for n in refused)]
-    tool = executable("es_feedforward", "calibrate")
+    tool = executable("es_calibration", "calibrate")
     runs = {
         name: subprocess.Popen([str(tool), str(bags[name]), "-o", str(tmp_path / f"out-{i}")],
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)

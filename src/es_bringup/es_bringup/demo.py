@@ -6,7 +6,7 @@ The product's story, in order, every step a separate process graph run by the br
 1. characterisation: the simulator as a test stand (no feedforward; a signal-generator
    voltage program, a slow temperature ramp, interferometer noise), recorded like measured
    data, once for the single thesis actuator and once for the 12 x 12 mirror;
-2. calibration: ``es_feedforward calibrate`` on each bag, told nothing about the simulator;
+2. calibration: ``es_calibration calibrate`` on each bag, told nothing about the simulator;
    it writes the parameters YAML the feedforward node loads;
 3. the scenarios ``thesis_ac``, ``thesis_dc_ac`` and ``dm_exposure``, each with
    ``uncompensated`` and every compensating mode, using the calibrated parameters;

@@ -119,11 +119,11 @@ class Calibrated:
 
 
 def calibrate(bag: Path, out_dir: Path, log: Path) -> Calibrated:
-    """Run ``es_feedforward calibrate BAG -o OUT_DIR`` and return what it wrote."""
+    """Run ``es_calibration calibrate BAG -o OUT_DIR`` and return what it wrote."""
     started = time.monotonic()
     with log.open("w") as handle:
         result = subprocess.run(
-            [str(executable("es_feedforward", "calibrate")), str(bag), "-o", str(out_dir)],
+            [str(executable("es_calibration", "calibrate")), str(bag), "-o", str(out_dir)],
             stdout=handle,
             stderr=subprocess.STDOUT,
             check=False,

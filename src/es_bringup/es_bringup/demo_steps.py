@@ -112,7 +112,7 @@ class Demo:
 
     def calibrate_all(self, stands: dict[str, Job]) -> dict[str, Calibrated]:
         """Step 2: the calibration tool on every test-stand bag."""
-        self.progress("2/5 calibration: es_feedforward calibrate on each test-stand bag")
+        self.progress("2/5 calibration: es_calibration calibrate on each test-stand bag")
         unique = list({job.bag: job for job in stands.values()}.values())
         with ThreadPoolExecutor(max_workers=self.options.jobs) as pool:
             done = dict(zip(unique, pool.map(self._calibrate, unique), strict=True))

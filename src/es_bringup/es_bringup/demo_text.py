@@ -153,7 +153,7 @@ def story_markdown(stands: dict[str, Job], calibrated: dict[str, Calibrated]) ->
     lines += [f"| {s} | `{j.bag}` | {j.wall_s:.1f} |" for s, j in stands.items()]
     lines += [
         "",
-        "## 2. Calibration: `es_feedforward calibrate` on each test-stand bag",
+        "## 2. Calibration: `es_calibration calibrate` on each test-stand bag",
         "",
         "The tool is told nothing about how the data were made. Its parameters YAML is what "
         "every closed-loop run below loads into the feedforward node.",

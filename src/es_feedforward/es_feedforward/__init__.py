@@ -1,9 +1,9 @@
-"""Electrostrictive actuator models, temperature-compensated feedforward and calibration.
+"""Temperature-compensated feedforward: set points -> voltages for the actuator grid.
 
 Pure, without rclpy: :mod:`.feedforward` (the modes), :mod:`.compensation`,
 :mod:`.param_file` (configuration <-> parameters and YAML files), :mod:`.node_params` (the
-node's declared parameters), :mod:`.calibration` and its CLI :mod:`.calibrate`, and
-:mod:`.errors` (every exception class of the package). The ROS node is
+node's declared parameters) and :mod:`.errors` (every exception class of the package). The
+calibration that writes its parameters files is the package ``es_calibration``. The ROS node is
 :mod:`.feedforward_node`. Importing the package is cheap: its modules are loaded on first
 use (``es_feedforward.param_file``).
 """
@@ -16,8 +16,6 @@ from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:  # type checkers see the modules; at run time they load on first access
     from es_feedforward import (
-        calibrate,
-        calibration,
         compensation,
         errors,
         feedforward,
@@ -29,8 +27,6 @@ if TYPE_CHECKING:  # type checkers see the modules; at run time they load on fir
 
 #: The public modules of the package.
 __all__ = [
-    "calibrate",
-    "calibration",
     "compensation",
     "errors",
     "feedforward",

@@ -1,0 +1,428 @@
+"""The whole calibration: align, fit, analyse the residual, add effects, refit on the grid.
+
+``calibrate(measured)`` returns a :class:`Calibration` holding every step's outcome; the
+report, ``calibration.json`` and the parameters YAML are written from it (report.py,
+schema.py).
+"""
+
+from __future__ import annotations
+
+import tempfile
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Final
+
+import numpy as np
+
+from es_calibration import unexplained
+from es_calibration.align import (
+    MIN_SAMPLES,
+    AlignedData,
+    CalibrationInputError,
+    MeasuredData,
+    align,
+    resample_temperature,
+    temperature_stamps,
+)
+from es_calibration.local import per_actuator_round
+from es_calibration.model import CANDIDATES, FloatArray
+from es_calibration.recording import (
+    MemoryRecording,
+    Recording,
+    gather,
+    gather_arrays,
+)
+from es_calibration.residual import ResidualStructure, analyse
+from es_calibration.search import (
+    MIN_RELATIVE_GAIN,
+    ModelState,
+    Workspace,
+    base_state,
+    choose_stamp_convention,
+    fitted_effect,
+    heldout_residual,
+    screen_block,
+)
+from es_calibration.searchspan import SEARCH_BUDGET, search_span, search_windows
+from es_calibration.selection import (
+    RoundRecord,
+    Step,
+    preferred_final,
+    search_effects,
+    subset_state,
+)
+from es_calibration.tiles import (
+    DEFAULT_TILE,
+    TEMPERATURE,
+    TEMPERATURE_RATE,
+    TileMap,
+    compact_grid,
+    grid_temperature_mean,
+    refit_tiles,
+    serial_map,
+    write_temperature,
+)
+from es_calibration.tilestore import TileStore, layout
+from es_physics.effects import get
+
+#: Actuators whose full-rate held-out residual is analysed (spectra, correlations).
+ANALYSIS_ACTUATORS: Final = 16
+#: Held-out rows analysed at full rate, at most.
+ANALYSIS_ROWS: Final = 50_000
+#: Ratio of held-out RMS to noise floor above which the residual counts as unexplained.
+NOISE_RATIO_LIMIT: Final = 1.2
+
+
+@dataclass
+class AcceptedEffect:
+    """An effect the search added, with its full-grid held-out RMS before and after.
+
+    ``parameters`` and ``uncertainties`` are those of the final model (all accepted effects
+    fitted together); a parameter fitted per actuator is given there as the grid's median,
+    and in ``per_actuator`` / ``per_actuator_uncertainties`` as row-major lists of R*C
+    values. ``share`` is its part of the mean-square error that all accepted effects
+    removed, (before^2 - after^2) / (base^2 - final^2): the shares sum to 1.
+    """
+
+    name: str
+    parameters: dict[str, float]
+    uncertainties: dict[str, float]
+    rms_before_m: float
+    rms_after_m: float
+    share: float = 0.0
+    per_actuator: dict[str, list[float]] = field(default_factory=dict)
+    per_actuator_uncertainties: dict[str, list[float]] = field(default_factory=dict)
+
+
+@dataclass
+class Calibration:
+    """Everything the calibration found (see schema.py for the JSON form).
+
+    ``aligned`` describes the run (grid, time base, drops, gaps); its per-actuator arrays
+    hold the screening block's actuators only (the whole grid is never held at full rate).
+    """
+
+    aligned: AlignedData
+    base: ModelState
+    final: ModelState
+    effects: list[AcceptedEffect]
+    rounds: list[RoundRecord]
+    before: ResidualStructure
+    after: ResidualStructure
+    analysis_before: tuple[FloatArray, FloatArray]  # (t, residual (A, n)) for the figures
+    analysis_after: tuple[FloatArray, FloatArray]
+    analysis_inputs: dict[str, FloatArray]
+    unexplained: list[str]
+    timings_s: dict[str, float] = field(default_factory=dict)
+    #: What of the record the effect search saw ("" : all of it; else the windows, in words).
+    search_span: str = ""
+
+    @property
+    def noise_floor_m(self) -> float:
+        """Return the measurement noise estimate from the final residual [m]."""
+        return self.after.noise_floor
+
+
+class _Analysis:
+    """Full-rate held-out rows of a few actuators, for residual structure."""
+
+    def __init__(self, aligned: AlignedData) -> None:
+        idx, grid = screen_block(aligned.grid)
+        n = min(ANALYSIS_ACTUATORS, idx.size)
+        self.ws = Workspace(aligned, idx, grid)  # coupling needs the whole screening block
+        self.keep = np.arange(n)
+        rows = np.flatnonzero(~aligned.train)[:ANALYSIS_ROWS]
+        self.ws.score_rows = rows
+        self.rows = rows
+        self.contiguous = aligned.linked(rows)
+
+    def residual(self, state: ModelState) -> FloatArray:
+        _, held = self.ws.input_pair(state.delay_s, state.play_thresholds)
+        return heldout_residual(state, held)[self.keep]
+
+    def regressors(self) -> dict[str, tuple[str, FloatArray]]:
+        a = self.ws.aligned
+        act = self.ws.actuators[self.keep]
+        rows = self.rows
+        V = a.command[np.ix_(np.maximum(a.command_index(rows), 0), act)].T
+        dV = np.gradient(V, a.t[rows], axis=1)
+        # no derivative across a break between runs (a gap or a block edge): NaN there
+        broken = np.zeros(rows.size, dtype=bool)
+        broken[:-1] |= ~self.contiguous
+        broken[1:] |= ~self.contiguous
+        dV[:, broken] = np.nan
+        return {
+            "V": ("V", V),
+            "dV/dt": ("V/s", dV),
+            "T": ("degC", a.temperature_at(rows, act)),
+            "dT/dt": ("degC/s", a.temperature_rate_at(rows, act)),
+            "time": ("s", np.broadcast_to(a.t[rows], V.shape)),
+        }
+
+    def analyse(self, state: ModelState) -> tuple[ResidualStructure, FloatArray]:
+        resid = self.residual(state)
+        rate = self.ws.aligned.sample_rate
+        inputs = self.regressors()
+        voltage = inputs["V"][1]
+        structure = analyse(resid, self.contiguous, rate, inputs)
+        structure.drive_tones_hz = unexplained.drive_tones(voltage, self.contiguous, rate)
+        z = self.ws.aligned.displacement[np.ix_(self.rows, self.ws.actuators[self.keep])].T
+        structure.drive_gain_m_per_v = unexplained.drive_gain(voltage, z)
+        return structure, resid
+
+
+def _unexplained(after: ResidualStructure, final_rms: float) -> list[str]:
+    """Describe the structure the final model leaves, in words."""
+    return unexplained.describe(after, final_rms, NOISE_RATIO_LIMIT)
+
+
+def _grid_refit(
+    recording: Recording,
+    aligned: AlignedData,
+    states: list[ModelState],
+    *,
+    temperature: tuple[FloatArray, FloatArray],
+    tile: int,
+    run: TileMap,
+) -> tuple[list[ModelState], dict[str, int]]:
+    """Refit each model of ``states`` on the whole grid in tiles; return them and NaN counts.
+
+    ``aligned`` is the screening block's alignment (the time base of the whole run),
+    ``temperature`` the grid's stamps since the run's start (Nt,) [s] and values (Nt, A)
+    [degC]. One streamed pass writes the grid at the refit's samples to one file per tile
+    (recording.gather, tilestore.py), each tile's resampled temperature with it.
+
+    Raises:
+        CalibrationInputError: an actuator has fewer than ``MIN_SAMPLES`` usable samples.
+
+    """
+    grid = recording.grid
+    A = grid[0] * grid[1]
+    sizing = Workspace(aligned, np.arange(A, dtype=np.intp), grid)  # the grid's row budgets
+    rows = np.union1d(sizing.fit_rows, sizing.score_rows)
+    needed = []
+    for state in states:
+        whole, _ = sizing.split_delay(state.delay_s)
+        for shift in {0.0, state.delay_s, whole, whole + aligned.command_period}:
+            needed.append(aligned.command_index(rows, shift))
+    commands = np.unique(np.concatenate(needed))
+    commands = commands[commands >= 0]
+    thresholds = sorted({r for s in states if s.model.play for r in s.thresholds})
+    halo = 1 if any(s.model.spatial for s in states) else 0
+    times, values = temperature
+    tiles = layout(grid, tile, halo)
+    with tempfile.TemporaryDirectory(prefix="es_calibrate_tiles_") as directory:
+        uniform = resample_temperature(times, values[:, :1])[0]
+        arrays = gather_arrays(rows.size, commands.size, len(thresholds))
+        arrays.update({TEMPERATURE: (uniform.size, "float64"),
+                       TEMPERATURE_RATE: (uniform.size, "float64")})
+        store = TileStore.create(Path(directory), tiles, arrays)
+        write_temperature(store, times, values)
+        gathered = gather(recording, aligned.sample_index[rows], aligned.sample_index, commands,
+                          thresholds, store=store)
+        if gathered.usable.min() < MIN_SAMPLES:
+            worst = int(np.argmin(gathered.usable))
+            raise CalibrationInputError(
+                f"too short to fit: actuator {worst} has {int(gathered.usable[worst])} usable "
+                f"samples (need {MIN_SAMPLES})"
+            )
+        header = compact_grid(aligned, rows, commands, temperature_times=uniform, grid=grid)
+        out: list[ModelState] = []
+        for state in states:
+            start = out[-1].fit.local if out else None
+            out.append(refit_tiles(header, store, thresholds, state, start, run=run))
+    counts = {
+        "displacement NaN": gathered.displacement_nan,
+        "command NaN": gathered.command_nan,
+    }
+    return out, counts
+
+
+def _grid_temperature(recording: Recording, start: float) -> tuple[FloatArray, FloatArray]:
+    """Return the grid's temperature stamps since ``start`` (Nt,) [s] and values (Nt, A)."""
+    times, values = recording.temperature()
+    return temperature_stamps(times) - start, values
+
+
+def _screened(
+    aligned: AlignedData, block_grid: tuple[int, int], candidates: tuple[str, ...]
+) -> tuple[Workspace, ModelState, ModelState, list[Step], list[RoundRecord]]:
+    """Search the effects on the screening block: (workspace, base, final, steps, rounds)."""
+    screen = Workspace(aligned, np.arange(aligned.n_actuators, dtype=np.intp), block_grid)
+    base = base_state(screen)
+    final, added, rounds = search_effects(screen, base, candidates)
+    return screen, base, final, added, rounds
+
+
+def _search(
+    aligned: AlignedData, block_grid: tuple[int, int], candidates: tuple[str, ...]
+) -> tuple[AlignedData, Workspace, ModelState, ModelState, list[Step], list[RoundRecord]]:
+    """Search the effects; with lock-step stamps, check the stamp convention once more.
+
+    The convention (is a command in effect at its own stamp?) was chosen with the plain law;
+    an effect the law lacks can make that choice wrong, which leaves a one-period timing
+    error. A final model without a command shift is refitted with the other convention; when
+    that cuts its held-out RMS by ``MIN_RELATIVE_GAIN``, the search runs again with it. A
+    final shift within a period of none may be that timing error taken up by a delay: the
+    search runs again with the other convention. The preferred final is kept
+    (:func:`~es_calibration.selection.preferred_final`).
+    """
+    screen, base, final, added, rounds = _screened(aligned, block_grid, candidates)
+    first = (aligned, screen, base, final, added, rounds)
+    if not aligned.has_same_stamps or not final.model.effects:
+        return first
+    other = replace(aligned, include_same_stamp=not aligned.include_same_stamp)
+    if final.model.shift is None:
+        refit = subset_state(
+            Workspace(other, screen.actuators, screen.grid), final, final.model.effects
+        )
+        if refit.heldout_rms >= (1.0 - MIN_RELATIVE_GAIN) * final.heldout_rms:
+            return first
+    elif abs(final.delay_s) > aligned.command_period * (1.0 + 1e-6):
+        return first
+    second = _screened(other, block_grid, candidates)
+    return (other, *second) if preferred_final(second[2], final) else first
+
+
+def calibrate(
+    measured: MeasuredData | Recording,
+    candidates: tuple[str, ...] = CANDIDATES,
+    *,
+    tile: int = DEFAULT_TILE,
+    run: TileMap = serial_map,
+    search_budget: int = SEARCH_BUDGET,
+) -> Calibration:
+    """Run the whole calibration; raise CalibrationInputError on bad data.
+
+    Args:
+        measured: the run, in memory or a streamed recording (bagio.BagRecording).
+        candidates: effects to test.
+        tile: edge of the actuator tiles of the grid-wide refit [actuators]; a tile as
+            large as the grid is the in-memory joint fit.
+        run: how tiles run (:func:`~es_calibration.tiles.serial_map`, or a Dask
+            client's map, see dask_tiles.py).
+        search_budget: sample-actuator values the effect search sees at most; a longer
+            record is searched on windows spread over it (searchspan.py), and then refitted
+            on the grid from the whole record even when the grid is the screening block.
+
+    Raises:
+        CalibrationInputError: the data cannot be calibrated (too short, wrong layout...).
+        SearchBudgetError: ``search_budget`` is not positive.
+
+    """
+    recording = MemoryRecording(measured) if isinstance(measured, MeasuredData) else measured
+    timings: dict[str, float] = {}
+    clock = time.perf_counter()
+    grid = recording.grid
+    idx, block_grid = screen_block(grid)
+    block = align(recording.block(idx, block_grid))
+    full_grid = block_grid == grid
+    if not full_grid:  # the block's model inputs use the whole grid's mean temperature
+        grid_temperature = _grid_temperature(recording, block.start_time)
+        mean, temp_nan = grid_temperature_mean(*grid_temperature)
+        block = replace(block, grid_mean_temperature=mean)
+        block.dropped["temperature NaN"] = temp_nan
+    aligned = choose_stamp_convention(block)
+    searched = search_span(aligned, search_budget)
+    windowed = searched is not aligned
+    span_note = (
+        f"{len(search_windows(aligned, search_budget))} windows, "
+        f"{searched.t.size / aligned.sample_rate:.1f} s of the record's "
+        f"{aligned.t.size / aligned.sample_rate:.1f} s (search budget {search_budget} "
+        "sample-actuator values); the grid refit and its scores use the whole record"
+        if windowed
+        else ""
+    )
+    timings["align"] = time.perf_counter() - clock
+
+    clock = time.perf_counter()
+    searched, screen, base_screen, final_screen, added, rounds = _search(
+        searched, block_grid, candidates
+    )
+    if not windowed:
+        aligned = searched
+    elif searched.include_same_stamp != aligned.include_same_stamp:
+        aligned = replace(aligned, include_same_stamp=searched.include_same_stamp)
+    record, refined = per_actuator_round(screen, final_screen)
+    del screen, searched  # their caches (filtered drives, play operators) are done with
+    if record is not None:
+        rounds.append(record)
+    if refined is not final_screen:
+        name, before_state, _ = added[-1]
+        added[-1] = (name, before_state, refined)
+        final_screen = refined
+    timings["effect search"] = time.perf_counter() - clock
+
+    clock = time.perf_counter()
+    analysis = _Analysis(aligned)
+    before, resid_before = analysis.analyse(base_screen)
+    timings["residual analysis"] = time.perf_counter() - clock
+
+    clock = time.perf_counter()
+    screened = [base_screen] + [after_state for _, _, after_state in added]
+    if full_grid and not windowed:
+        prefix_states = screened
+    else:
+        if full_grid:
+            grid_temperature = _grid_temperature(recording, aligned.start_time)
+        prefix_states, counts = _grid_refit(
+            recording, aligned, screened, temperature=grid_temperature, tile=tile, run=run
+        )
+        aligned = replace(aligned, dropped={**aligned.dropped, **counts})
+    timings["grid refit"] = time.perf_counter() - clock
+    clock = time.perf_counter()
+    base_full = prefix_states[0]
+    after, resid_after = analysis.analyse(final_screen)
+    final = prefix_states[-1]
+    # re-express the uncertainties with the residual's autocorrelation
+    if after.tau_int > 1.0:
+        final.fit = replace(
+            final.fit,
+            cov_local=final.fit.cov_local * after.tau_int,
+            cov_global=final.fit.cov_global * after.tau_int,
+        )
+    timings["analysis"] = time.perf_counter() - clock
+    # the run's description: the whole grid on the block's time base
+    aligned = replace(aligned, grid=grid)
+
+    effects = []
+    for (name, _, _), prev, state in zip(added, prefix_states[:-1], prefix_states[1:], strict=True):
+        effect = get(name)
+        # parameters from the final model: every effect refitted with all the others
+        fitted = fitted_effect(final, effect, aligned)
+        local = [p for p in effect.local_options if p in fitted.local]
+        effects.append(
+            AcceptedEffect(
+                name,
+                effect.reported(fitted),
+                effect.uncertainties(fitted),
+                prev.heldout_rms,
+                state.heldout_rms,
+                per_actuator={p: fitted.local[p].tolist() for p in local},
+                per_actuator_uncertainties={p: fitted.local_sigma[p].tolist() for p in local},
+            )
+        )
+    removed = base_full.heldout_rms**2 - final.heldout_rms**2
+    for e in effects:
+        cut = e.rms_before_m**2 - e.rms_after_m**2
+        e.share = float(cut / removed) if removed > 0 else 0.0
+    inputs = {k: v for k, (_, v) in analysis.regressors().items()}
+    return Calibration(
+        aligned=aligned,
+        base=base_full,
+        final=final,
+        effects=effects,
+        rounds=rounds,
+        before=before,
+        after=after,
+        analysis_before=(aligned.t[analysis.rows], resid_before),
+        analysis_after=(aligned.t[analysis.rows], resid_after),
+        analysis_inputs=inputs,
+        unexplained=_unexplained(after, final.heldout_rms),
+        timings_s=timings,
+        search_span=span_note,
+    )
+
+
+__all__ = ["AcceptedEffect", "Calibration", "calibrate"]

@@ -1,0 +1,202 @@
+"""``calibration.json`` and the feedforward parameters YAML written from a :class:`Calibration`.
+
+calibration.json (schema version 2; SI units, degC; "1-sigma" uncertainties inflated for the
+residual's autocorrelation)::
+
+    {
+      "schema_version": 2,
+      "grid": {"rows": R, "cols": C},
+      "data": {"start_time_s", "duration_s", "sample_rate_hz", "command_period_s",
+               "temperature_topic", "samples", "training_samples", "heldout_samples",
+               "blocks", "command_in_effect_at_same_stamp", "dropped": {reason: count},
+               "repeated_stamps": how repeated stamps were resolved, "" if none,
+               "gaps": [{"topic", "start_s" (bag time of the last message before the gap),
+                         "duration_s", "missing_samples", "excluded_samples"}],
+               "command_edges": {"edges", "excluded_samples", "excluded_fraction",
+                                 "example_times_s" (bag times of the first edges),
+                                 "excluded_before_s", "excluded_after_s"} or null,
+               "temperature_span": {"start_s", "end_s" (bag times of the first and last
+                                    temperature messages), "excluded_before",
+                                    "excluded_after" (samples outside them)} or null},
+      "law": {"L", "Tm" (fixed), "m1", "m2", "m3", "k1", "k2", "k3": row-major lists of R*C,
+              "uncertainty": {same names: lists of R*C 1-sigma values}},
+      "effects": [{"name": canonical name, "parameters": {...}, "uncertainties": {...},
+                   "rms_before_m", "rms_after_m",
+                   "share": part of the mean-square error all effects removed (sum 1),
+                   "per_actuator": {parameter: row-major list of R*C values} for those
+                   fitted per actuator (their "parameters" entry is the grid's median),
+                   "per_actuator_uncertainties": {same names: 1-sigma lists}}],
+      "candidates": [[{"name", "step", "rms_before_m", "rms_after_m", "delta_bic",
+                       "accepted", "reason", "parameters"}], ...],  # every round
+      # step "forward": adding the candidate; "backward": removing an accepted effect
+      # (rms_before_m without it, rms_after_m with it, accepted = it stays);
+      # "per_actuator": an accepted effect's parameter as one value per actuator
+      # (rms_before_m with one grid value, rms_after_m with one per actuator)
+      "heldout_rms_before_m", "heldout_rms_after_m",         # whole grid, held-out rows
+      "heldout_max_before_m", "heldout_max_after_m",         # analysed actuators, full rate
+      "noise_floor_m": white measurement noise estimated from the final residual,
+      "unexplained": ["remaining structure, in words", ...],
+      "timings_s": {step: seconds},
+      "search_span": what of the record the effect search saw ("whole record", or its
+                     windows on a record longer than the search budget)
+    }
+
+Effect parameters use the names the effects declare (:mod:`es_physics.effects`); the YAML
+carries them as each effect's ``compensation.*`` parameters (and law.m3/k3 for the ``LAW``
+effect's per-actuator coefficients).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+from pathlib import Path
+from typing import Any, Final
+
+import numpy as np
+
+from es_calibration.pipeline import Calibration
+from es_feedforward.compensation import RANGES, CompensationParams
+from es_feedforward.feedforward import FeedforwardConfig
+from es_feedforward.param_file import write_params_file
+from es_physics.effects import get
+from es_physics.params import ActuatorParams
+
+SCHEMA_VERSION: Final = 2
+
+
+def fitted_params(cal: Calibration) -> ActuatorParams:
+    """Return the fitted law as per-actuator maps (R, C)."""
+    local = cal.final.fit.local
+    shape = cal.aligned.grid
+    base = ActuatorParams()
+    model = cal.final.model
+    values = {
+        n: local[:, i].reshape(shape)
+        for i, n in enumerate(model.local_names)
+        if n not in model.per_actuator  # effects' parameters, not the law's
+    }
+    return replace(base.as_arrays(shape), **values)
+
+
+def law_uncertainty(cal: Calibration) -> dict[str, list[float]]:
+    """Return 1-sigma uncertainties of the fitted law coefficients (row-major lists)."""
+    cov = cal.final.fit.cov_local
+    sig = np.sqrt(np.maximum(np.einsum("app->ap", cov), 0.0))
+    model = cal.final.model
+    return {
+        n: sig[:, i].tolist()
+        for i, n in enumerate(model.local_names)
+        if n not in model.per_actuator
+    }
+
+
+def compensation(cal: Calibration) -> tuple[CompensationParams, list[str]]:
+    """Return the compensation of the accepted effects and notes on values clipped to range."""
+    values: dict[str, float] = {}
+    for effect in cal.effects:
+        values.update(
+            get(effect.name).compensation_values(effect.parameters, cal.aligned.start_time)
+        )
+    notes = []
+    for name, value in list(values.items()):
+        low, high = RANGES[name]
+        if not low <= value <= high:
+            values[name] = float(np.clip(value, low, high))
+            notes.append(f"compensation.{name} = {value:.4g} clipped to [{low}, {high}]")
+    return CompensationParams().replaced(values), notes
+
+
+def write_parameters_yaml(cal: Calibration, path: Path) -> list[str]:
+    """Write the feedforward parameters YAML; return notes on clipped values."""
+    comp, notes = compensation(cal)
+    config = FeedforwardConfig(shape=cal.aligned.grid, params=fitted_params(cal), compensation=comp)
+    write_params_file(path, config)
+    return notes
+
+
+def _float(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {k: _float(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_float(v) for v in value]
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def calibration_document(cal: Calibration) -> dict[str, Any]:
+    """Return the calibration.json document (see the module docstring)."""
+    a = cal.aligned
+    params = fitted_params(cal)
+    law: dict[str, Any] = {
+        name: np.broadcast_to(np.asarray(getattr(params, name)), a.grid).ravel().tolist()
+        for name in ("L", "Tm", "m1", "m2", "m3", "k1", "k2", "k3")
+    }
+    law["uncertainty"] = law_uncertainty(cal)
+    doc = {
+        "schema_version": SCHEMA_VERSION,
+        "grid": {"rows": a.grid[0], "cols": a.grid[1]},
+        "data": {
+            "start_time_s": a.start_time,
+            "duration_s": float(a.t[-1]),
+            "sample_rate_hz": a.sample_rate,
+            "command_period_s": a.command_period,
+            "temperature_topic": a.temperature_source,
+            "samples": int(a.t.size),
+            "training_samples": int(a.train.sum()),
+            "heldout_samples": int((~a.train).sum()),
+            "blocks": int(a.block_edges.size - 1),
+            "command_in_effect_at_same_stamp": a.include_same_stamp,
+            "dropped": a.dropped,
+            "repeated_stamps": a.repeated_stamps,
+            "gaps": [g.as_dict() for g in a.gaps],
+            "command_edges": a.command_edges.as_dict() if a.command_edges else None,
+            "temperature_span": a.temperature_span.as_dict() if a.temperature_span else None,
+        },
+        "law": law,
+        "effects": [
+            {
+                "name": e.name,
+                "parameters": e.parameters,
+                "uncertainties": e.uncertainties,
+                "rms_before_m": e.rms_before_m,
+                "rms_after_m": e.rms_after_m,
+                "share": e.share,
+                "per_actuator": e.per_actuator,
+                "per_actuator_uncertainties": e.per_actuator_uncertainties,
+            }
+            for e in cal.effects
+        ],
+        "candidates": [
+            [
+                {
+                    "name": s.name,
+                    "step": r.step,
+                    "rms_before_m": s.rms_before_m,
+                    "rms_after_m": s.rms_after_m,
+                    "delta_bic": s.delta_ic,
+                    "accepted": s.accepted,
+                    "reason": s.reason,
+                    "parameters": s.parameters,
+                }
+                for s in r.scores
+            ]
+            for r in cal.rounds
+        ],
+        "heldout_rms_before_m": cal.base.heldout_rms,
+        "heldout_rms_after_m": cal.final.heldout_rms,
+        "heldout_max_before_m": cal.before.max_abs,
+        "heldout_max_after_m": cal.after.max_abs,
+        "noise_floor_m": cal.noise_floor_m,
+        "unexplained": cal.unexplained,
+        "timings_s": cal.timings_s,
+        "search_span": cal.search_span or "whole record",
+    }
+    return dict(_float(doc))
+
+
+def write_calibration_json(cal: Calibration, path: Path) -> None:
+    """Write calibration.json."""
+    text = json.dumps(calibration_document(cal), indent=1, allow_nan=True)
+    path.write_text(text + "\n", encoding="utf-8")
