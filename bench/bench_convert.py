@@ -90,7 +90,7 @@ def bench_recorder(
 ) -> RecorderThroughput:
     """Publish ``size``-element grids at ``rate_hz`` for ``seconds`` into a recorder process.
 
-    Uses the installed ``lib/es_msgs_py/record`` launcher and the ROS_DOMAIN_ID of the
+    Uses the installed ``lib/es_recordings/record`` launcher and the ROS_DOMAIN_ID of the
     environment; returns how many messages reached the bag.
     """
     import rclpy
@@ -104,7 +104,7 @@ def bench_recorder(
     count = int(rate_hz * seconds)
     with tempfile.TemporaryDirectory() as tmp:
         bag = Path(tmp) / "bag"
-        launcher = Path(sys.prefix) / "lib" / "es_msgs_py" / "record"
+        launcher = Path(sys.prefix) / "lib" / "es_recordings" / "record"
         recorder = subprocess.Popen(
             [str(launcher), "-o", str(bag), "--storage", storage, COMMAND],
             stdout=subprocess.DEVNULL,

@@ -264,7 +264,7 @@ def flow_run(condition: str, shape: tuple[int, int], *, rate_hz: float, seconds:
     with tempfile.TemporaryDirectory(prefix="bench_flow_") as tmp, \
             hogs(cpu=2 if condition != "idle" else 0):
         bag = Path(tmp) / "bag"
-        recorder = _Proc([str(executable("es_msgs_py", "record")), "-o", str(bag),
+        recorder = _Proc([str(executable("es_recordings", "record")), "-o", str(bag),
                           "--report-period", str(REPORT_PERIOD_S), SETPOINT, COMMAND],
                          log_dir / f"flow_record_{tag}.log")
         start = (

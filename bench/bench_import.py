@@ -115,7 +115,7 @@ def _child(source: str, map_path: str, bag: str) -> None:
     import h5py as _h5py  # noqa: F401  (loaded before the baseline, like the readers need)
     import scipy.io as _scipy_io  # noqa: F401
 
-    from es_msgs_py.labimport import import_recording, load_map
+    from es_recordings.labimport import import_recording, load_map
 
     def status(key: str) -> float:
         for line in Path("/proc/self/status").read_text().splitlines():

@@ -39,13 +39,13 @@ from std_msgs.msg import Float64MultiArray
 from es_msgs_py import topics
 from es_msgs_py.arrays import grid_to_msg
 from es_msgs_py.diagnostics import ready_nodes
-from es_msgs_py.record import NODE_NAME
+from es_recordings.record import NODE_NAME
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "bench"))
 from load import hogs  # noqa: E402
 
-RECORD = ROOT / ".venv" / "lib" / "es_msgs_py" / "record"
+RECORD = ROOT / ".venv" / "lib" / "es_recordings" / "record"
 #: Longest wait [s] for the recorder's subscriptions to match, and for a stop to finish.
 START_LIMIT_S = 60.0
 STOP_LIMIT_S = 30.0

@@ -136,7 +136,7 @@ def _load_run(loaded: bool, settings: Settings, log_dir: Path, paced_s: float) -
     with tempfile.TemporaryDirectory(prefix="bench_load_") as tmp, \
             hogs(cpu=LOAD_CPU_HOGS if loaded else 0):
         bag = Path(tmp) / "bag"
-        recorder = Process(f"record_{label}", [launcher("es_msgs_py", "record"), "-o", str(bag),
+        recorder = Process(f"record_{label}", [launcher("es_recordings", "record"), "-o", str(bag),
                                                SETPOINT, COMMAND], log_dir)
         node = Process(f"feedforward_{label}_{rows}x{cols}", [
             launcher("es_feedforward", "feedforward_node"), "--ros-args", "-p", f"rows:={rows}",

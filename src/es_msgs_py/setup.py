@@ -3,8 +3,10 @@ from glob import glob
 from setuptools import find_packages, setup
 
 PACKAGE = "es_msgs_py"
-# executable name (under lib/es_msgs_py/, for `ros2 run`) -> module with main()
-EXECUTABLES = {"record": "es_msgs_py.record", "import": "es_msgs_py.labimport.cli"}
+# The contract runs nothing of its own: its executables moved to es_recordings.
+EXECUTABLES = {}
+# launchers kept for one release under an old name: they say where the executable moved
+MOVED = ["record", "import"]
 
 setup(
     name=PACKAGE,
@@ -14,7 +16,7 @@ setup(
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
-        (f"lib/{PACKAGE}", [f"scripts/{exe}" for exe in EXECUTABLES]),
+        (f"lib/{PACKAGE}", [f"scripts/{exe}" for exe in [*EXECUTABLES, *MOVED]]),
         *[
             (f"share/{PACKAGE}/{d}", glob(f"{d}/*"))
             for d in ("launch", "scenarios", "config")
@@ -25,7 +27,7 @@ setup(
     zip_safe=False,
     maintainer="es_dm developers",
     maintainer_email="es-dm@example.com",
-    description="The es_dm interface contract in code: topics, QoS, array conversion, diagnostics, bag I/O and recorder.",
+    description="The es_dm interface contract in code: topics, QoS, array conversion, diagnostics and bag I/O.",
     license="Apache-2.0",
     entry_points={
         "console_scripts": [

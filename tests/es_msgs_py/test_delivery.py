@@ -23,7 +23,7 @@ pytestmark = pytest.mark.dds
 
 
 def test_unacknowledged_messages_are_waited_for_then_named(tmp_path: Path) -> None:
-    recorder = NodeProcess("es_msgs_py", "record", ["-o", str(tmp_path / "bag"), COMMAND])
+    recorder = NodeProcess("es_recordings", "record", ["-o", str(tmp_path / "bag"), COMMAND])
     stopped = False
     try:
         with ros_node("delivery_test") as node:

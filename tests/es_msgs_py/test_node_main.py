@@ -226,7 +226,7 @@ def test_the_node_spins_with_its_start_up_objects_frozen_out_of_the_collector() 
     ("package", "name"),
     [
         ("es_sim_plant", "plant_node"), ("es_thermal", "thermal_node"),
-        ("es_feedforward", "feedforward_node"), ("es_msgs_py", "record"),
+        ("es_feedforward", "feedforward_node"), ("es_recordings", "record"),
         ("es_calibration", "calibrate"), ("es_bringup", "bringup"), ("es_bringup", "demo"),
     ],
 )  # fmt: skip

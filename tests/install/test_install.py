@@ -28,15 +28,28 @@ PYTHON_DIR = f"python{sys.version_info.major}.{sys.version_info.minor}"
 NODE_EXECUTABLES = ("record",)
 
 
-def executable_modules(package: str) -> dict[str, str]:
-    """Return ``EXECUTABLES = {exe: module}`` of ``src/<package>/setup.py``."""
+def _setup_constant(package: str, name: str) -> object:
+    """Return the literal value of ``NAME = ...`` in ``src/<package>/setup.py``, else None."""
     tree = ast.parse((ROOT / "src" / package / "setup.py").read_text())
     for stmt in tree.body:
         if isinstance(stmt, ast.Assign) and any(
-            isinstance(t, ast.Name) and t.id == "EXECUTABLES" for t in stmt.targets
+            isinstance(t, ast.Name) and t.id == name for t in stmt.targets
         ):
-            return dict(ast.literal_eval(stmt.value))
-    raise AssertionError(f"src/{package}/setup.py has no EXECUTABLES table")
+            return ast.literal_eval(stmt.value)
+    return None
+
+
+def executable_modules(package: str) -> dict[str, str]:
+    """Return ``EXECUTABLES = {exe: module}`` of ``src/<package>/setup.py``."""
+    table = _setup_constant(package, "EXECUTABLES")
+    assert isinstance(table, dict), f"src/{package}/setup.py has no EXECUTABLES table"
+    return table
+
+
+def moved_executables(package: str) -> list[str]:
+    """Return ``MOVED``: launchers kept one release under an old name (they say where to)."""
+    moved = _setup_constant(package, "MOVED")
+    return list(moved) if isinstance(moved, list) else []
 
 
 def executables_of(package: str) -> list[str]:
@@ -64,7 +77,7 @@ def assert_installed(prefix: Path, package: str) -> None:
 def test_every_package_lists_executables_with_modules() -> None:
     assert PACKAGES == [
         "es_bringup", "es_calibration", "es_feedforward", "es_msgs_py", "es_physics",
-        "es_sim_plant", "es_thermal",
+        "es_recordings", "es_sim_plant", "es_thermal",
     ]
     for package, exe in ALL_EXECUTABLES:
         module = executable_modules(package)[exe]
@@ -103,7 +116,7 @@ def test_colcon_build_installs_package(colcon_install: Path, package: str) -> No
 
 
 def test_colcon_launcher_runs_from_the_colcon_install(colcon_install: Path) -> None:
-    # What `source install/setup.bash && ros2 run es_msgs_py record --help` does: the
+    # What `source install/setup.bash && ros2 run es_recordings record --help` does: the
     # launcher finds no python3 in its prefix and runs the one on PATH with the workspace's
     # site-packages on PYTHONPATH.
     site_dirs = [str(p / "lib" / PYTHON_DIR / "site-packages") for p in colcon_install.iterdir()]
@@ -112,13 +125,13 @@ def test_colcon_launcher_runs_from_the_colcon_install(colcon_install: Path) -> N
         "PYTHONPATH": os.pathsep.join(site_dirs),
         "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}",
     }
-    launcher = colcon_install / "es_msgs_py" / "lib" / "es_msgs_py" / "record"
+    launcher = colcon_install / "es_recordings" / "lib" / "es_recordings" / "record"
     proc = subprocess.run(
         [str(launcher), "--help"], env=env, capture_output=True, text=True, timeout=60, check=False
     )
     assert proc.returncode == 0, proc.stderr
     assert "usage: record" in proc.stdout
-    probe = "import es_msgs_py.record as m; print(m.__file__)"
+    probe = "import es_recordings.record as m; print(m.__file__)"
     where = subprocess.run(
         ["python3", "-c", probe], env=env, capture_output=True, text=True, timeout=60, check=True
     )
@@ -146,7 +159,7 @@ def test_ament_index_lists_every_executable(monkeypatch: pytest.MonkeyPatch) -> 
         # A library package (es_physics) has no lib/<pkg> folder at all.
         files = lib.iterdir() if lib.is_dir() else iter(())
         found = sorted(p.name for p in files if p.is_file() and os.access(p, os.X_OK))
-        assert found == executables_of(package), package
+        assert found == sorted([*executables_of(package), *moved_executables(package)]), package
 
 
 @pytest.mark.dds

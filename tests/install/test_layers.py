@@ -1,7 +1,7 @@
 """The packages' layers (docs/architecture.md): every import of ours points down, none up.
 
 Layer 1 is the contract (es_msgs_py) and the shared physics (es_physics), layer 2 the three
-roles (es_sim_plant, es_thermal, es_feedforward: they never import each other), layer 3 the
+roles (es_sim_plant, es_thermal, es_feedforward, es_recordings: they never import each other), layer 3 the
 offline calibration (es_calibration) beside the bring-up and evaluation (es_bringup): nothing
 under src/ imports either, and they never import each other (the bring-up runs the calibration
 tool as an executable). Read from the source
@@ -24,6 +24,7 @@ LAYER = {
     "es_sim_plant": 2,
     "es_thermal": 2,
     "es_feedforward": 2,
+    "es_recordings": 2,
     "es_calibration": 3,
     "es_bringup": 3,
 }
@@ -90,7 +91,8 @@ def test_the_roles_and_the_bottom_use_what_the_doc_says() -> None:
     assert uses["es_sim_plant"] <= {"es_msgs_py", "es_physics"}
     assert uses["es_feedforward"] <= {"es_msgs_py", "es_physics"}
     assert uses["es_thermal"] <= {"es_msgs_py", "es_physics"}
-    assert uses["es_calibration"] <= {"es_msgs_py", "es_physics", "es_feedforward"}
+    assert uses["es_recordings"] <= {"es_msgs_py"}
+    assert uses["es_calibration"] <= {"es_msgs_py", "es_physics", "es_feedforward", "es_recordings"}
     assert not any({"es_bringup", "es_calibration"} & used for used in uses.values())
 
 

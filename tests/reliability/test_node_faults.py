@@ -59,7 +59,7 @@ def _ros_args(node: str, **params: object) -> list[str]:
 def graph(tmp_path: Path) -> Iterator[tuple[Watcher, dict[str, Proc], Path]]:
     bag = tmp_path / "bag"
     procs = {
-        "record": Proc("record", [str(executable("es_msgs_py", "record")), "-o", str(bag),
+        "record": Proc("record", [str(executable("es_recordings", "record")), "-o", str(bag),
                                   "--flush-interval", "0.2", COMMAND, SETPOINT, TEMPERATURE]),
         "thermal": Proc("thermal", [str(executable("es_thermal", "thermal_node")),
                                     *_ros_args("thermal", rows=3, cols=3,

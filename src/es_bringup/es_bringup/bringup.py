@@ -4,7 +4,7 @@ Our own small replacement for ``ros2 launch`` (``launch/closed_loop.launch.py`` 
 same graph: both take it from :func:`es_bringup.graph.build_graph`). It starts, from their
 installed ``lib/<pkg>/<exe>`` launchers:
 
-the recorder (``es_msgs_py record``) on every /dm topic and /diagnostics if a bag is asked for,
+the recorder (``es_recordings record``) on every /dm topic and /diagnostics if a bag is asked for,
 the thermal node and the feedforward node; once the graph shows their subscriptions, the
 plant (lockstep, ``exit_when_done``), which itself waits until every topic it publishes has
 a matched subscription from its peers and the recorder (``start_subscribers``) and until the

@@ -192,7 +192,7 @@ def build_graph(config: GraphConfig) -> Graph:
         )
         before.append(
             NodeSpec(
-                "es_msgs_py", "record", RECORDER, dict(sim_time),
+                "es_recordings", "record", RECORDER, dict(sim_time),
                 arguments=("-o", str(config.bag), "--storage", config.storage,
                            "--queue-depth", str(depth), *recorded),
             )

@@ -3,7 +3,7 @@
 Usage: ``ros2 run es_calibration calibrate BAG [BAG ...] -o OUTDIR`` (console script
 ``es_calibration-calibrate``); a lab recording (.mat, .h5/.hdf5, .csv/.tsv, .npz) takes the
 place of a bag with ``--map MAP.yaml``: it goes through the ``import`` tool's code
-(:mod:`es_msgs_py.labimport`) into a temporary bag in OUTDIR first. Reads /dm/command,
+(:mod:`es_recordings.labimport`) into a temporary bag in OUTDIR first. Reads /dm/command,
 /dm/displacement and /dm/temperature (or /dm/temperature/raw) from each bag (MCAP or
 sqlite3), then writes into OUTDIR:
 
@@ -72,7 +72,7 @@ from es_calibration.model import CANDIDATES
 from es_calibration.pipeline import Calibration, calibrate
 from es_calibration.searchspan import SEARCH_BUDGET
 from es_calibration.tiles import DEFAULT_TILE, DaskSetupError
-from es_msgs_py.labimport import LabImportError, import_recording, load_map
+from es_recordings.labimport import LabImportError, import_recording, load_map
 
 EXIT_BAD_INPUT = 2
 EXIT_INTERNAL_ERROR = 1
@@ -103,7 +103,7 @@ def _parser() -> argparse.ArgumentParser:
         "--map",
         type=Path,
         help="import map (YAML) of the lab recordings given (.mat, .h5, .csv, .tsv, .npz); "
-        "see `ros2 run es_msgs_py import --inspect REC`",
+        "see `ros2 run es_recordings import --inspect REC`",
     )
     parser.add_argument("-o", "--output", required=True, type=Path, help="output directory")
     parser.add_argument(
@@ -153,7 +153,7 @@ def _as_bags(paths: Sequence[Path], map_path: Path | None, work: Path, quiet: bo
         if recordings:
             raise CalibrationInputError(
                 f"{recordings[0]} is a file, not a bag: give --map MAP.yaml to import a lab "
-                "recording (ros2 run es_msgs_py import --inspect REC guesses one)"
+                "recording (ros2 run es_recordings import --inspect REC guesses one)"
             )
         return list(paths)
     if not recordings:

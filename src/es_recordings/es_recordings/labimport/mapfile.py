@@ -30,7 +30,6 @@ from typing import Any, Final, Literal
 
 import yaml
 
-from es_msgs_py.labimport.errors import MapError
 from es_msgs_py.topic_names import (
     COMMAND,
     DISPLACEMENT,
@@ -39,6 +38,7 @@ from es_msgs_py.topic_names import (
     TEMPERATURE,
     TEMPERATURE_RAW,
 )
+from es_recordings.labimport.errors import MapError
 
 Kind = Literal["grid", "sensor"]
 

@@ -29,7 +29,7 @@ from typing import Final, Protocol
 import numpy as np
 import numpy.typing as npt
 
-from es_msgs_py.labimport.errors import SourceError
+from es_recordings.labimport.errors import SourceError
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -160,7 +160,7 @@ def _open_mat(path: Path) -> Source:
     if not head:
         raise SourceError(f"{path} is empty")
     if head.startswith(_MAT73_TEXT):
-        from es_msgs_py.labimport.hdf import HdfSource
+        from es_recordings.labimport.hdf import HdfSource
 
         return HdfSource(path, matlab=True)
     from scipy.io import loadmat
@@ -192,19 +192,19 @@ def _open_npz(path: Path) -> Source:
 
 
 def _open_hdf5(path: Path) -> Source:
-    from es_msgs_py.labimport.hdf import HdfSource
+    from es_recordings.labimport.hdf import HdfSource
 
     return HdfSource(path, matlab=False)
 
 
 def _open_csv(path: Path) -> Source:
-    from es_msgs_py.labimport.delimited import DelimitedSource
+    from es_recordings.labimport.delimited import DelimitedSource
 
     return DelimitedSource(path, ",")
 
 
 def _open_tsv(path: Path) -> Source:
-    from es_msgs_py.labimport.delimited import DelimitedSource
+    from es_recordings.labimport.delimited import DelimitedSource
 
     return DelimitedSource(path, "\t")
 

@@ -1,6 +1,6 @@
 """``import --inspect``: list a recording's variables and guess a map to start from.
 
-The guess is YAML that :func:`es_msgs_py.labimport.mapfile.parse_map` accepts whenever a
+The guess is YAML that :func:`es_recordings.labimport.mapfile.parse_map` accepts whenever a
 topic could be guessed: a time variable by its name (``t``, ``time``, ``timestamp``...), the
 topics by keywords in the variable, struct or column-prefix names (``cmd``/``volt``,
 ``disp``/``pos``, ``setpoint``/``ref``, ``temp``/``ntc``, ``heat``), the unit as the
@@ -17,8 +17,6 @@ from typing import Any, Final
 
 import yaml
 
-from es_msgs_py.labimport.mapfile import TOPICS, UNITS
-from es_msgs_py.labimport.sources import Source, Variable, find_timeseries
 from es_msgs_py.topic_names import (
     COMMAND,
     DISPLACEMENT,
@@ -26,6 +24,8 @@ from es_msgs_py.topic_names import (
     SETPOINT,
     TEMPERATURE_RAW,
 )
+from es_recordings.labimport.mapfile import TOPICS, UNITS
+from es_recordings.labimport.sources import Source, Variable, find_timeseries
 
 #: Name patterns (on the last name part, case-insensitive) that suggest each topic.
 KEYWORDS: Final[Mapping[str, str]] = {

@@ -21,7 +21,6 @@ from support.ros import test_node as ros_node
 
 from es_msgs_py.arrays import grid_to_msg, msg_to_grid, msg_to_sensors, sensors_to_msg
 from es_msgs_py.bag import BagError, decode_float64_multi_arrays, read_bag
-from es_msgs_py.record import TopicCount
 from es_msgs_py.topics import (
     CLOCK,
     COMMAND,
@@ -32,6 +31,7 @@ from es_msgs_py.topics import (
     TEMPERATURE_RAW,
     qos_for,
 )
+from es_recordings.record import TopicCount
 
 pytestmark = pytest.mark.dds
 
@@ -123,7 +123,7 @@ def test_recorder_writes_every_message_and_closes_on_sigint(tmp_path: Path) -> N
     sensors = np.random.default_rng(2).normal(size=(30, 5))
     bag = tmp_path / "bag"
     recorder = NodeProcess(
-        "es_msgs_py", "record", ["-o", str(bag), COMMAND, TEMPERATURE_RAW, DIAGNOSTICS]
+        "es_recordings", "record", ["-o", str(bag), COMMAND, TEMPERATURE_RAW, DIAGNOSTICS]
     )
     try:
         with ros_node("es_record_test") as node:
@@ -187,7 +187,7 @@ def test_recorder_reports_what_it_missed_by_joining_late(tmp_path: Path) -> None
         command = node.create_publisher(Float64MultiArray, COMMAND, PUBLISHER_QOS)
         for k in range(7):  # nobody records these
             command.publish(grid_to_msg(np.full((2, 2), float(k))))
-        recorder = NodeProcess("es_msgs_py", "record", ["-o", str(bag), COMMAND])
+        recorder = NodeProcess("es_recordings", "record", ["-o", str(bag), COMMAND])
         latest: dict[str, int] = {}
         reports = node.create_subscription(
             DiagnosticArray,
@@ -210,7 +210,7 @@ def test_recorder_reports_what_it_missed_by_joining_late(tmp_path: Path) -> None
 def test_recorder_stamps_with_sim_time(tmp_path: Path) -> None:
     bag = tmp_path / "bag"
     args = ["-o", str(bag), COMMAND, "--ros-args", "-p", "use_sim_time:=true"]
-    recorder = NodeProcess("es_msgs_py", "record", args)
+    recorder = NodeProcess("es_recordings", "record", args)
     try:
         with ros_node("es_record_clock") as node:
             clock = node.create_publisher(Clock, CLOCK, qos_for(CLOCK))
@@ -257,7 +257,7 @@ def test_recorder_throughput_loses_nothing(tmp_path: Path) -> None:
         msgs.append(grid_to_msg(grid))
     bag = tmp_path / "bag"
     recorder = NodeProcess(
-        "es_msgs_py", "record", ["-o", str(bag), "--storage", "sqlite3", COMMAND]
+        "es_recordings", "record", ["-o", str(bag), "--storage", "sqlite3", COMMAND]
     )
     try:
         with ros_node("es_record_rate") as node:
@@ -282,7 +282,7 @@ def test_sigkilled_recorder_bag_is_readable_up_to_last_flush(tmp_path: Path) -> 
     grids = np.random.default_rng(3).normal(size=(200, 3, 3))
     bag = tmp_path / "bag"
     recorder = NodeProcess(
-        "es_msgs_py", "record", ["-o", str(bag), "--flush-interval", "0.1", COMMAND]
+        "es_recordings", "record", ["-o", str(bag), "--flush-interval", "0.1", COMMAND]
     )
     try:
         with ros_node("es_record_kill") as node:
@@ -307,7 +307,7 @@ def test_sigkilled_recorder_bag_is_readable_up_to_last_flush(tmp_path: Path) -> 
     ],
 )
 def test_bad_arguments_exit_2_with_one_line(tmp_path: Path, args: list[str], message: str) -> None:
-    command = [str(executable("es_msgs_py", "record")), *(a.format(tmp=tmp_path) for a in args)]
+    command = [str(executable("es_recordings", "record")), *(a.format(tmp=tmp_path) for a in args)]
     proc = subprocess.run(command, capture_output=True, text=True, timeout=60, check=False)
     assert proc.returncode == 2
     lines = proc.stderr.strip().splitlines()

@@ -13,9 +13,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from es_msgs_py.labimport.errors import MapError, SourceError
-from es_msgs_py.labimport.mapfile import ImportMap, TimeBase, TopicMap
-from es_msgs_py.labimport.sources import (
+from es_recordings.labimport.errors import MapError, SourceError
+from es_recordings.labimport.mapfile import ImportMap, TimeBase, TopicMap
+from es_recordings.labimport.sources import (
     FloatArray,
     Source,
     Timeseries,

@@ -19,7 +19,7 @@ from support.labfiles import (
     write_npz,
 )
 
-from es_msgs_py.labimport.cli import run
+from es_recordings.labimport.cli import run
 
 
 def _fails(tmp_path: Path, capsys: pytest.CaptureFixture[str], source: Path,
@@ -110,7 +110,7 @@ def test_columns_of_different_lengths_in_hdf5(tmp_path: Path,
 @pytest.mark.parametrize("where", [3, 250])
 def test_non_monotonic_time(tmp_path: Path, capsys: pytest.CaptureFixture[str],
                             monkeypatch: pytest.MonkeyPatch, where: int) -> None:
-    import es_msgs_py.labimport.importer as importer
+    import es_recordings.labimport.importer as importer
 
     monkeypatch.setattr(importer, "CHUNK_BYTES", 100 * 148)  # 100 samples: 250 is late
     rec = recording(n=300)

@@ -19,10 +19,10 @@ from typing import Final
 import numpy as np
 
 from es_msgs_py.bag import FLOAT64_MULTI_ARRAY, BagError, BagWriter, encode_float64_multi_array
-from es_msgs_py.labimport.errors import LabImportError, SourceError
-from es_msgs_py.labimport.mapfile import ImportMap
-from es_msgs_py.labimport.plan import TopicPlan, plan_import
-from es_msgs_py.labimport.sources import FloatArray, Source, open_source
+from es_recordings.labimport.errors import LabImportError, SourceError
+from es_recordings.labimport.mapfile import ImportMap
+from es_recordings.labimport.plan import TopicPlan, plan_import
+from es_recordings.labimport.sources import FloatArray, Source, open_source
 
 #: Bytes of messages encoded per chunk: the import's working set is a few times this.
 CHUNK_BYTES: Final = 1 << 22
@@ -160,7 +160,7 @@ def import_recording(
     Args:
         recording: a .mat, .h5/.hdf5, .csv/.tsv or .npz file.
         bag: the bag directory to create (must not exist).
-        import_map: the validated map (:func:`es_msgs_py.labimport.mapfile.load_map`).
+        import_map: the validated map (:func:`es_recordings.labimport.mapfile.load_map`).
         storage: ``"mcap"`` (default) or ``"sqlite3"``.
 
     Raises:

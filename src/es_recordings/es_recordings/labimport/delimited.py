@@ -15,8 +15,8 @@ from typing import IO
 
 import numpy as np
 
-from es_msgs_py.labimport.errors import SourceError
-from es_msgs_py.labimport.sources import FloatArray, Variable
+from es_recordings.labimport.errors import SourceError
+from es_recordings.labimport.sources import FloatArray, Variable
 
 
 class DelimitedSource:

@@ -1,4 +1,4 @@
-"""``ros2 run es_msgs_py record -o BAG [--storage mcap|sqlite3] [--all-dm] TOPIC...``.
+"""``ros2 run es_recordings record -o BAG [--storage mcap|sqlite3] [--all-dm] TOPIC...``.
 
 Records topics into a rosbag2 bag (see :mod:`es_msgs_py.bag`). Messages are taken as
 serialized bytes (no deserialization) and stamped with the node's clock at reception, so the

@@ -25,8 +25,8 @@ from support.labfiles import (
 )
 
 from es_msgs_py.bag import read_bag
-from es_msgs_py.labimport import import_recording, load_map, parse_map
-from es_msgs_py.labimport.cli import run
+from es_recordings.labimport import import_recording, load_map, parse_map
+from es_recordings.labimport.cli import run
 
 ROOT = Path(__file__).resolve().parents[2]
 Writer = Callable[[Path, Recording], dict[str, Any]]
@@ -183,7 +183,7 @@ def test_nan_samples_are_dropped_and_counted(tmp_path: Path, capsys: pytest.Capt
 
 def test_nan_runs_across_chunks_in_a_matlab_vector(tmp_path: Path, monkeypatch: pytest.MonkeyPatch
                                                    ) -> None:
-    import es_msgs_py.labimport.importer as importer
+    import es_recordings.labimport.importer as importer
 
     monkeypatch.setattr(importer, "CHUNK_BYTES", 7 * 64)  # 7 samples: runs straddle chunks
     u = np.arange(40.0)
@@ -238,8 +238,8 @@ def test_inspect_groups_numbered_csv_columns(tmp_path: Path,
 
 
 def test_installed_launcher_imports(tmp_path: Path) -> None:
-    """`ros2 run es_msgs_py import` runs the installed launcher under lib/es_msgs_py/."""
-    launcher = Path(sys.prefix) / "lib" / "es_msgs_py" / "import"
+    """`ros2 run es_msgs_py import` runs the installed launcher under lib/es_recordings/."""
+    launcher = Path(sys.prefix) / "lib" / "es_recordings" / "import"
     assert launcher.is_file(), "run ./scripts/bootstrap"
     rec = recording(n=50)
     write_map(tmp_path / "map.yaml", write_npz(tmp_path / "rec.npz", rec))

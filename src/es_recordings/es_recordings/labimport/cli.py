@@ -2,11 +2,11 @@
 
 Usage::
 
-    ros2 run es_msgs_py import REC.mat -o BAG --map MAP.yaml [--storage sqlite3]
-    ros2 run es_msgs_py import --inspect REC.mat      # variables and a guessed map
+    ros2 run es_recordings import REC.mat -o BAG --map MAP.yaml [--storage sqlite3]
+    ros2 run es_recordings import --inspect REC.mat      # variables and a guessed map
 
-(console script ``es_msgs_py-import``). The map is described in
-:mod:`es_msgs_py.labimport.mapfile`. On success a summary goes to stdout (messages per
+(console script ``es_recordings-import``). The map is described in
+:mod:`es_recordings.labimport.mapfile`. On success a summary goes to stdout (messages per
 topic, time span, samples dropped for NaN); bad input gives one line on stderr and exit
 status 2, and no bag. Needs no rclpy.
 """
@@ -19,11 +19,11 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from es_msgs_py.bag import STORAGES
-from es_msgs_py.labimport.errors import LabImportError
-from es_msgs_py.labimport.guess import guess_map
-from es_msgs_py.labimport.importer import import_recording
-from es_msgs_py.labimport.mapfile import load_map
-from es_msgs_py.labimport.sources import open_source
+from es_recordings.labimport.errors import LabImportError
+from es_recordings.labimport.guess import guess_map
+from es_recordings.labimport.importer import import_recording
+from es_recordings.labimport.mapfile import load_map
+from es_recordings.labimport.sources import open_source
 
 EXIT_BAD_INPUT = 2
 EXIT_INTERNAL_ERROR = 1
