@@ -16,7 +16,7 @@ time and peak memory), ``scale`` (bench_scale.py: the feedforward node at 66 x 6
 64 x 64), ``multihost`` (bench_multihost.py: 64 x 64 at 1 kHz across two network namespaces;
 needs root), ``selfsensing`` (bench_selfsensing.py, offline cores). Peak memory of every
 node process comes with the sections that start them. ``identify`` (the identification sweep
-of identify.py on standgen bags, its own report in OUT/identify) is not in the default
+of standgen.identify on standgen bags, its own report in OUT/identify) is not in the default
 selection: run it with ``--only identify``; nor is ``calibrate_stream``
 (bench_calibrate_stream.py: streamed calibration of 64 x 64 and 128 x 128 bags of many GB).
 

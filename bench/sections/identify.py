@@ -1,4 +1,4 @@
-"""Section ``identify``: the identification sweep of identify.py on standgen bags."""
+"""Section ``identify``: the identification sweep (standgen.identify) on standgen bags."""
 
 from __future__ import annotations
 
@@ -10,8 +10,8 @@ from benchlib import Context, Record
 
 
 def run(context: Context) -> None:
-    """Run the identification sweep (identify.py): right effect sets, clean FP rate, RMS."""
-    import identify
+    """Run the identification sweep (standgen.identify): right effect sets, clean FP rate, RMS."""
+    from standgen import identify
 
     quick, results, out = context.quick, context.results, context.out / "identify"
     jobs = min(2, os.cpu_count() or 1)

@@ -1,4 +1,4 @@
-"""Recordings of the independent test stand (bench/standgen) as the calibration's input."""
+"""Recordings of the independent test stand (testing/standgen) as the calibration's input."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ from typing import TYPE_CHECKING
 
 from es_calibration.align import MeasuredData
 
-if TYPE_CHECKING:  # the test modules put bench/ on sys.path before they use standgen
+if TYPE_CHECKING:  # only for annotations: the data helpers take a Recording from standgen
     from standgen import Recording
 
 

@@ -1,6 +1,6 @@
 """Calibration models of self-heating and frequency dispersion, on independent stand data.
 
-The bags come from bench/standgen (a second implementation of the physics, sharing no code
+The bags come from testing/standgen (a second implementation of the physics, sharing no code
 with the calibration): the family present must be the one accepted, with its parameters
 within a few sigma of the stand's truth, and its compensation values usable by the
 feedforward; a clean recording must accept nothing.
@@ -8,14 +8,10 @@ feedforward; a clean recording must accept nothing.
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
-
 from standgen import StandConfig, simulate, write_bag
 from standgen.effects import Effects, FrequencyDispersion, SelfHeating
 

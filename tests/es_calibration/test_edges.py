@@ -2,18 +2,19 @@
 
 The rule (edges.py) on synthetic commands with known steps, on smooth commands (nothing
 goes), end to end through the tool (calibration.json and the report say what went), and on
-an independent test-stand case (bench/standgen) whose delay fit it rescues.
+an independent test-stand case (testing/standgen) whose delay fit it rescues.
 """
 
 from __future__ import annotations
 
 import json
-import sys
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
+from standgen import simulate
+from standgen.sweep import build_cases
 
 from es_calibration.align import EDGE_DROPS, MeasuredData, align
 from es_calibration.calibrate import run
@@ -22,11 +23,6 @@ from es_calibration.edges import EDGE_MARGIN_PERIODS, exclude_edges, find_edges
 
 from . import law_bags as lb
 from .stand_data import measured
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
-
-from standgen import simulate
-from standgen.sweep import build_cases
 
 RATE = 250.0
 T = 1.0 / RATE

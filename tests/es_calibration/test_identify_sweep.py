@@ -1,4 +1,4 @@
-"""The identification sweep (bench/identify.py): its cases, its scoring, a few cases end to end.
+"""The identification sweep (standgen.identify): its cases, its scoring, a few cases end to end.
 
 Whether the calibration reaches the issue's goal figures is for the benchmark
 (``scripts/identify``); here the sweep's bookkeeping is checked, and that the calibration
@@ -8,17 +8,13 @@ tool runs on the stand's bags and sees the stand's true noise.
 from __future__ import annotations
 
 import json
-import sys
 from itertools import combinations
 from pathlib import Path
 
 import pytest
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
-
-from identify import interleaved, main, run_case
 from standgen import StandConfig
 from standgen.effects import Delay, Effects, Hysteresis, ThermalExpansion
+from standgen.identify import interleaved, main, run_case
 from standgen.ranges import FAMILIES
 from standgen.sweep import Case, Outcome, build_cases, by_condition, family_counts, summarise
 

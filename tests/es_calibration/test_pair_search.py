@@ -1,4 +1,4 @@
-"""Pairs of effects in the search, on independent test-stand data (bench/standgen).
+"""Pairs of effects in the search, on independent test-stand data (testing/standgen).
 
 Each test is a cause found in a pair case of the identification sweep, shortened: the data
 come from standgen's API (not our plant), the search steps are run on them directly.
@@ -6,14 +6,9 @@ come from standgen's API (not our plant), the search steps are run on them direc
 
 from __future__ import annotations
 
-import sys
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
-
 from standgen import StandConfig, simulate
 from standgen.effects import Drift, Effects, FrequencyDispersion, Hysteresis, SelfHeating
 from standgen.stand import AC_SPLIT_TAU_S

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from standgen.sweep import build_cases
 
 from es_calibration.align import AlignedData, MeasuredData, align
 from es_calibration.bagio import read_measured_bags
@@ -21,10 +22,6 @@ from es_calibration.searchspan import (
     search_windows,
 )
 from tests.es_calibration import law_bags as lb
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
-
-from standgen.sweep import build_cases
 
 GRID = (4, 4)  # within the screening block: the whole grid is searched, then refitted
 EXPANSION_M_PER_DEGC = 0.4e-9

@@ -1,8 +1,7 @@
-"""The independent test-stand generator (bench/standgen): physics, operators, effects, bags."""
+"""The independent test-stand generator (testing/standgen): physics, operators, effects, bags."""
 
 from __future__ import annotations
 
-import sys
 from dataclasses import replace
 from itertools import pairwise
 from pathlib import Path
@@ -10,9 +9,6 @@ from typing import Any
 
 import numpy as np
 import pytest
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
-
 from standgen import (
     Recording,
     StandBagError,
@@ -217,7 +213,7 @@ def test_drawn_effects_stay_in_their_documented_ranges() -> None:
             assert np.all(np.diff(r) > 0) and r.min() >= 5.0 and r.max() <= 60.0
     assert {row.family for row in RANGES} == set(FAMILIES)
     assert all(f"`{f}`" in markdown_table() for f in FAMILIES)
-    readme = (Path(__file__).resolve().parents[2] / "bench" / "standgen" / "README.md")
+    readme = (Path(__file__).resolve().parents[2] / "testing" / "standgen" / "README.md")
     assert markdown_table() in readme.read_text()
     with pytest.raises(EffectSetError, match="coupling"):
         draw_effects(["coupling"], rng, rate_hz=500.0, duration_s=40.0, shape=(1, 1))

@@ -19,7 +19,7 @@ draws its samples from the whole record, never from these windows.
 
 ``SEARCH_BUDGET`` counts sample-actuator values (samples per actuator times the block's
 actuators), like search.py's fit and score budgets. The identification sweep's recordings
-(bench/standgen/sweep.py: at most 36 s at 500 Hz on 8 x 8, 1.15 M; 24 s at 5 kHz on 4
+(testing/standgen/sweep.py: at most 36 s at 500 Hz on 8 x 8, 1.15 M; 24 s at 5 kHz on 4
 actuators, 0.48 M) and the demo's test stand (43.2 s at 250 Hz on the 8 x 8 block, 0.69 M)
 stay whole; 5 minutes at 500 Hz on the 8 x 8 block (9.6 M) is searched on 16 windows of
 3.9 s (62.5 s), 1 minute at 5 kHz (19.2 M) on 6 windows of 1.04 s.

@@ -3,7 +3,7 @@
 Usage (from the repository root; ``scripts/identify`` bootstraps the venv and calls this,
 ``scripts/bench --only identify`` runs the quick sweep inside the benchmark)::
 
-    .venv/bin/python bench/identify.py [-o OUT] [--quick] [--jobs N] [--seed S] [--keep-bags]
+    .venv/bin/python -m standgen.identify [-o OUT] [--quick] [--jobs N] [--seed S] [--keep-bags]
 
 For every case of :func:`standgen.sweep.build_cases` (clean data with several seeds, every
 effect family alone, every pair; command rates 250 Hz - 5 kHz with delays that are not whole
@@ -265,7 +265,7 @@ def write_results(out: Path, outcomes: Sequence[Outcome], settings: dict[str, An
               f"{settings['wall_s']:.0f} s wall"
               + (f", 1-min load average {load:.1f} at the end" if load is not None else "")
               + f". Command: `{settings['command']}`. Bags from "
-              "bench/standgen (independent of es_sim_plant and the calibration)." + partial)
+              "testing/standgen (independent of es_sim_plant and the calibration)." + partial)
     text = markdown(summary, outcomes, header)
     cases = text.index("## Cases")
     edges = "\n".join(edge_lines(out / "cases", outcomes))
@@ -298,7 +298,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     def settings(done: int) -> dict[str, Any]:
         return {
             "date": dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC"),
-            "command": " ".join(["bench/identify.py",
+            "command": " ".join(["python -m standgen.identify",
                                  *(argv if argv is not None else sys.argv[1:])]),
             "quick": args.quick, "jobs": args.jobs, "seed": args.seed, "cores": os.cpu_count(),
             "wall_s": time.monotonic() - start, "cases_done": done, "cases_total": len(cases),
