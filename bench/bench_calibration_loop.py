@@ -1,7 +1,7 @@
 """End-to-end calibration loop per effect family: characterise, calibrate, closed loop.
 
 For every effect the feedforward compensates (the calibration's candidates,
-``es_calibration.model.CANDIDATES``, read from the code), the main job's
+``es_calibration.model.composite.CANDIDATES``, read from the code), the main job's
 calibration loop (the demo's step 4) runs on the plant core, offline:
 
 1. characterise: the demo's test stand for the hardware of ``LOOP_SCENARIO``
@@ -57,7 +57,7 @@ from es_bringup.demo_calibration import (
 from es_bringup.demo_options import DEFAULT_CONTROL_RATE
 from es_bringup.metrics import AlignedRun, run_metrics
 from es_calibration.calibrate import run as calibrate_run
-from es_calibration.model import CANDIDATES
+from es_calibration.model.composite import CANDIDATES
 from es_feedforward.feedforward import Feedforward, Mode
 from es_feedforward.param_file import read_params_file
 from es_msgs_py.bag import write_array_bag

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from es_calibration.align import MeasuredData
+from es_calibration.data.align import MeasuredData
 
 if TYPE_CHECKING:  # only for annotations: the data helpers take a Recording from standgen
     from standgen import Recording

@@ -10,14 +10,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from es_calibration.align import (
+from es_calibration.calibrate import EXIT_BAD_INPUT, run
+from es_calibration.data.align import (
     EDGE_DROPS,
     SPAN_DROPS,
     CalibrationInputError,
     MeasuredData,
 )
-from es_calibration.bagio import read_measured_bags
-from es_calibration.calibrate import EXIT_BAD_INPUT, run
+from es_calibration.data.bags import read_measured_bags
 from es_calibration.pipeline import calibrate
 from es_msgs_py.bag import write_array_bag
 

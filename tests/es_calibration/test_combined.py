@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from es_calibration.align import MeasuredData
+from es_calibration.data.align import MeasuredData
+from es_calibration.output.schema import calibration_document
 from es_calibration.pipeline import calibrate
-from es_calibration.schema import calibration_document
 
 RATE = 100.0
 NOISE = 0.3e-9

@@ -7,22 +7,22 @@ import sys
 import numpy as np
 import pytest
 
-from es_calibration.align import (
+from es_calibration.data.align import (
     SPAN_DROPS,
     CalibrationInputError,
     MeasuredData,
     align,
 )
-from es_calibration.fit import levenberg_marquardt
-from es_calibration.history import DriveHistory, DriveSamples, first_order_lowpass
-from es_calibration.model import (
+from es_calibration.model.composite import (
     CANDIDATES,
     CompositeModel,
     FitInputs,
     neighbour_laplacian,
     play_operator,
 )
-from es_calibration.residual import integrated_autocorrelation_time, noise_floor
+from es_calibration.model.fit import levenberg_marquardt
+from es_calibration.model.history import DriveHistory, DriveSamples, first_order_lowpass
+from es_calibration.search.residual import integrated_autocorrelation_time, noise_floor
 from es_feedforward.kernels import KERNELS_ENV
 from es_physics.effects import EffectError
 from es_physics.effects.coupling import grid_laplacian
@@ -84,7 +84,7 @@ def test_the_compiled_play_operator_gives_numpys_numbers(
     for backend in ("numpy", "fused"):
         monkeypatch.setenv(KERNELS_ENV, backend)
         results[backend] = play_operator(command, threshold, keep, state)
-    assert "es_calibration.play_loop" in sys.modules  # the compiled loop ran
+    assert "es_calibration.model.play_loop" in sys.modules  # the compiled loop ran
     assert results["fused"].shape == results["numpy"].shape
     np.testing.assert_array_equal(results["fused"], results["numpy"])
     assert np.isnan(results["numpy"][4]).any() and np.isfinite(results["numpy"][2]).all()

@@ -15,9 +15,9 @@ import pytest
 from standgen import StandConfig, simulate, write_bag
 from standgen.effects import Effects, FrequencyDispersion, SelfHeating
 
-from es_calibration.bagio import read_measured_bag
+from es_calibration.data.bags import read_measured_bag
+from es_calibration.output.schema import compensation
 from es_calibration.pipeline import Calibration, calibrate
-from es_calibration.schema import compensation
 
 #: Sigmas within which a fitted parameter must lie of the truth.
 SIGMAS = 5.0

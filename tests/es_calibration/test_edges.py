@@ -16,10 +16,10 @@ import pytest
 from standgen import simulate
 from standgen.sweep import build_cases
 
-from es_calibration.align import EDGE_DROPS, MeasuredData, align
 from es_calibration.calibrate import run
-from es_calibration.delayrange import shift_span
-from es_calibration.edges import EDGE_MARGIN_PERIODS, exclude_edges, find_edges
+from es_calibration.data.align import EDGE_DROPS, MeasuredData, align
+from es_calibration.data.delayrange import shift_span
+from es_calibration.data.edges import EDGE_MARGIN_PERIODS, exclude_edges, find_edges
 
 from . import law_bags as lb
 from .stand_data import measured
@@ -117,7 +117,7 @@ def test_standgen_delay_case_is_rescued_by_the_edge_rule() -> None:
     # command samples cannot resolve; with a fractional delay the samples reading them were
     # 15-25x the noise and the held-out RMS after the search 3.3x the noise
     from es_calibration.pipeline import _search
-    from es_calibration.search import choose_stamp_convention
+    from es_calibration.search.state import choose_stamp_convention
 
     data, noise = _delay_case(30.0)  # the old rule-less search: 2.1x the noise
     aligned = choose_stamp_convention(align(data))

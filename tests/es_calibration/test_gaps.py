@@ -14,12 +14,12 @@ from typing import Any
 import numpy as np
 import pytest
 
-from es_calibration.align import GAP_DROPS, SPAN_DROPS, align
-from es_calibration.bagio import read_measured_bags
 from es_calibration.calibrate import EXIT_BAD_INPUT, run
-from es_calibration.gaps import COMMAND_SETTLING_S, find_gaps
-from es_calibration.residual import spectrum
-from es_calibration.stamps import repeated
+from es_calibration.data.align import GAP_DROPS, SPAN_DROPS, align
+from es_calibration.data.bags import read_measured_bags
+from es_calibration.data.gaps import COMMAND_SETTLING_S, find_gaps
+from es_calibration.data.stamps import repeated
+from es_calibration.search.residual import spectrum
 
 from . import law_bags as lb
 

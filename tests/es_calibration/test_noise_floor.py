@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from es_calibration.residual import noise_floor
+from es_calibration.search.residual import noise_floor
 
 STEP_M = 0.1e-9
 

@@ -14,22 +14,22 @@ from standgen.effects import Drift, Effects, FrequencyDispersion, Hysteresis, Se
 from standgen.stand import AC_SPLIT_TAU_S
 from standgen.sweep import build_cases
 
-from es_calibration.align import align
-from es_calibration.model import CompositeModel
+from es_calibration.data.align import align
+from es_calibration.model.composite import CompositeModel
 from es_calibration.pipeline import _search
-from es_calibration.scans import candidate_states
-from es_calibration.search import (
+from es_calibration.search.scans import candidate_states
+from es_calibration.search.selection import (
+    _backward_round,
+    search_effects,
+    settle_operators,
+)
+from es_calibration.search.state import (
     Workspace,
     base_state,
     choose_stamp_convention,
     effect_parameters,
     extend_local,
     fit_state,
-)
-from es_calibration.selection import (
-    _backward_round,
-    search_effects,
-    settle_operators,
 )
 
 from .stand_data import measured

@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 from scipy.signal import lfilter
 
-from es_calibration.align import MeasuredData
-from es_calibration.local import STEP
+from es_calibration.data.align import MeasuredData
+from es_calibration.output.schema import calibration_document
 from es_calibration.pipeline import Calibration, calibrate
-from es_calibration.schema import calibration_document
+from es_calibration.search.local import STEP
 
 from .test_combined import law
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from es_calibration.errors import CalibrationFitError
-from es_calibration.playfit import best_operators, nonnegative_weights
+from es_calibration.search.playfit import best_operators, nonnegative_weights
 from es_physics.effects.hysteresis import play
 
 

@@ -10,17 +10,17 @@ import numpy as np
 import pytest
 from standgen.sweep import build_cases
 
-from es_calibration.align import AlignedData, MeasuredData, align
-from es_calibration.bagio import read_measured_bags
-from es_calibration.gaps import COMMAND_SETTLING_S
-from es_calibration.pipeline import calibrate
-from es_calibration.search import SCREEN_SIZE
-from es_calibration.searchspan import (
+from es_calibration.data.align import AlignedData, MeasuredData, align
+from es_calibration.data.bags import read_measured_bags
+from es_calibration.data.gaps import COMMAND_SETTLING_S
+from es_calibration.data.searchspan import (
     SEARCH_BUDGET,
     SearchBudgetError,
     search_span,
     search_windows,
 )
+from es_calibration.pipeline import calibrate
+from es_calibration.search.state import SCREEN_SIZE
 from tests.es_calibration import law_bags as lb
 
 GRID = (4, 4)  # within the screening block: the whole grid is searched, then refitted

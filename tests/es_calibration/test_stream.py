@@ -13,13 +13,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from es_calibration.align import AlignedData, IndexArray, align
-from es_calibration.bagio import read_measured_bags
-from es_calibration.bagstream import BagRecording
-from es_calibration.model import LINEAR_LAW, FloatArray, play_operator
+from es_calibration._typing import FloatArray, IndexArray
+from es_calibration.data.align import AlignedData, align
+from es_calibration.data.bags import read_measured_bags
+from es_calibration.data.bagstream import BagRecording
+from es_calibration.data.recording import MemoryRecording, gather, gather_arrays
+from es_calibration.grid.tiles import TileJob, compact_grid
+from es_calibration.grid.tilestore import TileStore, layout, play_name
+from es_calibration.model.composite import LINEAR_LAW, play_operator
 from es_calibration.pipeline import calibrate
-from es_calibration.recording import MemoryRecording, gather, gather_arrays
-from es_calibration.search import (
+from es_calibration.search.state import (
     ModelState,
     Workspace,
     base_state,
@@ -29,8 +32,6 @@ from es_calibration.search import (
     local_start,
     screen_block,
 )
-from es_calibration.tiles import TileJob, compact_grid
-from es_calibration.tilestore import TileStore, layout, play_name
 from es_msgs_py.bag import read_bag
 from es_msgs_py.bag.stream import iter_bag
 from tests.es_calibration import law_bags as lb
@@ -176,7 +177,7 @@ def test_local_workers_keep_the_dynamic_mmap_threshold() -> None:
     nanny writes its pre-spawn environment into the process that starts it."""
     code = (
         "import os\n"
-        "from es_calibration.dask_tiles import dask_map\n"
+        "from es_calibration.grid.dask_tiles import dask_map\n"
         "names = ('MALLOC_TRIM_THRESHOLD_', 'OPENBLAS_NUM_THREADS')\n"
         "with dask_map(workers=1) as run:\n"
         "    print(run(lambda job: [os.environ.get(n) for n in names], [0]))\n"

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from es_calibration.calibrate import run
-from es_calibration.unexplained import Drive
+from es_calibration.search.unexplained import Drive
 
 from . import law_bags as lb
 

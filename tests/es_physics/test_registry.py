@@ -14,7 +14,7 @@ from typing import Any
 
 import pytest
 
-from es_calibration.model import CANDIDATES
+from es_calibration.model.composite import CANDIDATES
 from es_feedforward.compensation import RANGES, CompensationParams
 from es_physics.effects import (
     EffectError,
@@ -93,7 +93,7 @@ CALIBRATE_WITH_EXAMPLE = textwrap.dedent(
     """
     import json
     import numpy as np
-    from es_calibration.align import MeasuredData
+    from es_calibration.data.align import MeasuredData
     from es_calibration.pipeline import calibrate
     from es_physics.effects import candidates
     from es_sim_plant.effects import EFFECT_NAMES
@@ -127,9 +127,9 @@ LOOP_WITH_EXAMPLE = textwrap.dedent(
 
     import numpy as np
     import yaml
-    from es_calibration.align import MeasuredData
+    from es_calibration.data.align import MeasuredData
     from es_calibration.pipeline import calibrate
-    from es_calibration.schema import write_parameters_yaml
+    from es_calibration.output.schema import write_parameters_yaml
     from es_feedforward.feedforward import Feedforward, Mode
     from es_feedforward.param_file import read_params_file
     from es_sim_plant.plant import Plant, simulate

@@ -11,19 +11,19 @@ sqlite3), then writes into OUTDIR:
   structure, candidate effects, accepted effects, unexplained structure);
 - ``calibration.json``: fitted parameters with uncertainties, accepted effects with the
   held-out RMS before and after each, the noise floor and the unexplained structure (schema in
-  :mod:`es_calibration.schema`);
+  :mod:`es_calibration.output.schema`);
 - ``feedforward_params.yaml``: the ROS 2 parameters of the ``feedforward`` node (per-actuator
   ``law.*`` maps and the ``compensation.*`` of the accepted effects).
 
-Bags are streamed (:mod:`es_calibration.bagstream`): two passes in batches of
+Bags are streamed (:mod:`es_calibration.data.bagstream`): two passes in batches of
 messages, the whole grid only at the samples the fit uses: what grows with the recording's
 length is the 8 x 8 screening block at full rate and the grid's temperature at the sensor rate
 (1/64 of a 64 x 64 record, and less), not the grid at full rate. The grid-wide refit runs in
-actuator tiles (:mod:`es_calibration.tiles`), serially or as tasks on Dask:
+actuator tiles (:mod:`es_calibration.grid.tiles`), serially or as tasks on Dask:
 ``--workers N`` starts a local cluster, ``--scheduler tcp://host:port`` uses a running one
 (Dask is imported only then). On a long record the effect search sees at most
 ``--search-budget`` sample-actuator values of the screening block, in windows spread over the
-whole run (:mod:`es_calibration.searchspan`); the grid-wide refit draws from the
+whole run (:mod:`es_calibration.data.searchspan`); the grid-wide refit draws from the
 whole record.
 
 The tool is told nothing about how the data were made. Bad input (missing or empty topics,
@@ -65,13 +65,13 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
-from es_calibration.align import MIN_SAMPLES, CalibrationInputError
-from es_calibration.bagstream import BagRecording
-from es_calibration.gaps import GAP_FACTOR
-from es_calibration.model import CANDIDATES
+from es_calibration.data.align import MIN_SAMPLES, CalibrationInputError
+from es_calibration.data.bagstream import BagRecording
+from es_calibration.data.gaps import GAP_FACTOR
+from es_calibration.data.searchspan import SEARCH_BUDGET
+from es_calibration.grid.tiles import DEFAULT_TILE, DaskSetupError
+from es_calibration.model.composite import CANDIDATES
 from es_calibration.pipeline import Calibration, calibrate
-from es_calibration.searchspan import SEARCH_BUDGET
-from es_calibration.tiles import DEFAULT_TILE, DaskSetupError
 from es_recordings.labimport import LabImportError, import_recording, load_map
 
 EXIT_BAD_INPUT = 2
@@ -185,7 +185,7 @@ def _calibrate(
     """
     if args.workers is None and args.scheduler is None:
         return calibrate(recording, candidates, tile=args.tile, search_budget=args.search_budget)
-    from es_calibration.dask_tiles import dask_map  # Dask only when asked for
+    from es_calibration.grid.dask_tiles import dask_map  # Dask only when asked for
 
     with dask_map(args.workers, args.scheduler) as run_tiles:
         return calibrate(recording, candidates, tile=args.tile, run=run_tiles,
@@ -224,11 +224,8 @@ def run(argv: Sequence[str] | None = None) -> int:
             cal = _calibrate(recording, candidates, args)
             cal.timings_s = {"bag first pass": first_pass, **cal.timings_s}
         # matplotlib and the feedforward configuration are only needed once there is a result
-        from es_calibration.report import write_report
-        from es_calibration.schema import (
-            write_calibration_json,
-            write_parameters_yaml,
-        )
+        from es_calibration.output.report import write_report
+        from es_calibration.output.schema import write_calibration_json, write_parameters_yaml
 
         notes = write_parameters_yaml(cal, args.output / "feedforward_params.yaml")
         write_calibration_json(cal, args.output / "calibration.json")

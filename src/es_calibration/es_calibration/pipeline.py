@@ -15,8 +15,8 @@ from typing import Final
 
 import numpy as np
 
-from es_calibration import unexplained
-from es_calibration.align import (
+from es_calibration._typing import FloatArray
+from es_calibration.data.align import (
     MIN_SAMPLES,
     AlignedData,
     CalibrationInputError,
@@ -25,34 +25,9 @@ from es_calibration.align import (
     resample_temperature,
     temperature_stamps,
 )
-from es_calibration.local import per_actuator_round
-from es_calibration.model import CANDIDATES, FloatArray
-from es_calibration.recording import (
-    MemoryRecording,
-    Recording,
-    gather,
-    gather_arrays,
-)
-from es_calibration.residual import ResidualStructure, analyse
-from es_calibration.search import (
-    MIN_RELATIVE_GAIN,
-    ModelState,
-    Workspace,
-    base_state,
-    choose_stamp_convention,
-    fitted_effect,
-    heldout_residual,
-    screen_block,
-)
-from es_calibration.searchspan import SEARCH_BUDGET, search_span, search_windows
-from es_calibration.selection import (
-    RoundRecord,
-    Step,
-    preferred_final,
-    search_effects,
-    subset_state,
-)
-from es_calibration.tiles import (
+from es_calibration.data.recording import MemoryRecording, Recording, gather, gather_arrays
+from es_calibration.data.searchspan import SEARCH_BUDGET, search_span, search_windows
+from es_calibration.grid.tiles import (
     DEFAULT_TILE,
     TEMPERATURE,
     TEMPERATURE_RATE,
@@ -63,7 +38,28 @@ from es_calibration.tiles import (
     serial_map,
     write_temperature,
 )
-from es_calibration.tilestore import TileStore, layout
+from es_calibration.grid.tilestore import TileStore, layout
+from es_calibration.model.composite import CANDIDATES
+from es_calibration.search import unexplained
+from es_calibration.search.local import per_actuator_round
+from es_calibration.search.residual import ResidualStructure, analyse
+from es_calibration.search.selection import (
+    RoundRecord,
+    Step,
+    preferred_final,
+    search_effects,
+    subset_state,
+)
+from es_calibration.search.state import (
+    MIN_RELATIVE_GAIN,
+    ModelState,
+    Workspace,
+    base_state,
+    choose_stamp_convention,
+    fitted_effect,
+    heldout_residual,
+    screen_block,
+)
 from es_physics.effects import get
 
 #: Actuators whose full-rate held-out residual is analysed (spectra, correlations).
@@ -266,7 +262,7 @@ def _search(
     that cuts its held-out RMS by ``MIN_RELATIVE_GAIN``, the search runs again with it. A
     final shift within a period of none may be that timing error taken up by a delay: the
     search runs again with the other convention. The preferred final is kept
-    (:func:`~es_calibration.selection.preferred_final`).
+    (:func:`~es_calibration.search.selection.preferred_final`).
     """
     screen, base, final, added, rounds = _screened(aligned, block_grid, candidates)
     first = (aligned, screen, base, final, added, rounds)
@@ -296,11 +292,12 @@ def calibrate(
     """Run the whole calibration; raise CalibrationInputError on bad data.
 
     Args:
-        measured: the run, in memory or a streamed recording (bagio.BagRecording).
+        measured: the run, in memory or a streamed recording
+            (:class:`.data.bagstream.BagRecording`).
         candidates: effects to test.
         tile: edge of the actuator tiles of the grid-wide refit [actuators]; a tile as
             large as the grid is the in-memory joint fit.
-        run: how tiles run (:func:`~es_calibration.tiles.serial_map`, or a Dask
+        run: how tiles run (:func:`~es_calibration.grid.tiles.serial_map`, or a Dask
             client's map, see dask_tiles.py).
         search_budget: sample-actuator values the effect search sees at most; a longer
             record is searched on windows spread over it (searchspan.py), and then refitted

@@ -8,7 +8,7 @@ operator i > 1 ``weight_i``/``threshold_v_i`` (plant parameters, calibration res
 ``compensation.hysteresis_weight[_i]``/``hysteresis_threshold_v[_i]``). The calibration
 chooses N <= MAX_OPERATORS by the information criterion; given thresholds the weights enter
 linearly (to first order in the weights) and are fitted non-negative with scipy's NNLS
-(``es_calibration.playfit``), with beta of
+(``es_calibration.search.playfit``), with beta of
 a_i = weight_i exp(-beta (T_a - T_mean)). Feedforward: the operator's exact inverse, per
 actuator with its play states (:func:`pi_inverse`), the weights taken at each actuator's
 temperature with the fitted beta (``compensation.hysteresis_decay_per_degc``,

@@ -24,14 +24,11 @@ from dataclasses import dataclass
 from typing import Final
 
 import numpy as np
-import numpy.typing as npt
 from scipy.signal import lfilter
 
+from es_calibration._typing import FloatArray, IndexArray
 from es_calibration.errors import CalibrationFitError
 from es_physics.effects import Effect
-
-FloatArray = npt.NDArray[np.float64]
-IndexArray = npt.NDArray[np.intp]
 
 #: Filtered series kept per history (each is the command's size).
 CACHE_SIZE: Final = 8

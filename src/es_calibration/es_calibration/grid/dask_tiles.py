@@ -18,7 +18,7 @@ from typing import Final
 import dask
 from dask.distributed import Client, LocalCluster
 
-from es_calibration.tiles import DaskSetupError, TileFit, TileJob, TileMap
+from es_calibration.grid.tiles import DaskSetupError, TileFit, TileJob, TileMap
 
 #: Dask's nanny sets ``MALLOC_TRIM_THRESHOLD_=65536`` in a worker's environment before it
 #: spawns it (so that freed memory goes back to the system). Setting it switches glibc's

@@ -11,8 +11,9 @@ keeps one value.
 
 from __future__ import annotations
 
-from es_calibration.model import CompositeModel
-from es_calibration.search import (
+from es_calibration.model.composite import CompositeModel
+from es_calibration.search.selection import CandidateScore, RoundRecord, _verdict
+from es_calibration.search.state import (
     ModelState,
     Workspace,
     effect_parameters,
@@ -22,7 +23,6 @@ from es_calibration.search import (
     fit_state,
     information_delta,
 )
-from es_calibration.selection import CandidateScore, RoundRecord, _verdict
 from es_physics.effects import get
 
 #: ``RoundRecord.step`` of the per-actuator round.

@@ -2,7 +2,7 @@
 
 A *gap* in a topic is an interval between two consecutive messages longer than
 ``GAP_FACTOR`` (3.5) times that topic's median message period, i.e. at least three messages
-missing in a row (stamps that repeat are first spread as in stamps.py, so a lagging recorder
+missing in a row (stamps that repeat are first spread as in data/stamps.py, so a lagging recorder
 does not make gaps). One or two dropped messages (2 or 3 periods, as random drops give) are
 not a gap; their samples are simply absent, never interpolated. Data inside a gap are
 unknown and nothing is interpolated across one. ``align.align`` removes the displacement
@@ -40,9 +40,9 @@ from typing import Any, Final
 
 import numpy as np
 
+from es_calibration._typing import BoolArray, FloatArray
+from es_calibration.data.stamps import repeated, spread_repeated
 from es_calibration.errors import CalibrationError
-from es_calibration.model import BoolArray, FloatArray
-from es_calibration.stamps import repeated, spread_repeated
 
 #: An interval between consecutive messages longer than this many median periods is a gap.
 GAP_FACTOR: Final = 3.5

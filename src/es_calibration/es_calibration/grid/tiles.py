@@ -3,7 +3,7 @@
 A tile is a block of at most ``tile`` x ``tile`` actuators; with the coupling (a ``SPATIAL``
 effect) it is fitted with a one-actuator halo of its neighbours, whose results are dropped,
 so that every kept actuator sees all its neighbours. Each tile is fitted on the samples of
-the whole grid's refit (:func:`compact_grid`: the rows search.py's budgets choose for the
+the whole grid's refit (:func:`compact_grid`: the rows search/state.py's budgets choose for the
 grid, gathered in one streamed pass into one file per tile, tilestore.py), so a tile's
 per-actuator fit uses the same samples whatever the tiling. A task reads its own tile's file:
 only its tile is in memory, and on Dask only the file's path travels.
@@ -26,17 +26,13 @@ from typing import Final
 
 import numpy as np
 
-from es_calibration.align import (
-    RESAMPLE_COLUMNS,
-    AlignedData,
-    IndexArray,
-    resample_temperature,
-)
-from es_calibration.fit import FitResult, levenberg_marquardt
-from es_calibration.model import CompositeModel, Evaluation, FloatArray
-from es_calibration.recording import COMMAND_FINITE, COMMAND_ROLE, DISPLACEMENT_ROLE
-from es_calibration.search import ModelState, Workspace, initial_law
-from es_calibration.tilestore import TileStore, play_name
+from es_calibration._typing import FloatArray, IndexArray
+from es_calibration.data.align import RESAMPLE_COLUMNS, AlignedData, resample_temperature
+from es_calibration.data.recording import COMMAND_FINITE, COMMAND_ROLE, DISPLACEMENT_ROLE
+from es_calibration.grid.tilestore import TileStore, play_name
+from es_calibration.model.composite import CompositeModel, Evaluation
+from es_calibration.model.fit import FitResult, levenberg_marquardt
+from es_calibration.search.state import ModelState, Workspace, initial_law
 
 #: Store arrays of the tiles' resampled temperature [degC] and its rate [degC/s].
 TEMPERATURE: Final = "temperature"

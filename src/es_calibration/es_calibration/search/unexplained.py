@@ -18,13 +18,8 @@ from typing import Final
 
 import numpy as np
 
-from es_calibration.model import BoolArray, FloatArray
-from es_calibration.residual import (
-    Dependence,
-    ResidualStructure,
-    spectral_lines,
-    spectrum,
-)
+from es_calibration._typing import BoolArray, FloatArray
+from es_calibration.search.residual import Dependence, ResidualStructure, spectral_lines, spectrum
 
 NM: Final = 1e9
 #: A correlation must exceed this many times its 95 % bound to be reported.

@@ -1,6 +1,6 @@
 """The samples the effect search sees on a long recording: a bounded budget, spread in time.
 
-Which effects are present is decided on the screening block (search.py) by fits and
+Which effects are present is decided on the screening block (search/state.py) by fits and
 held-out scores; their cost grows with the record's length, not only with the rows the fits
 use, since the play operators and the drive low-passes run over every command. A few tens
 of thousands of samples per actuator decide the search, so a record longer than the budget
@@ -18,7 +18,7 @@ not the whole history (as after a command hole). The final fit of the grid (tile
 draws its samples from the whole record, never from these windows.
 
 ``SEARCH_BUDGET`` counts sample-actuator values (samples per actuator times the block's
-actuators), like search.py's fit and score budgets. The identification sweep's recordings
+actuators), like search/state.py's fit and score budgets. The identification sweep's recordings
 (testing/standgen/sweep.py: at most 36 s at 500 Hz on 8 x 8, 1.15 M; 24 s at 5 kHz on 4
 actuators, 0.48 M) and the demo's test stand (43.2 s at 250 Hz on the 8 x 8 block, 0.69 M)
 stay whole; 5 minutes at 500 Hz on the 8 x 8 block (9.6 M) is searched on 16 windows of
@@ -32,8 +32,9 @@ from typing import Final
 
 import numpy as np
 
-from es_calibration.align import AlignedData, IndexArray
-from es_calibration.gaps import COMMAND_SETTLING_S
+from es_calibration._typing import IndexArray
+from es_calibration.data.align import AlignedData
+from es_calibration.data.gaps import COMMAND_SETTLING_S
 
 #: Sample-actuator values the effect search sees at most (see the module docstring).
 SEARCH_BUDGET: Final = 2_000_000

@@ -3,17 +3,17 @@
 The calibration needs every sample of every actuator only in two forms, never the whole
 record at full rate:
 
-- the full-rate series of a few actuators (the screening block of search.py, whose fits,
+- the full-rate series of a few actuators (the screening block of search/state.py, whose fits,
   search and residual analysis run at full rate): :meth:`Recording.block`, and the
   temperature of the whole grid (at the sensor rate): :meth:`Recording.temperature`;
 - the whole grid at the samples the grid-wide refit uses (a bounded number per actuator,
-  search.py's budgets), the commands those samples need, and the play operators of the
+  search/state.py's budgets), the commands those samples need, and the play operators of the
   command: :func:`gather`, one pass over :meth:`Recording.batches` that writes each batch's
   rows to the tiles' files (tilestore.py).
 
 So memory is bounded by the block, the temperature, one batch and one tile, not by the
 record's length nor by the grid's rows. :class:`MemoryRecording` wraps data already in
-memory (the in-memory path, the same code); ``bagio.BagRecording`` streams bags.
+memory (the in-memory path, the same code); :class:`.bagstream.BagRecording` streams bags.
 """
 
 from __future__ import annotations
@@ -25,10 +25,11 @@ from typing import Final, Protocol
 import numpy as np
 import numpy.typing as npt
 
-from es_calibration.align import IndexArray, MeasuredData
+from es_calibration._typing import FloatArray, IndexArray
+from es_calibration.data.align import MeasuredData
 from es_calibration.errors import RecordingError
-from es_calibration.model import FloatArray, play_operator
-from es_calibration.tilestore import TileStore, play_name
+from es_calibration.grid.tilestore import TileStore, play_name
+from es_calibration.model.composite import play_operator
 
 #: Role names of :meth:`Recording.batches`.
 COMMAND_ROLE: Final = "command"

@@ -16,15 +16,16 @@ from typing import Final
 
 import numpy as np
 
-from es_calibration.delayrange import (
+from es_calibration._typing import FloatArray
+from es_calibration.data.delayrange import (
     DELAY_STEP,
     LOWEST_SHIFT_PERIODS,
     RESCAN_PERIODS,
     longest_whole_shift,
 )
-from es_calibration.model import CompositeModel, FloatArray
-from es_calibration.playfit import play_states
-from es_calibration.search import (
+from es_calibration.model.composite import CompositeModel
+from es_calibration.search.playfit import play_states
+from es_calibration.search.state import (
     ModelState,
     Workspace,
     extend_global,

@@ -21,9 +21,10 @@ from typing import Final
 import numpy as np
 from scipy.optimize import nnls
 
+from es_calibration._typing import FloatArray
 from es_calibration.errors import CalibrationFitError
-from es_calibration.model import CompositeModel, FitInputs, FloatArray
-from es_calibration.search import (
+from es_calibration.model.composite import CompositeModel, FitInputs
+from es_calibration.search.state import (
     MIN_RELATIVE_GAIN,
     ModelState,
     Workspace,

@@ -1,7 +1,7 @@
 """Command edges the recorded commands cannot resolve, and the samples whose input needs them.
 
 The model reads the command between its stamps (a fractional delay interpolates the
-commands around the delayed instant, search.py). That reading is good where the drive is
+commands around the delayed instant, search/state.py). That reading is good where the drive is
 smooth on the scale of a command period, and unknowable where the drive changes faster than
 its samples can show (a step, a slewed edge shorter than a period, a kink): the
 displacement samples whose model input would be read there cannot be modelled, whatever
@@ -40,9 +40,9 @@ import numpy as np
 import numpy.typing as npt
 from scipy.ndimage import maximum_filter1d
 
-from es_calibration.delayrange import shift_span
-from es_calibration.gaps import GAP_FACTOR
-from es_calibration.model import BoolArray, FloatArray
+from es_calibration._typing import BoolArray, FloatArray
+from es_calibration.data.delayrange import shift_span
+from es_calibration.data.gaps import GAP_FACTOR
 
 #: An interval whose departure exceeds this many times its neighbourhood's is an edge.
 EDGE_RATIO: Final = 3.0

@@ -10,11 +10,11 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from es_calibration.align import AlignedData
-from es_calibration.gaps import COMMAND_SETTLING_S, GAP_FACTOR
+from es_calibration.data.align import AlignedData
+from es_calibration.data.gaps import COMMAND_SETTLING_S, GAP_FACTOR
+from es_calibration.output.schema import law_uncertainty
 from es_calibration.pipeline import NOISE_RATIO_LIMIT, Calibration
-from es_calibration.residual import ResidualStructure
-from es_calibration.schema import law_uncertainty
+from es_calibration.search.residual import ResidualStructure
 from es_physics.params import THESIS_INTERVALS_95
 
 NM = 1e9
@@ -344,7 +344,7 @@ def write_report(cal: Calibration, out: Path, notes: list[str]) -> Path:
         "",
         "## Outputs",
         "",
-        "- `calibration.json` (schema: es_calibration.schema)",
+        "- `calibration.json` (schema: es_calibration.output.schema)",
         "- `feedforward_params.yaml` (load with `--ros-args --params-file`)",
         "",
         "Timings: " + ", ".join(f"{k} {v:.2f} s" for k, v in cal.timings_s.items()),

@@ -3,7 +3,7 @@
 The displacement stamps are the sample grid (the measured output). The command is a
 zero-order hold: each displacement sample sees the last command stamped before it (when stamps
 coincide, as in a lock-step simulation, whether "before" includes the same stamp is decided
-from the data, see search.py). The temperature, usually slower, is linearly interpolated onto
+from the data, see search/state.py). The temperature, usually slower, is linearly interpolated onto
 the displacement stamps; its derivative is a Savitzky-Golay slope over ``RATE_WINDOW_S`` on a
 uniform resampling of the temperature. Nothing is extrapolated: samples before the first
 command, and those before the first or after the last temperature message, are dropped. NaN
@@ -23,12 +23,11 @@ from functools import cached_property
 from typing import Final
 
 import numpy as np
-import numpy.typing as npt
 from scipy.signal import savgol_filter
 
-from es_calibration.edges import EdgeExclusion, exclude_edges
-from es_calibration.errors import CalibrationInputError
-from es_calibration.gaps import (
+from es_calibration._typing import BoolArray, FloatArray, IndexArray
+from es_calibration.data.edges import EdgeExclusion, exclude_edges
+from es_calibration.data.gaps import (
     GAP_FACTOR,
     Gap,
     TemperatureSpan,
@@ -36,10 +35,8 @@ from es_calibration.gaps import (
     exclude_outside_span,
     find_gaps,
 )
-from es_calibration.model import BoolArray, FloatArray
-from es_calibration.stamps import repeated, run_lengths, spread_repeated
-
-IndexArray = npt.NDArray[np.intp]
+from es_calibration.data.stamps import repeated, run_lengths, spread_repeated
+from es_calibration.errors import CalibrationInputError
 
 # The contract's topic names (es_msgs_py.topics imports rclpy; this tool must not need it).
 COMMAND: Final = "/dm/command"
@@ -53,7 +50,7 @@ MIN_SAMPLES: Final = 200
 MIN_DURATION_S: Final = 2.0
 #: Window of the temperature-rate estimate [s] (the thermal disturbance is slower than 0.1 Hz).
 RATE_WINDOW_S: Final = 2.0
-#: Key of :attr:`AlignedData.dropped` for samples with ambiguous stamps (see stamps.py).
+#: Key of :attr:`AlignedData.dropped` for samples with ambiguous stamps (see data/stamps.py).
 AMBIGUOUS: Final = "displacement with ambiguous repeated stamp"
 #: Keys of :attr:`AlignedData.dropped` for samples that gaps take out, by role (gaps.py).
 GAP_DROPS: Final = {
@@ -270,7 +267,7 @@ def _check_series(name: str, times: FloatArray, values: FloatArray, grid: tuple[
 def _resolve_repeated_stamps(
     data: MeasuredData,
 ) -> tuple[MeasuredData, dict[str, int], str, IndexArray | None]:
-    """Apply the rules of stamps.py to ``data`` (each series sorted by time).
+    """Apply the rules of data/stamps.py to ``data`` (each series sorted by time).
 
     Returns the data to align, counts of dropped samples, a one-line account of what was
     done ("" when no stamp repeats) and the displacement samples kept (None: all).
@@ -367,7 +364,7 @@ def resample_temperature(
 
 
 def temperature_stamps(times: FloatArray) -> FloatArray:
-    """Return temperature stamps with runs of repeated stamps spread (stamps.py)."""
+    """Return temperature stamps with runs of repeated stamps spread (data/stamps.py)."""
     return spread_repeated(times) if repeated(times).any() else times
 
 

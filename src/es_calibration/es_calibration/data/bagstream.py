@@ -1,13 +1,13 @@
-"""Measured-data bags as a streamed :class:`~es_calibration.recording.Recording`.
+"""Measured-data bags as a streamed :class:`~es_calibration.data.recording.Recording`.
 
 :class:`BagRecording` reads each bag twice in batches of messages (es_msgs_py.bag.stream),
 never holding a whole grid topic:
 
 1. on opening: every stamp, the temperature of the whole grid (at its sensor rate) and the
-   full-rate command and displacement of the screening block (search.py) only;
+   full-rate command and displacement of the screening block (search/state.py) only;
 2. :meth:`BagRecording.batches`: command and displacement batches for one gathering pass.
 
-Bags are checked as ``bagio.read_measured_bags`` checks them (the same one-line
+Bags are checked as :func:`.bags.read_measured_bags` checks them (the same one-line
 :class:`CalibrationInputError`). Messages are numbered in stamp order (equal stamps in file
 order), several bags one after the other in start-time order.
 """
@@ -21,19 +21,18 @@ from pathlib import Path
 
 import numpy as np
 
-from es_calibration.align import (
+from es_calibration._typing import FloatArray, IndexArray
+from es_calibration.data.align import (
     COMMAND,
     DISPLACEMENT,
     TEMPERATURE,
     TEMPERATURE_RAW,
     CalibrationInputError,
-    IndexArray,
     MeasuredData,
 )
-from es_calibration.bagio import _listed_topics, _on_grid
-from es_calibration.model import FloatArray
-from es_calibration.recording import COMMAND_ROLE, DISPLACEMENT_ROLE, RecordingError
-from es_calibration.search import screen_block
+from es_calibration.data.bags import listed_topics, on_grid
+from es_calibration.data.recording import COMMAND_ROLE, DISPLACEMENT_ROLE, RecordingError
+from es_calibration.search.state import screen_block
 from es_msgs_py.bag import FLOAT64_MULTI_ARRAY, BagError, decode_float64_multi_arrays
 from es_msgs_py.bag.stream import BATCH_BYTES, iter_bag
 
@@ -80,7 +79,7 @@ class _Bag:
 
     def __init__(self, path: Path, batch_bytes: int) -> None:
         self.path = path
-        listed = _listed_topics(path)
+        listed = listed_topics(path)
         wanted = [COMMAND, DISPLACEMENT, TEMPERATURE, TEMPERATURE_RAW]
         if listed is not None:
             wanted = [t for t in wanted if t in listed]
@@ -138,7 +137,7 @@ class _Bag:
                 f"{DISPLACEMENT} is {self.grid_shape[0]} x {self.grid_shape[1]}"
             )
         temp = self.topics[self.temperature_topic]
-        temp.kept = _on_grid(temp.kept, self.grid_shape, self.path).reshape(temp.times.size, -1)
+        temp.kept = on_grid(temp.kept, self.grid_shape, self.path).reshape(temp.times.size, -1)
 
 
 class BagRecording:
@@ -148,7 +147,7 @@ class BagRecording:
         """Read every bag's stamps, temperature and screening block (the first pass).
 
         Raises:
-            CalibrationInputError: as ``bagio.read_measured_bags`` (one readable line).
+            CalibrationInputError: as :func:`.bags.read_measured_bags` (one readable line).
 
         """
         if not paths:

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-from es_calibration.align import IndexArray
+from es_calibration._typing import IndexArray
 from es_calibration.errors import RecordingError
 
 

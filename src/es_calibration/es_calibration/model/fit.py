@@ -21,7 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from es_calibration.model import BoolArray, Evaluation, FloatArray
+from es_calibration._typing import BoolArray, FloatArray
+from es_calibration.model.composite import Evaluation
 
 
 @dataclass(frozen=True)

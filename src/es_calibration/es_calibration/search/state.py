@@ -2,7 +2,7 @@
 
 Candidates are screened on a contiguous block of at most ``SCREEN_SIZE`` x ``SCREEN_SIZE``
 actuators at the grid's corner (edges and interior; the coupling needs neighbours); the
-accepted model is then refitted on the whole grid in actuator tiles (:mod:`.tiles`). How each
+accepted model is then refitted on the whole grid in actuator tiles (:mod:`..grid.tiles`). How each
 candidate is fitted: :mod:`.scans`; which are kept: :mod:`.selection`.
 """
 
@@ -14,17 +14,12 @@ from typing import Final
 
 import numpy as np
 
-from es_calibration.align import AlignedData, IndexArray, select_rows
-from es_calibration.fit import FitResult, levenberg_marquardt
-from es_calibration.history import DriveHistory, DriveSamples
-from es_calibration.model import (
-    BoolArray,
-    CompositeModel,
-    FitInputs,
-    FloatArray,
-    play_operator,
-)
-from es_calibration.residual import integrated_autocorrelation_time
+from es_calibration._typing import BoolArray, FloatArray, IndexArray
+from es_calibration.data.align import AlignedData, select_rows
+from es_calibration.model.composite import CompositeModel, FitInputs, play_operator
+from es_calibration.model.fit import FitResult, levenberg_marquardt
+from es_calibration.model.history import DriveHistory, DriveSamples
+from es_calibration.search.residual import integrated_autocorrelation_time
 from es_physics.effects import Effect, FittedEffect, Role, get
 from es_physics.params import ActuatorParams
 

@@ -41,16 +41,14 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
+from es_calibration._typing import BoolArray, FloatArray
 from es_calibration.errors import CalibrationError
-from es_calibration.history import DriveSamples, Filtered
+from es_calibration.model.history import DriveSamples, Filtered
 from es_feedforward.kernels import Backend, default_backend
 from es_physics.effects import Effect, EffectError, Role, candidates, get, with_role
 from es_physics.effects.coupling import neighbour_count, neighbour_laplacian
 from es_physics.effects.drift import DRIFT_LOG_NU_LIMIT
 from es_physics.params import ActuatorParams
-
-FloatArray = npt.NDArray[np.float64]
-BoolArray = npt.NDArray[np.bool_]
 
 #: Canonical names of the candidate effects (the registry's), in the order they are listed.
 CANDIDATES: Final = candidates()
@@ -363,7 +361,7 @@ def play_operator(
     zero, y_0 = clip(0, V_0 - r, V_0 + r), or continues from ``state`` (the operator's value
     after the previous rows, a streamed command). Only the rows ``keep`` (sorted) are returned, so a
     long run needs no full-size output. The loop is over time: compiled where the kernels are
-    fused (:mod:`es_calibration.play_loop`, the same numbers), else in numpy,
+    fused (:mod:`es_calibration.model.play_loop`, the same numbers), else in numpy,
     vectorised over actuators.
     """
     r = np.asarray(threshold, np.float64)
@@ -374,7 +372,7 @@ def play_operator(
     if not len(keep):
         return out
     if default_backend() is Backend.FUSED:
-        from es_calibration.play_loop import play_rows
+        from es_calibration.model.play_loop import play_rows
 
         size = int(np.prod(shape, dtype=np.intp))
         own = command.shape[1:]

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from es_calibration.align import (
+from es_calibration.data.align import (
     COMMAND,
     DISPLACEMENT,
     TEMPERATURE,
@@ -26,7 +26,7 @@ from es_calibration.align import (
 from es_msgs_py.bag import BagError, TopicSeries, read_bag
 
 
-def _listed_topics(path: Path) -> set[str] | None:
+def listed_topics(path: Path) -> set[str] | None:
     """Return the topics named in a closed bag's metadata.yaml (None when unknown)."""
     meta = path / "metadata.yaml"
     if not meta.is_file():
@@ -41,10 +41,10 @@ def _listed_topics(path: Path) -> set[str] | None:
 def _grid_temperature(series: TopicSeries, grid: tuple[int, int], path: Path) -> np.ndarray:
     if series.values is None:
         raise CalibrationInputError(f"{path}: {series.topic} is not a Float64MultiArray")
-    return _on_grid(series.values, grid, path)
+    return on_grid(series.values, grid, path)
 
 
-def _on_grid(values: np.ndarray, grid: tuple[int, int], path: Path) -> np.ndarray:
+def on_grid(values: np.ndarray, grid: tuple[int, int], path: Path) -> np.ndarray:
     """Return temperatures (N, R, C) from a grid topic or one sensor per actuator or one."""
     if values.ndim == 3:
         return values
@@ -67,7 +67,7 @@ def read_measured_bag(path: str | Path) -> MeasuredData:
     """
     bag = Path(path)
     needed = [COMMAND, DISPLACEMENT]
-    listed = _listed_topics(bag)
+    listed = listed_topics(bag)
     try:
         if listed is None:
             series = read_bag(bag)

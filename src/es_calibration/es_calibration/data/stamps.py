@@ -25,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
-from es_calibration.model import BoolArray, FloatArray
+from es_calibration._typing import BoolArray, FloatArray
 
 
 def repeated(times: FloatArray) -> BoolArray:

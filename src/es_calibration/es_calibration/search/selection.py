@@ -25,10 +25,10 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Final
 
-from es_calibration.model import CANDIDATES, CompositeModel
-from es_calibration.playfit import without_weakest_operator
-from es_calibration.scans import candidate_states, refine_shift
-from es_calibration.search import (
+from es_calibration.model.composite import CANDIDATES, CompositeModel
+from es_calibration.search.playfit import without_weakest_operator
+from es_calibration.search.scans import candidate_states, refine_shift
+from es_calibration.search.state import (
     MIN_RELATIVE_GAIN,
     ModelState,
     Workspace,

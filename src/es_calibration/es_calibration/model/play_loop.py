@@ -4,7 +4,7 @@ The play operator is a recursion over time, y_i = min(max(y_(i-1), V_i - r), V_i
 numpy each time step is four calls over the actuators, about 8 us per step on a small
 grid, so a 1 x 1 recording of 23 s at 5 kHz took about 0.9 s per operator, and the effect
 search evaluates dozens (most of a hysteresis case's time). Here the whole recursion is one
-compiled loop. It does the same IEEE operations as :func:`es_calibration.model.
+compiled loop. It does the same IEEE operations as :func:`es_calibration.model.composite.
 play_operator`'s numpy loop (a subtraction, a maximum, an addition, a minimum per element and
 step; NaN propagates as in ``np.maximum``/``np.minimum``), so both give the same numbers.
 

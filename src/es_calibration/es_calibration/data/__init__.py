@@ -1,0 +1,1 @@
+"""Reading and aligning the measured data: recordings, bags, time base, gaps, edges, spans."""

@@ -1,0 +1,1 @@
+"""The effect search: model states, each candidate's fit, selection, residual structure."""
