@@ -25,6 +25,7 @@ from es_calibration.model.history import DriveHistory, DriveSamples, first_order
 from es_calibration.search.residual import integrated_autocorrelation_time, noise_floor
 from es_feedforward.kernels import KERNELS_ENV
 from es_physics.effects import EffectError
+from es_physics.effects import get as get_effect
 from es_physics.effects.coupling import grid_laplacian
 from es_physics.effects.hysteresis import play
 from es_physics.laws import hyperbolic_forward
@@ -335,3 +336,28 @@ def test_only_offered_parameters_can_be_fitted_per_actuator() -> None:
         CompositeModel(("drift",), per_actuator=("sensor_lag.tau_s",))  # effect not chosen
     model = CompositeModel(("self_heating",), per_actuator=("self_heating.gain",))
     assert model.global_names == ("self_heating.log_tau_s", "self_heating.log_mean_window_s")
+
+
+def test_drive_history_computes_a_signals_slopes_once_for_every_time_constant() -> None:
+    # A fit varies tau; the drive signal's slopes by its own parameters do not depend on it.
+    effect = get_effect("self_heating")
+    rng = np.random.default_rng(3)
+    period, shape = 0.002, (float(np.log(0.5)),)
+    command = 100.0 + 20.0 * rng.standard_normal((400, 3))
+    direct = effect.drive_signal_slopes(command, period, shape)
+    calls = []
+    original = type(effect).drive_signal_slopes
+
+    def counted(self: object, *args: object) -> tuple[np.ndarray, ...]:
+        calls.append(args)
+        return original(self, *args)  # type: ignore[arg-type]
+
+    history = DriveHistory(command, period)
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(type(effect), "drive_signal_slopes", counted)
+        for tau in (0.05, 0.2, 1.0):
+            _, _, slopes = history.lowpass(effect, tau, shape)
+            # the same numbers as filtering the slopes computed afresh
+            for got, want in zip(slopes, direct, strict=True):
+                np.testing.assert_array_equal(got, first_order_lowpass(want, period, tau)[0])
+    assert len(calls) == 1

@@ -80,6 +80,7 @@ class DriveHistory:
         self.command = np.nan_to_num(np.asarray(command, np.float64))
         self.period = float(period)
         self._signals: dict[tuple[str, tuple[float, ...]], FloatArray] = {}
+        self._signal_slopes: dict[tuple[str, tuple[float, ...]], tuple[FloatArray, ...]] = {}
         self._filtered: dict[tuple[str, float, tuple[float, ...]], Filtered] = {}
 
     def signal(self, effect: Effect, shape: Sequence[float] = ()) -> FloatArray:
@@ -93,6 +94,22 @@ class DriveHistory:
             )
         return self._signals[key]
 
+    def signal_slopes(self, effect: Effect, shape: Sequence[float] = ()) -> tuple[FloatArray, ...]:
+        """Return the drive signal's derivatives by each of ``shape`` (each (N, A)).
+
+        They depend on the signal parameters only, not on the time constant a fit varies,
+        so one computation serves every low-pass of the same signal.
+        """
+        key = (effect.name, tuple(float(v) for v in shape))
+        if key not in self._signal_slopes:
+            if len(self._signal_slopes) >= CACHE_SIZE:
+                del self._signal_slopes[next(iter(self._signal_slopes))]
+            self._signal_slopes[key] = tuple(
+                np.asarray(d, np.float64)
+                for d in effect.drive_signal_slopes(self.command, self.period, key[1])
+            )
+        return self._signal_slopes[key]
+
     def lowpass(self, effect: Effect, tau: float, shape: Sequence[float] = ()) -> Filtered:
         """Return y = LP_tau(signal), dy / d(log tau) and dy / d each of ``shape``, (N, A).
 
@@ -105,7 +122,7 @@ class DriveHistory:
             y, slope = first_order_lowpass(self.signal(effect, shape), self.period, tau)
             slopes = tuple(
                 first_order_lowpass(d, self.period, tau)[0]
-                for d in effect.drive_signal_slopes(self.command, self.period, key[2])
+                for d in self.signal_slopes(effect, key[2])
             )
             if len(self._filtered) >= CACHE_SIZE:
                 del self._filtered[next(iter(self._filtered))]
