@@ -27,6 +27,7 @@ from es_calibration.data.align import (
 )
 from es_calibration.data.recording import MemoryRecording, Recording, gather, gather_arrays
 from es_calibration.data.searchspan import SEARCH_BUDGET, search_span, search_windows
+from es_calibration.discovery import Discovery, discover
 from es_calibration.grid.tiles import (
     DEFAULT_TILE,
     TEMPERATURE,
@@ -113,6 +114,8 @@ class Calibration:
     timings_s: dict[str, float] = field(default_factory=dict)
     #: What of the record the effect search saw ("" : all of it; else the windows, in words).
     search_span: str = ""
+    #: The discovery step's outcome (terms beyond the registry), None when it did not run.
+    discovery: Discovery | None = None
 
     @property
     def noise_floor_m(self) -> float:
@@ -380,6 +383,9 @@ def calibrate(
             cov_global=final.fit.cov_global * after.tau_int,
         )
     timings["analysis"] = time.perf_counter() - clock
+    # terms no registry effect describes, searched in the block's held-out residual
+    discovery = discover(aligned, block_grid, final_screen, after.noise_floor)
+    timings["discovery"] = discovery.seconds
     # the run's description: the whole grid on the block's time base
     aligned = replace(aligned, grid=grid)
 
@@ -416,9 +422,11 @@ def calibrate(
         analysis_before=(aligned.t[analysis.rows], resid_before),
         analysis_after=(aligned.t[analysis.rows], resid_after),
         analysis_inputs=inputs,
-        unexplained=_unexplained(after, final.heldout_rms),
+        unexplained=_unexplained(after, final.heldout_rms)
+        + ([discovery.note] if discovery.searched and discovery.note else []),
         timings_s=timings,
         search_span=span_note,
+        discovery=discovery,
     )
 
 

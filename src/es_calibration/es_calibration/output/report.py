@@ -12,6 +12,7 @@ import numpy as np
 
 from es_calibration.data.align import AlignedData
 from es_calibration.data.gaps import COMMAND_SETTLING_S, GAP_FACTOR
+from es_calibration.output.discovered_report import discovery_lines
 from es_calibration.output.schema import law_uncertainty
 from es_calibration.pipeline import NOISE_RATIO_LIMIT, Calibration
 from es_calibration.search.residual import ResidualStructure
@@ -338,6 +339,7 @@ def write_report(cal: Calibration, out: Path, notes: list[str]) -> Path:
         "",
     ]
     text += [f"- {u}" for u in cal.unexplained] or ["- none beyond the measurement noise"]
+    text += ["", *discovery_lines(cal.discovery, cal.base.heldout_rms, floor)]
     if notes:
         text += ["", "Parameter file notes:", "", *[f"- {n}" for n in notes]]
     text += [

@@ -38,7 +38,12 @@ residual's autocorrelation)::
       "unexplained": ["remaining structure, in words", ...],
       "timings_s": {step: seconds},
       "search_span": what of the record the effect search saw ("whole record", or its
-                     windows on a record longer than the search budget)
+                     windows on a record longer than the search budget),
+      "discovered": {"searched", "terms": [{"name", "expression", "coefficient", "unit",
+                     "share", "stable", "halves", "mechanism", "side", "compensable"}],
+                     "added", "heldout_rms_before_m", "heldout_rms_after_m" (screening
+                     block, held-out rows: registry model, + discovered terms), "note",
+                     "library_size", "seconds"} (CALIBRATION_CONTRACT.md)
     }
 
 Effect parameters use the names the effects declare (:mod:`es_physics.effects`); the YAML
@@ -60,6 +65,7 @@ from es_feedforward.compensation import RANGES, CompensationParams
 from es_feedforward.feedforward import FeedforwardConfig
 from es_feedforward.param_file import write_params_file
 from es_physics.effects import get
+from es_physics.effects.discovered import values_from_terms
 from es_physics.params import ActuatorParams
 
 SCHEMA_VERSION: Final = 2
@@ -98,6 +104,8 @@ def compensation(cal: Calibration) -> tuple[CompensationParams, list[str]]:
         values.update(
             get(effect.name).compensation_values(effect.parameters, cal.aligned.start_time)
         )
+    if cal.discovery is not None:
+        values.update(values_from_terms([t.term for t in cal.discovery.written]))
     notes = []
     for name, value in list(values.items()):
         low, high = RANGES[name]
@@ -192,6 +200,11 @@ def calibration_document(cal: Calibration) -> dict[str, Any]:
         "unexplained": cal.unexplained,
         "timings_s": cal.timings_s,
         "search_span": cal.search_span or "whole record",
+        "discovered": cal.discovery.as_dict() if cal.discovery is not None else {
+            "searched": False, "terms": [], "added": False,
+            "heldout_rms_before_m": cal.final.heldout_rms,
+            "heldout_rms_after_m": cal.final.heldout_rms,
+        },
     }
     return dict(_float(doc))
 

@@ -18,6 +18,7 @@ from typing import Final
 from es_physics.effects.base import Effect, Role
 from es_physics.effects.coupling import Coupling
 from es_physics.effects.delay import Delay
+from es_physics.effects.discovered import Discovered
 from es_physics.effects.drift import Drift
 from es_physics.effects.frequency_dispersion import FrequencyDispersion
 from es_physics.effects.hysteresis import Hysteresis
@@ -41,6 +42,7 @@ BUILT_IN: Final[tuple[type[Effect], ...]] = (
     TemperatureCurvature,
     SelfHeating,
     FrequencyDispersion,
+    Discovered,
 )
 
 

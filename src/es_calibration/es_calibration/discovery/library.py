@@ -1,0 +1,173 @@
+"""The discovery's term library: the factors of es_physics.effects.discovered on sampled rows.
+
+Signals (each (A, n) on the screening block's actuators and chosen rows): the command V, its
+rate, the temperature (from the data's mean), its rate, the time since the start, the
+modelled displacement, the 4-neighbour means of the command, of the temperature (minus the
+actuator's own) and of its rate, first-order low-passes of V and V^2 at time constants
+spread from ``LOWPASS_SHORTEST_PERIODS`` command periods to a fifth of the record, the
+command delayed by ``DELAY_PERIODS`` periods, and sin / cos of the displacement over the
+interferometer's periods (``FRINGE_LENGTHS_M``). The library is every signal alone and every
+product of two (squares included); the scales are the recording's own (each column is
+divided by its training RMS for the regression, and the coefficient converted back).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Final
+
+import numpy as np
+
+from es_calibration._typing import BoolArray, FloatArray, IndexArray
+from es_calibration.data.align import AlignedData
+from es_calibration.discovery.terms import FactorKey
+from es_calibration.model.history import first_order_lowpass
+from es_physics.effects.discovered import neighbour_mean
+
+#: Low-pass time constants: this many command periods at the shortest ...
+LOWPASS_SHORTEST_PERIODS: Final = 20.0
+#: ... to this fraction of the record at the longest, log-spaced, ``LOWPASS_COUNT`` of them.
+LOWPASS_LONGEST_FRACTION: Final = 0.2
+LOWPASS_COUNT: Final = 4
+#: Delays of the command tried, in command periods.
+DELAY_PERIODS: Final = (1, 2, 5, 10)
+#: Periods of an interferometer's periodic error: a HeNe laser's lambda/2 and lambda/4 [m].
+FRINGE_LENGTHS_M: Final = (316.4e-9, 158.2e-9)
+
+
+def lowpass_taus(aligned: AlignedData) -> tuple[float, ...]:
+    """Return the library's low-pass time constants [s] from the record's period and length."""
+    shortest = LOWPASS_SHORTEST_PERIODS * aligned.command_period
+    longest = max(LOWPASS_LONGEST_FRACTION * float(aligned.t[-1]), 2.0 * shortest)
+    return tuple(float(v) for v in np.geomspace(shortest, longest, LOWPASS_COUNT))
+
+
+@dataclass(frozen=True)
+class Rows:
+    """Where the library is evaluated: sample rows and what the model predicts there.
+
+    Attributes:
+        rows: sample rows (n,).
+        prediction: the registry model's displacement (A, n) [m] (block actuators).
+        residual: measured minus ``prediction`` (A, n) [m], NaN where not usable.
+
+    """
+
+    rows: IndexArray
+    prediction: FloatArray
+    residual: FloatArray
+
+
+class Library:
+    """Factor signals of one block on sample rows, built once and combined into terms."""
+
+    def __init__(self, aligned: AlignedData, grid: tuple[int, int],
+                 taus: tuple[float, ...] | None = None) -> None:
+        """Keep the block's record (``aligned``, actuators row-major in ``grid``)."""
+        self.aligned = aligned
+        self.grid = grid
+        self.taus = lowpass_taus(aligned) if taus is None else taus
+        self._command = np.nan_to_num(aligned.command)
+        self._filtered: dict[FactorKey, FloatArray] = {}
+
+    def keys(self) -> list[FactorKey]:
+        """Return every single factor of the library, (code, parameter)."""
+        a = self.aligned
+        keys: list[FactorKey] = [
+            (1, 0.0), (2, 0.0), (3, a.mean_temperature), (4, 0.0), (5, a.start_time),
+            (6, 0.0), (7, 0.0), (8, 0.0), (9, 0.0),
+        ]
+        keys += [(10, tau) for tau in self.taus] + [(11, tau) for tau in self.taus]
+        keys += [(12, j * a.command_period) for j in DELAY_PERIODS]
+        keys += [(code, length) for length in FRINGE_LENGTHS_M for code in (13, 14)]
+        if a.n_actuators < 2:  # the neighbours of a single actuator are itself
+            keys = [k for k in keys if k[0] not in (7, 8, 9)]
+        return keys
+
+    def _lowpass(self, key: FactorKey) -> FloatArray:
+        """Return LP_tau(V) or LP_tau(V^2) at full command rate (Nc, A)."""
+        if key not in self._filtered:
+            x = self._command if key[0] == 10 else self._command**2
+            self._filtered[key] = first_order_lowpass(x, self.aligned.command_period, key[1])[0]
+        return self._filtered[key]
+
+    def _grid_mean(self, x: FloatArray) -> FloatArray:
+        """Return the 4-neighbour mean of (A, n) values on the block's grid."""
+        n = x.shape[1]
+        cube = x.T.reshape(n, *self.grid)
+        return np.asarray(neighbour_mean(cube).reshape(n, -1).T, np.float64)
+
+    def signals(self, at: Rows, keys: list[FactorKey]) -> dict[FactorKey, FloatArray]:
+        """Return each factor's values (A, n) at ``at.rows``.
+
+        Raises:
+            KeyError: a factor code the library does not know.
+
+        """
+        a = self.aligned
+        rows = at.rows
+        act = np.arange(a.n_actuators)
+        ci = np.maximum(a.command_index(rows, 0.0), 0)
+        V = self._command[ci].T
+        T = a.temperature_at(rows, act)
+        rate = a.temperature_rate_at(rows, act)
+        out: dict[FactorKey, FloatArray] = {}
+        for key in keys:
+            code, p = key
+            if code == 1:
+                out[key] = V
+            elif code == 2:
+                out[key] = (V - self._command[np.maximum(ci - 1, 0)].T) / a.command_period
+            elif code == 3:
+                out[key] = T - p
+            elif code == 4:
+                out[key] = rate
+            elif code == 5:
+                out[key] = np.broadcast_to(a.t[rows], V.shape)
+            elif code == 6:
+                out[key] = at.prediction
+            elif code == 7:
+                out[key] = self._grid_mean(V)
+            elif code == 8:
+                out[key] = self._grid_mean(T) - T
+            elif code == 9:
+                out[key] = self._grid_mean(rate)
+            elif code in (10, 11):
+                out[key] = self._lowpass(key)[ci].T
+            elif code == 12:
+                shift = round(p / a.command_period)
+                out[key] = self._command[np.maximum(ci - shift, 0)].T
+            elif code in (13, 14):
+                phase = 2.0 * np.pi * at.prediction / p
+                out[key] = np.sin(phase) if code == 13 else np.cos(phase)
+            else:
+                raise KeyError(f"no library factor with code {code}")
+        return out
+
+
+def product_keys(singles: list[FactorKey]) -> list[tuple[FactorKey, ...]]:
+    """Return every term of the library: each single factor, then each product of two."""
+    terms: list[tuple[FactorKey, ...]] = [(k,) for k in singles]
+    terms += [
+        (singles[i], singles[j]) for i in range(len(singles)) for j in range(i, len(singles))
+    ]
+    return terms
+
+
+def columns(signals: dict[FactorKey, FloatArray], terms: list[tuple[FactorKey, ...]],
+            pick: tuple[IndexArray, IndexArray]) -> FloatArray:
+    """Return the terms' values (m, len(terms)) at the (actuator, row) pairs ``pick``."""
+    flat = {k: v[pick] for k, v in signals.items()}
+    out = np.empty((pick[0].size, len(terms)))
+    for j, term in enumerate(terms):
+        value = flat[term[0]]
+        out[:, j] = value if len(term) == 1 else value * flat[term[1]]
+    return out
+
+
+def usable(residual: FloatArray, signals: dict[FactorKey, FloatArray]) -> BoolArray:
+    """Return where the residual and every signal are finite (A, n)."""
+    ok = np.isfinite(residual)
+    for v in signals.values():
+        ok &= np.isfinite(v)
+    return ok

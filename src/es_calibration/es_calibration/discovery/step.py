@@ -1,0 +1,238 @@
+"""The discovery step: after the registry search, find library terms in its held-out residual.
+
+Runs on the screening block (rows of at most ``MAX_ACTUATORS`` of its actuators, at most
+``TRAIN_ROWS`` training and ``HELD_ROWS`` held-out rows each), only when the held-out RMS
+stands above the noise floor by the search's information criterion. Terms are fitted on the
+training rows and chosen on the held-out ones (regression.py); the time constants of the
+selected low-passes are then refined on the training rows. Every term's coefficient is
+refitted on each half of the record (time order) for its stability.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Final
+
+import numpy as np
+
+from es_calibration._typing import FloatArray, IndexArray
+from es_calibration.data.align import AlignedData
+from es_calibration.discovery.library import Library, Rows, columns, product_keys, usable
+from es_calibration.discovery.regression import Gram, select, stable
+from es_calibration.discovery.terms import DiscoveredTerm, Discovery, FactorKey
+from es_calibration.search.residual import integrated_autocorrelation_time
+from es_calibration.search.state import (
+    MIN_RELATIVE_GAIN,
+    ModelState,
+    Workspace,
+    heldout_residual,
+    information_delta,
+)
+
+MAX_ACTUATORS: Final = 16
+TRAIN_ROWS: Final = 1500
+HELD_ROWS: Final = 3000
+#: Samples per block of library columns built at once (bounds the step's memory).
+CHUNK: Final = 4096
+#: Relative ridge of the law's normal equations in the projection (see _grams).
+RIDGE_LAW: Final = 1e-10
+#: A refined time constant is tried at these factors of the library's.
+REFINE_FACTORS: Final = tuple(float(f) for f in np.geomspace(0.25, 4.0, 13))
+
+Term = tuple[FactorKey, ...]
+
+
+@dataclass
+class _Sets:
+    """The discovery's samples: signals, residual and which set each (actuator, row) is in."""
+
+    signals: dict[FactorKey, FloatArray]
+    residual: FloatArray  # (A, n)
+    pick: tuple[IndexArray, IndexArray]  # usable (actuator, column of the row set)
+    held: np.ndarray  # per picked sample: held-out (else training)
+    late: np.ndarray  # per picked sample: in the record's second half
+    library: Library
+    at: Rows
+    jac: FloatArray  # the law's per-actuator Jacobian at the rows (A, n, P)
+
+    def ensure(self, terms: list[Term]) -> None:
+        """Compute the signals of factors not yet evaluated (e.g. a refined time constant)."""
+        missing = list({k for term in terms for k in term if k not in self.signals})
+        if missing:
+            self.signals.update(self.library.signals(self.at, missing))
+
+
+def _thin(rows: IndexArray, most: int) -> IndexArray:
+    return rows[:: max(1, int(np.ceil(rows.size / most)))]
+
+
+def _residual_rows(ws: Workspace, state: ModelState
+                   ) -> tuple[Rows, float, int, FloatArray]:
+    """Return the model's prediction and residual on thinned training + held-out rows.
+
+    Also the effective number of independent held-out residuals per held-out sample kept and
+    the number of training rows (they come first).
+    """
+    train_in, held_in = ws.input_pair(state.delay_s, state.play_thresholds)
+    r_train = heldout_residual(state, train_in)
+    r_held = heldout_residual(state, held_in)
+    stride = max(1, int(np.median(np.diff(ws.score_rows))))
+    tau = integrated_autocorrelation_time(r_held, np.diff(ws.score_rows) == stride)
+    ti = _thin(np.arange(ws.fit_rows.size), TRAIN_ROWS)
+    hi = _thin(np.arange(ws.score_rows.size), HELD_ROWS)
+    thinning = max(1.0, ws.score_rows.size / max(hi.size, 1))
+    rows = np.concatenate([ws.fit_rows[ti], ws.score_rows[hi]])
+    resid = np.concatenate([r_train[:, ti], r_held[:, hi]], axis=1)
+    disp = np.concatenate([train_in.displacement[:, ti], held_in.displacement[:, hi]], axis=1)
+    held_share = 1.0 / max(tau / thinning, 1.0)
+    jac = np.concatenate([
+        state.model.evaluate(state.fit.local, state.fit.glob, inputs, jacobian=True)
+        .jac_local[:, idx] for inputs, idx in ((train_in, ti), (held_in, hi))
+    ], axis=1)
+    return Rows(rows, disp - np.nan_to_num(resid), resid), held_share, int(ti.size), jac
+
+
+def _grams(sets: _Sets, terms: list[Term], scales: FloatArray | None
+           ) -> tuple[dict[tuple[bool, bool], Gram], FloatArray]:
+    """Return the Grams by (held-out, second half) and the columns' scales.
+
+    The law's own per-actuator coefficients would take up part of any new term in a joint
+    fit: per actuator, the columns and the residual have their least-squares projection on
+    the law's Jacobian over the training rows taken away (on the held-out rows, the same
+    coefficients' prediction), so a term is scored as if fitted jointly with the law.
+    """
+    sets.ensure(terms)
+    if scales is None:
+        train = np.flatnonzero(~sets.held)[:CHUNK * 4]
+        sample = columns(sets.signals, terms, (sets.pick[0][train], sets.pick[1][train]))
+        scales = np.sqrt(np.mean(sample * sample, axis=0))
+        scales = np.where(scales > 0, scales, 0.0)
+    safe = np.where(scales > 0, scales, 1.0)
+    grams = {(h, s): Gram.empty(len(terms)) for h in (False, True) for s in (False, True)}
+    r = sets.residual[sets.pick]
+    for actuator in np.unique(sets.pick[0]):
+        sl = np.flatnonzero(sets.pick[0] == actuator)
+        x = columns(sets.signals, terms, (sets.pick[0][sl], sets.pick[1][sl])) / safe
+        x[:, scales == 0] = 0.0
+        both = np.column_stack([x, r[sl]])
+        jac = np.nan_to_num(sets.jac[actuator, sets.pick[1][sl]])
+        fit = ~sets.held[sl]
+        jt = jac[fit]
+        normal = jt.T @ jt
+        normal += RIDGE_LAW * np.trace(normal) / max(normal.shape[0], 1) * np.eye(normal.shape[0])
+        both = both - jac @ np.linalg.solve(normal, jt.T @ both[fit])
+        for (h, s), gram in grams.items():
+            mask = (sets.held[sl] == h) & (sets.late[sl] == s)
+            if mask.any():
+                gram.add(both[mask, :-1], both[mask, -1])
+    return grams, scales
+
+
+def _split(grams: dict[tuple[bool, bool], Gram]) -> tuple[Gram, Gram, Gram, Gram]:
+    """Return (training, held-out, first half, second half) Grams."""
+    g = grams
+    return (g[(False, False)] + g[(False, True)], g[(True, False)] + g[(True, True)],
+            g[(False, False)] + g[(True, False)], g[(False, True)] + g[(True, True)])
+
+
+def _refine(sets: _Sets, chosen: list[Term]) -> list[Term]:
+    """Return ``chosen`` with each low-pass's time constant refined on the training rows."""
+    out = list(chosen)
+    for i, term in enumerate(chosen):
+        for f, (code, tau) in enumerate(term):
+            if code not in (10, 11):
+                continue
+            best: tuple[float, Term] | None = None
+            for factor in REFINE_FACTORS:
+                factors = list(out[i])
+                factors[f] = (code, tau * factor)
+                trial = [*out[:i], tuple(factors), *out[i + 1:]]
+                train, _, _, _ = _split(_grams(sets, trial, None)[0])
+                idx = list(range(len(trial)))
+                sse = train.sse(idx, train.solve(idx))
+                if best is None or sse < best[0]:
+                    best = (sse, tuple(factors))
+            if best is not None:
+                out[i] = best[1]
+    return out
+
+
+def discover(aligned: AlignedData, grid: tuple[int, int], state: ModelState,
+             noise_floor_m: float) -> Discovery:
+    """Search the library for terms the held-out residual of ``state`` still contains.
+
+    Args:
+        aligned: the screening block's record.
+        grid: the block's shape (actuators row-major).
+        state: the registry search's final model on the block.
+        noise_floor_m: the measurement noise floor [m] (of the final residual).
+
+    """
+    clock = time.perf_counter()
+    ws = Workspace(aligned, np.arange(aligned.n_actuators, dtype=np.intp), grid)
+    at, held_share, n_train, jac = _residual_rows(ws, state)
+    library = Library(aligned, grid)
+    singles = library.keys()
+    signals = library.signals(at, singles)
+    A = aligned.n_actuators
+    keep = np.unique(np.linspace(0, A - 1, min(A, MAX_ACTUATORS)).round().astype(np.intp))
+    ok = usable(at.residual, signals)
+    ok[np.setdiff1d(np.arange(A), keep)] = False
+    pick = np.nonzero(ok)
+    held = pick[1] >= n_train
+    t_mid = 0.5 * float(aligned.t[-1])
+    late = aligned.t[at.rows][pick[1]] >= t_mid
+    sets = _Sets(signals, at.residual, pick, held, late, library, at, jac)
+    r_held = at.residual[pick][held]
+    before = float(np.sqrt(np.mean(r_held**2))) if r_held.size else float("nan")
+    n_eff = max(2.0, r_held.size * held_share)
+    floor_sse = noise_floor_m**2 * r_held.size
+    above = (np.isfinite(noise_floor_m) and np.isfinite(before)
+             and before > (1.0 + MIN_RELATIVE_GAIN) * noise_floor_m
+             and information_delta(float(r_held @ r_held), floor_sse, n_eff, 1) < 0)
+    if not above:
+        return Discovery(False, heldout_rms_before_m=before, heldout_rms_after_m=before,
+                         note="the held-out residual is at the noise floor: no term searched",
+                         seconds=time.perf_counter() - clock)
+    terms = product_keys(singles)
+    grams, _scales = _grams(sets, terms, None)
+    train, held_gram, _, _ = _split(grams)
+    selection = select(train, held_gram, n_eff)
+    chosen = _refine(sets, [terms[j] for j in selection.chosen])
+    result = _terms(sets, chosen, n_eff, before)
+    result.library_size = len(terms)
+    result.seconds = time.perf_counter() - clock
+    return result
+
+
+def _terms(sets: _Sets, chosen: list[Term], n_eff: float, before: float) -> Discovery:
+    """Fit the chosen terms and describe them (coefficients, shares, halves, stability)."""
+    if not chosen:
+        return Discovery(True, heldout_rms_before_m=before, heldout_rms_after_m=before,
+                         note="no term of the library generalises to the held-out blocks: "
+                              "nothing added")
+    grams, scales = _grams(sets, chosen, None)
+    train, held, first, second = _split(grams)
+    idx = list(range(len(chosen)))
+    beta = train.solve(idx)
+    path = [held.rr] + [held.sse(idx[: k + 1], train.solve(idx[: k + 1])) for k in idx]
+    halves = (first.solve(idx) / scales, second.solve(idx) / scales)
+    found = []
+    for k, factors in enumerate(chosen):
+        coefficient = float(beta[k] / scales[k])
+        pair = (float(halves[0][k]), float(halves[1][k]))
+        found.append(DiscoveredTerm(
+            f"discovered_{k + 1}", factors, coefficient,
+            float((path[k] - path[k + 1]) / max(path[0], 1e-300)), pair,
+            stable(coefficient, pair),
+        ))
+    before = float(np.sqrt(path[0] / max(held.count, 1)))  # with the law refitted alike
+    after = float(np.sqrt(path[-1] / max(held.count, 1)))
+    improved = after < (1.0 - MIN_RELATIVE_GAIN) * before
+    added = improved and any(t.stable and t.compensable for t in found)
+    note = "" if added else (
+        "the discovered terms are not stable on both halves of the record or the feedforward "
+        "cannot undo them: reported, not added"
+    )
+    return Discovery(True, found, added, before, after, note)

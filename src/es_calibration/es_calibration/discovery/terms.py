@@ -1,0 +1,126 @@
+"""What the discovery step found: its terms, the held-out errors before and after, in words."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from es_physics.effects.discovered import BY_CODE, Term, expression, unit
+
+#: One factor of a library term: (factor code, its parameter), see es_physics FACTORS.
+FactorKey = tuple[int, float]
+
+
+@dataclass(frozen=True)
+class DiscoveredTerm:
+    """One selected library term (calibration.json ``discovered.terms``).
+
+    Attributes:
+        name: ``discovered_<k>`` in selection order.
+        factors: its one or two (factor code, parameter) pairs.
+        coefficient: fitted on the training rows [``unit``].
+        share: part of the held-out mean-square error before discovery it removed (in
+            selection order: the cut it added).
+        halves: its coefficient fitted on each half of the record (time order).
+        stable: both halves agree with ``coefficient`` (see regression.STABILITY).
+
+    """
+
+    name: str
+    factors: tuple[FactorKey, ...]
+    coefficient: float
+    share: float
+    halves: tuple[float, float]
+    stable: bool
+
+    @property
+    def expression(self) -> str:
+        """Return the factors as text."""
+        return expression(self.factors)
+
+    @property
+    def unit(self) -> str:
+        """Return the coefficient's unit."""
+        return unit(self.factors)
+
+    @property
+    def side(self) -> str:
+        """Return "drive" when a factor is the present command, else "output"."""
+        return "drive" if any(BY_CODE[c].side == "drive" for c, _ in self.factors) else "output"
+
+    @property
+    def mechanism(self) -> str:
+        """Return the physical mechanism the term points to, in words."""
+        words = [BY_CODE[c].mechanism for c, _ in self.factors]
+        if len(words) == 1 or words[0] == words[1]:
+            return words[0]
+        return f"a product of {words[0]}; and {words[1]}"
+
+    @property
+    def term(self) -> Term:
+        """Return the term as the registry's discovered effect holds it."""
+        b = self.factors[1] if len(self.factors) > 1 else None
+        return Term(self.coefficient, self.factors[0], b)
+
+    @property
+    def compensable(self) -> bool:
+        """Whether the feedforward can undo it from the set point."""
+        return self.term.compensable
+
+    def as_dict(self) -> dict[str, object]:
+        """Return the calibration.json form (CALIBRATION_CONTRACT.md)."""
+        return {
+            "name": self.name,
+            "expression": self.expression,
+            "coefficient": self.coefficient,
+            "unit": self.unit,
+            "share": self.share,
+            "stable": self.stable,
+            "halves": list(self.halves),
+            "mechanism": self.mechanism,
+            "side": self.side,
+            "compensable": self.compensable,
+        }
+
+
+@dataclass
+class Discovery:
+    """The outcome of the discovery step (all RMS on the screening block's held-out rows).
+
+    Attributes:
+        searched: the step ran (the residual stood above the noise floor).
+        terms: the selected terms, in selection order.
+        added: stable, compensable terms were written (enabled) into the parameters file.
+        heldout_rms_before_m: with the registry's effects.
+        heldout_rms_after_m: with the discovered terms too (= before when none).
+        note: why nothing was searched or found, or "" (a sentence).
+        library_size: terms tried.
+        seconds: the step's run time.
+
+    """
+
+    searched: bool
+    terms: list[DiscoveredTerm] = field(default_factory=list)
+    added: bool = False
+    heldout_rms_before_m: float = float("nan")
+    heldout_rms_after_m: float = float("nan")
+    note: str = ""
+    library_size: int = 0
+    seconds: float = 0.0
+
+    @property
+    def written(self) -> list[DiscoveredTerm]:
+        """Return the terms written into the parameters file (none unless ``added``)."""
+        return [t for t in self.terms if t.stable and t.compensable] if self.added else []
+
+    def as_dict(self) -> dict[str, object]:
+        """Return calibration.json's ``discovered`` (CALIBRATION_CONTRACT.md)."""
+        return {
+            "searched": self.searched,
+            "terms": [t.as_dict() for t in self.terms],
+            "added": self.added,
+            "heldout_rms_before_m": self.heldout_rms_before_m,
+            "heldout_rms_after_m": self.heldout_rms_after_m,
+            "note": self.note,
+            "library_size": self.library_size,
+            "seconds": self.seconds,
+        }

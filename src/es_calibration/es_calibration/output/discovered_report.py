@@ -1,0 +1,42 @@
+"""The report's section on the discovery step: held-out RMS before and after, the terms."""
+
+from __future__ import annotations
+
+from es_calibration.discovery import Discovery
+
+NM = 1e9
+
+
+def discovery_lines(discovery: Discovery | None, basic_rms_m: float, floor_m: float) -> list[str]:
+    """Return the markdown lines of the "Discovered terms" section."""
+    text = ["## f. Discovered terms (effects in no registry list)", ""]
+    if discovery is None:
+        return [*text, "The discovery step did not run.", ""]
+    if not discovery.searched:
+        return [*text, discovery.note + ".", ""]
+    text += [
+        f"Held-out RMS on the screening block: basic law {basic_rms_m * NM:.3g} nm, with the "
+        f"registry's effects {discovery.heldout_rms_before_m * NM:.3g} nm, with the discovered "
+        f"terms {discovery.heldout_rms_after_m * NM:.3g} nm (noise floor {floor_m * NM:.3g} nm); "
+        f"{discovery.library_size} library terms searched in {discovery.seconds:.1f} s.",
+        "",
+    ]
+    if discovery.terms:
+        text += [
+            "| term | coefficient | share removed | halves | stable | side | mechanism |",
+            "|---|---|---|---|---|---|---|",
+        ]
+        for t in discovery.terms:
+            text.append(
+                f"| {t.expression} | {t.coefficient:.4g} {t.unit} | {100 * t.share:.0f} % | "
+                f"{t.halves[0]:.3g}, {t.halves[1]:.3g} | {'yes' if t.stable else 'no'} | "
+                f"{t.side} | {t.mechanism} |"
+            )
+        text.append("")
+    written = discovery.written
+    text.append(
+        f"Written to the parameters file (compensation.discovered_*): "
+        f"{', '.join(t.expression for t in written)}." if written
+        else f"Nothing written to the parameters file: {discovery.note or 'no term'}."
+    )
+    return [*text, ""]
