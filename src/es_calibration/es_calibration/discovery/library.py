@@ -28,7 +28,7 @@ from es_physics.effects.discovered import neighbour_mean
 LOWPASS_SHORTEST_PERIODS: Final = 20.0
 #: ... to this fraction of the record at the longest, log-spaced, ``LOWPASS_COUNT`` of them.
 LOWPASS_LONGEST_FRACTION: Final = 0.2
-LOWPASS_COUNT: Final = 4
+LOWPASS_COUNT: Final = 6
 #: Delays of the command tried, in command periods.
 DELAY_PERIODS: Final = (1, 2, 5, 10)
 #: Periods of an interferometer's periodic error: a HeNe laser's lambda/2 and lambda/4 [m].

@@ -67,8 +67,9 @@ class Gram:
         if not chosen:
             return self.rr
         idx = np.asarray(chosen, np.intp)
-        value = self.rr - 2.0 * beta @ self.xr[idx] + beta @ self.xx[np.ix_(idx, idx)] @ beta
-        return float(max(value, 0.0))
+        value = self.rr - 2.0 * float(beta @ self.xr[idx])
+        value += float(beta @ self.xx[np.ix_(idx, idx)] @ beta)
+        return max(value, 0.0)
 
 
 @dataclass

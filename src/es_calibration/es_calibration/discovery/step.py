@@ -54,7 +54,7 @@ class _Sets:
     late: np.ndarray  # per picked sample: in the record's second half
     library: Library
     at: Rows
-    jac: FloatArray  # the law's per-actuator Jacobian at the rows (A, n, P)
+    jac: FloatArray  # the model's Jacobian at the rows (A, n, P + G)
 
     def ensure(self, terms: list[Term]) -> None:
         """Compute the signals of factors not yet evaluated (e.g. a refined time constant)."""
@@ -86,10 +86,11 @@ def _residual_rows(ws: Workspace, state: ModelState
     resid = np.concatenate([r_train[:, ti], r_held[:, hi]], axis=1)
     disp = np.concatenate([train_in.displacement[:, ti], held_in.displacement[:, hi]], axis=1)
     held_share = 1.0 / max(tau / thinning, 1.0)
-    jac = np.concatenate([
-        state.model.evaluate(state.fit.local, state.fit.glob, inputs, jacobian=True)
-        .jac_local[:, idx] for inputs, idx in ((train_in, ti), (held_in, hi))
-    ], axis=1)
+    parts = []
+    for inputs, idx in ((train_in, ti), (held_in, hi)):
+        ev = state.model.evaluate(state.fit.local, state.fit.glob, inputs, jacobian=True)
+        parts.append(np.concatenate([ev.jac_local[:, idx], ev.jac_global[:, idx]], axis=2))
+    jac = np.concatenate(parts, axis=1)
     return Rows(rows, disp - np.nan_to_num(resid), resid), held_share, int(ti.size), jac
 
 
@@ -97,10 +98,11 @@ def _grams(sets: _Sets, terms: list[Term], scales: FloatArray | None
            ) -> tuple[dict[tuple[bool, bool], Gram], FloatArray]:
     """Return the Grams by (held-out, second half) and the columns' scales.
 
-    The law's own per-actuator coefficients would take up part of any new term in a joint
-    fit: per actuator, the columns and the residual have their least-squares projection on
-    the law's Jacobian over the training rows taken away (on the held-out rows, the same
-    coefficients' prediction), so a term is scored as if fitted jointly with the law.
+    The model's own unknowns would take up part of any new term in a joint fit: per
+    actuator, the columns and the residual have their least-squares projection on the
+    model's Jacobian (the law's coefficients and the effects' shared unknowns, the latter
+    conservatively as if per actuator) over the training rows taken away (on the held-out
+    rows, the same coefficients' prediction): a term is scored as if fitted jointly.
     """
     sets.ensure(terms)
     if scales is None:
@@ -179,7 +181,8 @@ def discover(aligned: AlignedData, grid: tuple[int, int], state: ModelState,
     keep = np.unique(np.linspace(0, A - 1, min(A, MAX_ACTUATORS)).round().astype(np.intp))
     ok = usable(at.residual, signals)
     ok[np.setdiff1d(np.arange(A), keep)] = False
-    pick = np.nonzero(ok)
+    rows_of, cols_of = np.nonzero(ok)
+    pick = (rows_of, cols_of)
     held = pick[1] >= n_train
     t_mid = 0.5 * float(aligned.t[-1])
     late = aligned.t[at.rows][pick[1]] >= t_mid
