@@ -15,6 +15,13 @@ subprocess with a timeout, and its ``calibration.json`` is compared with the tru
 accepted effect set against the true set, the held-out RMS after against the tool's noise
 floor and against the generator's true interferometer noise.
 
+Fault cases (a second logger's clock, a frozen / flat / jumping temperature sensor, a weak or
+dead actuator, receive jitter with late bursts, independently driven grids up to 8 x 8) are
+scored by the ``health`` block: found, named, stand-in accepted, law within 5 %; unlisted
+cases (effects in no list of the registry) by the ``discovered`` block: registry stand-in
+accepted, discovered term found, held-out RMS after / true noise; clean cases also count
+discovered terms. An older calibration.json without those blocks scores as "not found".
+
 Writes ``identify.md`` and ``identify.json`` (figures, confusion tables, every case) and
 ``cases/<case>.json`` (each calibration.json) into OUT (default ``out/identify-<UTC time>``).
 Nothing is asserted; the issue's goals are compared in the report. Exit status 0 when every
@@ -40,21 +47,39 @@ from pathlib import Path
 from typing import Any, Final
 
 from standgen import simulate, write_bag
-from standgen.sweep import Case, Outcome, build_cases, by_condition, summarise
+from standgen.sweep import (
+    Case,
+    Outcome,
+    accepted_effects,
+    build_cases,
+    by_condition,
+    score,
+    summarise,
+)
 
 #: Wall-time limit of one calibration run [s] (generous: the machine is shared).
 CALIBRATE_TIMEOUT_S: Final = 600.0
 #: The calibration tool, run as ``python -c CALIBRATE BAG -o OUT -q``.
 CALIBRATE: Final = ("import sys; from es_calibration.calibrate import run; "
                     "sys.exit(run(sys.argv[1:]))")
-#: Goals of the issue: (figure, comparison, bound, label).
+#: Goals of the issues: (figure, comparison, bound, label); a bound >= 1 on a count is a
+#: number of cases, otherwise the figure is a share.
 GOALS: Final = (
     ("single_right", ">=", 0.95, "right effect set in >= 95 % of single-effect cases"),
     ("pair_right", ">=", 0.85, "right effect set in >= 85 % of pair cases"),
     ("clean_false_positive_rate", "<=", 0.02, "<= 2 % of clean cases with any effect"),
     ("right_within_1p2_true_noise", ">=", 1.0,
      "where the set is right, held-out RMS after <= 1.2x the (true) noise"),
+    ("fault_stand_ins", "<=", 0, "issue 33: 0 stand-ins accepted over the fault cases"),
+    ("fault_named", ">=", 1.0, "issue 33: every fault found and named"),
+    ("fault_law_within_5pct", ">=", 1.0, "issue 33: the law within 5 % in every fault case"),
+    ("unlisted_stand_ins", "<=", 0, "issue 34: 0 registry stand-ins over the unlisted cases"),
+    ("unlisted_within_1p3", ">=", 0.8,
+     "issue 34: held-out RMS after <= 1.3x the (true) noise in >= 80 % of unlisted cases"),
+    ("clean_discovered", "<=", 0, "issue 34: 0 discovered terms on clean data"),
 )
+#: Goal figures that are counts of cases, not shares.
+COUNT_GOALS: Final = ("fault_stand_ins", "unlisted_stand_ins", "clean_discovered")
 
 
 def calibrate_bag(bag: Path, out: Path, timeout_s: float = CALIBRATE_TIMEOUT_S
@@ -92,9 +117,10 @@ def run_case(case: Case, keep: Path | None = None, keep_bag: bool = False) -> Ou
                 shutil.copytree(bag, keep / f"{case.name}.bag")
     outcome = Outcome(case=case.name, truth=case.truth, accepted=None,
                       true_noise_m=case.config.noise_rms_m, error=error,
-                      conditions=conditions)
+                      conditions=conditions, kind=case.kind, families=case.families,
+                      scores=score(conditions, doc))
     if doc is not None:
-        outcome.accepted = tuple(str(e["name"]) for e in doc.get("effects", []))
+        outcome.accepted = accepted_effects(doc)
         outcome.heldout_rms_before_m = doc.get("heldout_rms_before_m")
         outcome.heldout_rms_after_m = doc.get("heldout_rms_after_m")
         outcome.noise_floor_m = doc.get("noise_floor_m")
@@ -120,6 +146,11 @@ def run_sweep(cases: Sequence[Case], jobs: int = 1, keep: Path | None = None,
             found = "(failed: " + o.error + ")" if o.accepted is None else (
                 "+".join(o.accepted) or "none")
             mark = "ok  " if o.right else "MISS"
+            if o.kind != "registry":
+                mark = o.kind
+                found += "; " + ", ".join(f"{k} {v}" for k, v in o.scores.items()
+                                          if k in ("found", "named", "law_within_5pct",
+                                                   "discovered_found", "stand_ins"))
             print(f"[identify] {mark} {o.case}: found {found} ({o.seconds:.0f} s)",
                   file=sys.stderr, flush=True)
 
@@ -137,14 +168,19 @@ def run_sweep(cases: Sequence[Case], jobs: int = 1, keep: Path | None = None,
     return sorted(outcomes, key=lambda o: rank[o.case])
 
 
+def case_group(case: Case) -> int:
+    """0 clean, 1 single effect, 2 pair, 3 fault, 4 unlisted (the groups taken in turn)."""
+    return {"fault": 3, "unlisted": 4}.get(case.kind, min(len(case.truth), 2))
+
+
 def interleaved(cases: Sequence[Case]) -> list[Case]:
-    """Return ``cases`` taking clean, single-effect and pair cases in turn.
+    """Return ``cases`` taking clean, single-effect, pair, fault and unlisted cases in turn.
 
     A sweep cut short (or its partial report) then holds every kind in proportion.
     """
     kinds: dict[int, list[Case]] = {}
     for case in cases:
-        kinds.setdefault(min(len(case.truth), 2), []).append(case)
+        kinds.setdefault(case_group(case), []).append(case)
     out: list[Case] = []
     queues = [kinds[k] for k in sorted(kinds)]
     total = len(cases)
@@ -175,8 +211,66 @@ def goal_lines(summary: dict[str, Any]) -> list[str]:
             lines.append(f"not measured: {label}")
             continue
         ok = value >= bound if op == ">=" else value <= bound
-        lines.append(f"{'met' if ok else 'MISSED'}: {label} (measured {_pct(value)})")
+        shown = f"{value} cases" if key in COUNT_GOALS else _pct(value)
+        lines.append(f"{'met' if ok else 'MISSED'}: {label} (measured {shown})")
     return lines
+
+
+def fault_lines(summary: dict[str, Any]) -> list[str]:
+    """identify.md's table of the fault families (issue 33)."""
+    rows = [(f, r) for f, r in summary["faults"].items() if r["cases"]]
+    if not rows:
+        return []
+    lines = ["## Recording faults (issue 33)", "",
+             "found: a health finding of the fault's kind; named: it names the right sensor "
+             "or actuator (or ppm, gain, burst) within tolerance; stand-in: an effect accepted "
+             "that is not in the truth; law: fitted M and k at the mid temperature within 5 % "
+             "of the truth for every actuator but a weak or dead one; n/a: nothing to find.",
+             "", "| fault | cases | failed | found | named | stand-in accepted | "
+             "law within 5 % |", "|---|---:|---:|---:|---:|---:|---:|"]
+    for family, r in rows:
+        find = (f"{r['found']}/{r['to_find']}", f"{r['named']}/{r['to_find']}") if r[
+            "to_find"] else ("n/a", "n/a")
+        lines.append(f"| `{family}` | {r['cases']} | {r['failed']} | {find[0]} | {find[1]} | "
+                     f"{r['stand_in']} | {r['law_within_5pct']}/{r['cases']} |")
+    return [*lines, ""]
+
+
+def unlisted_lines(summary: dict[str, Any]) -> list[str]:
+    """identify.md's table of the unlisted families (issue 34) and clean discoveries."""
+    rows = [(f, r) for f, r in summary["unlisted"].items() if r["cases"]]
+    lines = ["## Effects in no list of the registry (issue 34)", "",
+             "stand-in: any registry effect accepted; discovered: calibration.json "
+             "`discovered.terms` non-empty (added: written switched on); after / true noise: "
+             "held-out RMS after (with the discovered terms where added) over the stand's "
+             "true interferometer noise, goal <= 1.3.", "",
+             "| effect | cases | failed | registry stand-in | discovered | added | "
+             "after <= 1.3x noise | median after / true noise |",
+             "|---|---:|---:|---:|---:|---:|---:|---:|"]
+    lines += [f"| `{f}` | {r['cases']} | {r['failed']} | {r['stand_in']} | "
+              f"{r['discovered_found']} | {r['discovered_added']} | {r['within_1p3']} | "
+              f"{_num(r['median_after_over_true_noise'])} |" for f, r in rows]
+    lines += ["", f"Clean cases with discovered terms: {summary['clean_discovered']} of "
+                  f"{summary['clean_cases']}.", ""]
+    return lines if rows or summary["clean_cases"] else []
+
+
+def _scores_cell(o: Outcome) -> str:
+    s = o.scores
+    if o.kind == "fault":
+        def yn(v: Any) -> str:
+            return "n/a" if v is None else ("yes" if v else "no")
+        law = s.get("law_error")
+        kept = s.get("kept_fraction")
+        return (f"found {yn(s.get('found'))}, named {yn(s.get('named'))}, law "
+                f"{'-' if law is None else f'{100 * law:.1f} %'}, kept "
+                f"{'-' if kept is None else f'{100 * kept:.0f} %'}")
+    if o.kind == "unlisted":
+        return (f"discovered {', '.join(s.get('discovered_terms', [])) or 'none'}"
+                f"{' (added)' if s.get('discovered_added') else ''}, after / true noise "
+                f"{_num(s.get('after_over_true_noise'))}")
+    terms = s.get("discovered_terms")
+    return f"discovered {', '.join(terms)}" if terms else ""
 
 
 def markdown(summary: dict[str, Any], outcomes: Sequence[Outcome], header: str) -> str:
@@ -197,7 +291,8 @@ def markdown(summary: dict[str, Any], outcomes: Sequence[Outcome], header: str) 
         f"{_num(s['median_after_over_true_noise_right'])}, / tool's noise floor "
         f"{_num(s['median_after_over_floor_right'])}; tool's floor / true noise (all cases) "
         f"{_num(s['median_floor_over_true_noise'])}",
-        "", "## Goals (issue 14)", "", *[f"- {line}" for line in goal_lines(s)], "",
+        "", "## Goals (issues 14, 33, 34)", "", *[f"- {line}" for line in goal_lines(s)], "",
+        *fault_lines(s), *unlisted_lines(s),
         "## Per family (TP: true and accepted, FN: true, missed, FP: accepted, not true)", "",
         "| family | TP | FN | FP |", "|---|---:|---:|---:|",
         *[f"| `{f}` | {c['TP']} | {c['FN']} | {c['FP']} |" for f, c in s["families"].items()],
@@ -216,15 +311,16 @@ def markdown(summary: dict[str, Any], outcomes: Sequence[Outcome], header: str) 
                ""]
     md += ["## Cases", "",
            "| case | grid | rate Hz | storage | true | accepted | after / floor | "
-           "after / true noise | floor / true noise | s |",
-           "|---|---|---:|---|---|---|---:|---:|---:|---:|"]
+           "after / true noise | floor / true noise | fault / unlisted scores | verdict | s |",
+           "|---|---|---:|---|---|---|---:|---:|---:|---|---|---:|"]
     for o in outcomes:
         r, c = o.ratios(), o.conditions
         found = f"(failed: {o.error})" if o.accepted is None else "+".join(o.accepted) or "none"
         md.append(f"| {o.case} | {c['grid'][0]}x{c['grid'][1]} | {c['rate_hz']:g} | "
-                  f"{c['storage']} | {'+'.join(o.truth) or 'none'} | {found} | "
+                  f"{c['storage']} | {'+'.join((*o.truth, *o.families)) or 'none'} | {found} | "
                   f"{_num(r['after_over_floor'])} | {_num(r['after_over_true_noise'])} | "
-                  f"{_num(r['floor_over_true_noise'])} | {o.seconds:.0f} |")
+                  f"{_num(r['floor_over_true_noise'])} | {_scores_cell(o)} | "
+                  f"{o.scores.get('verdict') or '-'} | {o.seconds:.0f} |")
     return "\n".join(md) + "\n"
 
 

@@ -119,6 +119,31 @@ def make_program(rng: np.random.Generator, duration_s: float, shape: tuple[int, 
 
 
 @dataclass(frozen=True)
+class IndependentProgram:
+    """One program per actuator (row-major ``programs`` of 1 x 1 each): edges at other times.
+
+    The drive real mirrors are characterised with: every actuator its own segments, so an
+    edge on one actuator falls in the middle of its neighbours' segments.
+    """
+
+    programs: tuple[VoltageProgram, ...]
+    shape: tuple[int, int]
+
+    def __call__(self, t: npt.ArrayLike) -> FloatArray:
+        """Voltage (N, R, C) [V] at times ``t`` (N,) [s]."""
+        columns = [p(t)[:, 0, 0] for p in self.programs]
+        return np.stack(columns, axis=1).reshape(-1, *self.shape)
+
+
+def make_independent_program(rng: np.random.Generator, duration_s: float,
+                             shape: tuple[int, int], rate_hz: float) -> IndependentProgram:
+    """Draw an independent program (:func:`make_program` on 1 x 1) for every actuator."""
+    count = shape[0] * shape[1]
+    return IndependentProgram(tuple(make_program(rng, duration_s, (1, 1), rate_hz)
+                                    for _ in range(count)), shape)
+
+
+@dataclass(frozen=True)
 class PeltierProfile:
     """Base temperature: ramp low -> high, hold, ramp back down; smoothed by the Peltier's lag.
 

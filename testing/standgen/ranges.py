@@ -95,6 +95,68 @@ STAND_RANGES: Final = (
 )
 
 
+#: Recording faults of the stand (issue 33): sweep families of their own, the calibration's
+#: health KINDS name what it should report. ``independent_drive`` is a drive, not a fault.
+FAULT_FAMILIES: Final = (
+    "clock_rate",
+    "sensor_frozen",
+    "sensor_flat",
+    "sensor_jump",
+    "actuator_weak",
+    "actuator_dead",
+    "receive_jitter",
+    "independent_drive",
+)
+
+FAULT_RANGES: Final = (
+    Range("clock_rate", "ppm", 30.0, 100.0, "ppm",
+          "displacement logger's clock fast vs the command's: its stamps are t (1 + ppm 1e-6)"),
+    Range("sensor_frozen", "freeze_fraction", 0.3, 0.6, "run lengths",
+          "one sensor holds its last reading from this time on"),
+    Range("sensor_flat", "value_degc", 20.0, 30.0, "degC",
+          "one sensor reads this constant from the start (a disconnected NTC's default)"),
+    Range("sensor_jump", "step_degc", 1.0, 3.0, "degC",
+          "one sensor's reading steps by +-this at each of 2-3 instants (kept until the next)"),
+    Range("actuator_weak", "fraction", 0.5, 0.7, "x neighbours' gain",
+          "one actuator's displacement scaled by this (a cracked actuator)"),
+    Range("actuator_dead", "fraction", 0.0, 0.0, "x neighbours' gain",
+          "one actuator does not move (interferometer noise only)"),
+    Range("receive_jitter", "jitter_periods", 0.2, 1.0, "command periods",
+          "displacement receive stamps late by an exponential delay of this mean"),
+    Range("receive_jitter", "burst_late_s", 0.03, 0.12, "s",
+          "2-3 bursts: every message of a 0.1-0.3 s window arrives together, this late"),
+    Range("independent_drive", "cells", 4, 64, "actuators",
+          "each actuator its own program: segment edges at different times (up to 8 x 8)"),
+)
+
+#: Physical effects in no list of the product's registry (issue 34): sweep families whose
+#: only right answer is a discovered term (any registry effect accepted is a stand-in).
+UNLISTED_FAMILIES: Final = (
+    "slew_limit",
+    "amplifier_droop",
+    "periodic_nonlinearity",
+    "creep",
+    "thermal_gradient",
+)
+
+UNLISTED_RANGES: Final = (
+    Range("slew_limit", "rate_v_per_s", 3e3, 1e4, "V/s",
+          "amplifier slew-rate limit on the drive (drive side; not compensable beyond it)",
+          log=True),
+    Range("amplifier_droop", "strength", 0.03, 0.08, "1",
+          "amplifier gain droops with output current: V (1 - s min(|dV/dt| / 5 kV/s, 1)) "
+          "(drive side)"),
+    Range("periodic_nonlinearity", "amplitude_m", 0.6e-9, 1.5e-9, "m",
+          "interferometer periodic error: a sin(4 pi z / lambda + phi), lambda 633 nm, plus "
+          "a quarter of it at twice the rate (metrology; output side, not the mirror's)"),
+    Range("creep", "gamma_per_decade", 0.01, 0.03, "1",
+          "logarithmic creep: z + gamma sum of lags of z at 10 ms, 100 ms, 1 s, 10 s"),
+    Range("thermal_gradient", "lag_s", 0.5, 1.5, "s",
+          "actuator T offset -lag x (neighbours' mean dT/dt) x depth (0 at the grid's rim, 1 "
+          "at its centre): heat reaches the centre late; the sensors on the rim mounts miss it"),
+)
+
+
 def range_of(family: str, name: str) -> Range:
     """Return the row ``family``/``name`` of the tables.
 
@@ -102,16 +164,16 @@ def range_of(family: str, name: str) -> Range:
         KeyError: no such row.
 
     """
-    for row in (*RANGES, *STAND_RANGES):
+    for row in (*RANGES, *STAND_RANGES, *FAULT_RANGES, *UNLISTED_RANGES):
         if row.family == family and row.name == name:
             return row
     raise KeyError(f"no range {family}.{name}")
 
 
-def markdown_table() -> str:
-    """Return both tables as Markdown (the README's copy)."""
+def markdown_table(rows: tuple[Range, ...] = (*RANGES, *STAND_RANGES)) -> str:
+    """Return ``rows`` as a Markdown table (default: effects and stand, the README's copy)."""
     lines = ["| family | parameter | low | high | unit | note |", "|---|---|---:|---:|---|---|"]
-    for row in (*RANGES, *STAND_RANGES):
+    for row in rows:
         scale = "log-uniform; " if row.log else ""
         lines.append(f"| `{row.family}` | {row.name} | {row.low:g} | {row.high:g} | {row.unit} "
                      f"| {scale}{row.note} |")
@@ -119,4 +181,5 @@ def markdown_table() -> str:
 
 
 if __name__ == "__main__":
-    print(markdown_table())
+    print(markdown_table(), markdown_table(FAULT_RANGES), markdown_table(UNLISTED_RANGES),
+          sep="\n\n")

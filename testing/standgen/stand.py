@@ -16,6 +16,15 @@ Signal chain per actuator (time t from the start of the recording, all on the co
 
 Defects: a fraction of displacement messages dropped at random, a gap in the temperature
 topic, optional holes in the command topic.
+
+Recording faults (:mod:`standgen.faults`): a weak or dead actuator scales its displacement
+(before coupling); a frozen, flat or jumping temperature sensor; the displacement logger's
+clock rate and late, bursty receive stamps change /dm/displacement's stamps only (the
+samples stay where they were taken). ``independent_drive``: every actuator its own program.
+Effects in no registry list (:mod:`standgen.unlisted`): ``slew_limit`` and
+``amplifier_droop`` on the drive after the delay, ``thermal_gradient`` on the actuator
+temperature, ``creep`` on the actuator's displacement (before coupling),
+``periodic_nonlinearity`` on the interferometer's reading.
 """
 
 from __future__ import annotations
@@ -27,6 +36,7 @@ import numpy as np
 import numpy.typing as npt
 
 from standgen.effects import Effects
+from standgen.faults import BURST_SPACING_S, Faults, ReceiveJitter
 from standgen.operators import (
     aging_gain,
     debye_relaxation,
@@ -35,8 +45,22 @@ from standgen.operators import (
     prandtl_ishlinskii,
 )
 from standgen.physics import Law
-from standgen.program import PeltierProfile, VoltageProgram, make_program
+from standgen.program import (
+    IndependentProgram,
+    PeltierProfile,
+    VoltageProgram,
+    make_independent_program,
+    make_program,
+)
 from standgen.ranges import range_of
+from standgen.unlisted import (
+    Unlisted,
+    crept,
+    drooped,
+    gradient_offset,
+    periodic_error,
+    slew_limited,
+)
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -74,6 +98,9 @@ class StandConfig:
         command_holes: (start, length) [s] of holes in /dm/command.
         seed: random seed (program, spread, noise, drops).
         start_time_s: bag time of the first sample (wall-clock epoch seconds).
+        faults: recording faults (:mod:`standgen.faults`).
+        unlisted: effects in no list of the product's registry (:mod:`standgen.unlisted`).
+        independent_drive: every actuator its own program (edges at different times).
 
     """
 
@@ -91,6 +118,9 @@ class StandConfig:
     command_holes: tuple[tuple[float, float], ...] = ()
     seed: int = 0
     start_time_s: float = 1_795_000_000.0
+    faults: Faults = field(default_factory=Faults)
+    unlisted: Unlisted = field(default_factory=Unlisted)
+    independent_drive: bool = False
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -102,8 +132,14 @@ class StandConfig:
         """True interferometer noise [m rms]: white noise and quantisation together."""
         return float(np.hypot(self.noise_m, INTERFEROMETER_STEP_M / np.sqrt(12.0)))
 
+    @property
+    def sensors(self) -> int:
+        """Number of temperature readings per message (row-major grid cells for ``grid``)."""
+        return 1 if self.temperature_kind == "raw_single" else self.rows * self.cols
+
     def check(self) -> None:
         """Raise StandConfigError on a configuration the stand cannot produce."""
+        sensor, actuator = self.faults.sensor, self.faults.actuator
         problems = [
             (self.rows >= 1 and self.cols >= 1, "grid must be at least 1 x 1"),
             (self.rate_hz > 0 and self.temperature_rate_hz > 0, "rates must be > 0"),
@@ -112,6 +148,12 @@ class StandConfig:
              f"temperature_kind must be one of {TEMPERATURE_KINDS}"),
             (0 <= self.drop_fraction < 1, "drop_fraction must be in [0, 1)"),
             (self.effects.coupling is None or min(self.shape) >= 2, "coupling needs >= 2 x 2"),
+            (sensor is None or 0 <= sensor.sensor < self.sensors,
+             "the faulty sensor's index is not a sensor of this layout"),
+            (actuator is None or 0 <= actuator.index < self.rows * self.cols,
+             "the faulty actuator's index is not an actuator of this grid"),
+            (self.unlisted.thermal_gradient is None or min(self.shape) >= 3,
+             "thermal_gradient needs >= 3 x 3"),
         ]
         for ok, message in problems:
             if not ok:
@@ -129,7 +171,11 @@ class Recording:
         temperature_topic: /dm/temperature/raw or /dm/temperature.
         truth_displacement: noise-free displacement at ``displacement_times`` [m].
         actuator_temperature: actuator temperature at ``displacement_times`` [degC].
-        law: the per-actuator law coefficients used.
+        law: the per-actuator law coefficients used (a weak or dead actuator's fault scales
+            its displacement, not this law).
+        displacement_sample_times: when each displacement message was sampled, on the
+            command clock [s]; ``displacement_times`` are its stamps (they differ only under
+            a clock-rate or receive-jitter fault).
 
     """
 
@@ -144,6 +190,7 @@ class Recording:
     truth_displacement: FloatArray
     actuator_temperature: FloatArray
     law: Law
+    displacement_sample_times: FloatArray
 
 
 def spread_law(rng: np.random.Generator, shape: tuple[int, int], effects: Effects) -> Law:
@@ -170,11 +217,32 @@ def _interp_rows(t_new: FloatArray, t: FloatArray, values: FloatArray) -> FloatA
     return np.asarray(values[i] * (1 - frac) + values[i + 1] * frac, np.float64)
 
 
-def drive(config: StandConfig, program: VoltageProgram, t: FloatArray) -> FloatArray:
-    """Return the drive reaching the actuator's strain (N, R, C): delay, dispersion, PI."""
-    e = config.effects
+def true_law(config: StandConfig) -> Law:
+    """Return the per-actuator law :func:`simulate` uses for ``config`` (its first draw)."""
+    return spread_law(np.random.default_rng(config.seed), config.shape, config.effects)
+
+
+def mid_temperature(config: StandConfig) -> float:
+    """Middle of the base (Peltier) temperature's range over the recording [degC]."""
+    dt = 1.0 / config.rate_hz
+    base = PeltierProfile(config.duration_s)(
+        np.arange(round(config.duration_s * config.rate_hz), dtype=np.float64) * dt, dt)
+    return float(0.5 * (base.min() + base.max()))
+
+
+def drive(config: StandConfig, program: VoltageProgram | IndependentProgram,
+          t: FloatArray) -> FloatArray:
+    """Return the drive reaching the actuator's strain (N, R, C).
+
+    Delay, the amplifier's slew limit and droop (unlisted), dispersion, PI hysteresis.
+    """
+    e, u = config.effects, config.unlisted
     dt = 1.0 / config.rate_hz
     v = program(t - (e.delay.delay_s if e.delay else 0.0))
+    if u.slew_limit:
+        v = slew_limited(v, dt, u.slew_limit.rate_v_per_s)
+    if u.amplifier_droop:
+        v = drooped(v, dt, u.amplifier_droop)
     if e.frequency_dispersion:
         v = debye_relaxation(v, dt, e.frequency_dispersion.strength,
                              e.frequency_dispersion.corner_hz)
@@ -207,6 +275,45 @@ def _defects(config: StandConfig, rng: np.random.Generator, t: FloatArray,
     return keep_cmd, keep_disp, keep_temp
 
 
+def receive_stamps(faults: Faults, sample_times: FloatArray,
+                   rng: np.random.Generator) -> FloatArray:
+    """Stamps [s] of displacement messages sampled at ``sample_times`` (command clock).
+
+    A clock-rate fault stamps them on the logger's own clock, t (1 + ppm 1e-6); receive
+    jitter delays each by an exponential draw and every message of a burst window until the
+    window's end plus its lateness; receive order stays sample order.
+    """
+    stamps = sample_times.copy()
+    if faults.clock_rate:
+        stamps = stamps * (1.0 + faults.clock_rate.ppm * 1e-6)
+    jitter: ReceiveJitter | None = faults.receive_jitter
+    if jitter:
+        stamps = stamps + rng.exponential(jitter.mean_s, stamps.size)
+        for start, length, late in jitter.bursts:
+            inside = np.flatnonzero((sample_times >= start) & (sample_times < start + length))
+            stamps[inside] = start + length + late + np.arange(inside.size) * BURST_SPACING_S
+        stamps = np.maximum.accumulate(stamps)
+    return stamps
+
+
+def _sensor_fault(faults: Faults, t_temp: FloatArray, sensed: FloatArray) -> FloatArray:
+    """Apply a temperature sensor fault to the readings ``sensed`` (Nt, S) or (Nt, R, C)."""
+    fault = faults.sensor
+    if fault is None:
+        return sensed
+    out = sensed.reshape(t_temp.size, -1).copy()
+    column = out[:, fault.sensor]
+    if fault.kind == "frozen":
+        before = np.flatnonzero(t_temp < fault.start_s)
+        column[t_temp >= fault.start_s] = column[before[-1]] if before.size else column[0]
+    elif fault.kind == "flat":
+        column[:] = fault.value_degc
+    else:
+        for time_s, step in fault.jumps:
+            column[t_temp >= time_s] += step
+    return out.reshape(sensed.shape)
+
+
 def simulate(config: StandConfig) -> Recording:
     """Simulate one recording (see the module docstring).
 
@@ -216,28 +323,41 @@ def simulate(config: StandConfig) -> Recording:
     """
     config.check()
     rng = np.random.default_rng(config.seed)
-    shape, e = config.shape, config.effects
+    shape, e, u, faults = config.shape, config.effects, config.unlisted, config.faults
     dt = 1.0 / config.rate_hz
     t = np.arange(round(config.duration_s * config.rate_hz), dtype=np.float64) * dt
     law = spread_law(rng, shape, e)
-    program = make_program(rng, config.duration_s, shape, config.rate_hz)
+    program: VoltageProgram | IndependentProgram = (
+        make_independent_program(rng, config.duration_s, shape, config.rate_hz)
+        if config.independent_drive else make_program(rng, config.duration_s, shape,
+                                                      config.rate_hz))
     command = program(t)
     v = drive(config, program, t)
 
     base = PeltierProfile(config.duration_s)(t, dt)
     mount = base[:, None, None] + MOUNT_OFFSET_SD * rng.standard_normal(shape)
     actuator = mount + self_heating_excess(config, v)
+    if u.thermal_gradient:
+        actuator = actuator + gradient_offset(actuator, dt, u.thermal_gradient)
     seen = first_order_lag(mount, dt, e.sensor_lag.tau_s) if e.sensor_lag else mount
 
     gain = aging_gain(t, e.drift.fraction, e.drift.tau_s, e.drift.nu) if e.drift else np.ones(
         t.size)
     z = law.displacement(v, actuator, gain[:, None, None])
+    if faults.actuator:
+        scale = np.ones(shape)
+        scale.flat[faults.actuator.index] = faults.actuator.fraction
+        z = z * scale
+    if u.creep:
+        z = crept(z, dt, u.creep)
     if e.coupling:
         z = z + e.coupling.coefficient * laplacian(z)
     if e.thermal_expansion:
         z = z + e.thermal_expansion.alpha_m_per_degc * (
             actuator - e.thermal_expansion.reference_degc)
     measured = z + config.noise_m * rng.standard_normal(z.shape)
+    if u.periodic_nonlinearity:
+        measured = measured + periodic_error(z, u.periodic_nonlinearity)
     measured = np.round(measured / INTERFEROMETER_STEP_M) * INTERFEROMETER_STEP_M
 
     phase = 0.37 / config.temperature_rate_hz  # the NTC clock is not the command clock
@@ -250,15 +370,17 @@ def simulate(config: StandConfig) -> Recording:
     sensed = sensed + SENSOR_OFFSET_SD * rng.standard_normal(sensed.shape[1:])
     sensed = sensed + config.sensor_noise_degc * rng.standard_normal(sensed.shape)
     sensed = np.round(sensed / SENSOR_STEP_DEGC) * SENSOR_STEP_DEGC
+    sensed = _sensor_fault(faults, t_temp, sensed)
 
     keep_cmd, keep_disp, keep_temp = _defects(config, rng, t, t_temp)
+    stamps = receive_stamps(faults, t[keep_disp], rng)  # last draws: the rest is unchanged
     topic = "/dm/temperature" if config.temperature_kind == "grid" else "/dm/temperature/raw"
     return Recording(
         config=config,
         command_times=t[keep_cmd], command=command[keep_cmd],
-        displacement_times=t[keep_disp], displacement=measured[keep_disp],
+        displacement_times=stamps, displacement=measured[keep_disp],
         temperature_times=t_temp[keep_temp], temperature=sensed[keep_temp],
         temperature_topic=topic,
         truth_displacement=z[keep_disp], actuator_temperature=actuator[keep_disp],
-        law=law,
+        law=law, displacement_sample_times=t[keep_disp],
     )
