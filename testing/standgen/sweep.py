@@ -353,7 +353,8 @@ def law_error(description: dict[str, Any], doc: dict[str, Any] | None) -> float 
     if not truth or not law:
         return None
     try:
-        t_star = float(truth["temperature_degc"]) - float(law["Tm"])
+        # Tm: one value, or one per actuator (the calibration writes a row-major list)
+        t_star = float(truth["temperature_degc"]) - np.asarray(law["Tm"], np.float64)
         coefficient = {n: np.asarray(law[n], np.float64) for n in
                        ("m1", "m2", "m3", "k1", "k2", "k3")}
         fit_m = coefficient["m1"] * t_star + coefficient["m2"] + coefficient["m3"] * t_star**2

@@ -10,6 +10,8 @@ from typing import Any
 import numpy as np
 import pytest
 from standgen import (
+    FAULT_FAMILIES,
+    UNLISTED_FAMILIES,
     Recording,
     StandBagError,
     StandConfig,
@@ -30,6 +32,15 @@ from standgen.effects import (
     ThermalExpansion,
     draw_effects,
 )
+from standgen.faults import (
+    ActuatorFault,
+    ClockRate,
+    FaultError,
+    Faults,
+    ReceiveJitter,
+    SensorFault,
+    draw_fault,
+)
 from standgen.operators import (
     aging_gain,
     debye_relaxation,
@@ -39,9 +50,31 @@ from standgen.operators import (
     prandtl_ishlinskii,
 )
 from standgen.physics import Law
-from standgen.program import Segment, VoltageProgram
-from standgen.ranges import FAMILIES, RANGES, markdown_table, range_of
+from standgen.program import Segment, VoltageProgram, make_independent_program
+from standgen.ranges import (
+    FAMILIES,
+    FAULT_RANGES,
+    RANGES,
+    UNLISTED_RANGES,
+    markdown_table,
+    range_of,
+)
 from standgen.stand import drive
+from standgen.unlisted import (
+    AmplifierDroop,
+    Creep,
+    PeriodicNonlinearity,
+    SlewLimit,
+    ThermalGradient,
+    Unlisted,
+    UnlistedError,
+    crept,
+    depth,
+    draw_unlisted,
+    drooped,
+    periodic_error,
+    slew_limited,
+)
 
 from es_msgs_py.bag import read_bag
 
@@ -364,3 +397,177 @@ def test_grid_temperature_topic_and_bad_storage(tmp_path: Path) -> None:
     assert values is not None and values.shape[1:] == (2, 2)
     with pytest.raises(StandBagError, match="storage"):
         write_bag(rec, tmp_path / "other", "rosbag1")
+
+
+# --- recording faults (issue 33) -------------------------------------------------------------
+
+GRID4 = replace(BASE, rows=4, cols=4)
+
+
+def test_fault_and_unlisted_tables_are_in_the_readme_and_draws_refuse_what_cannot_show() -> None:
+    assert {row.family for row in FAULT_RANGES} == set(FAULT_FAMILIES)
+    assert {row.family for row in UNLISTED_RANGES} == set(UNLISTED_FAMILIES)
+    assert not set(UNLISTED_FAMILIES) & set(FAMILIES)  # in no list of the registry
+    readme = (Path(__file__).resolve().parents[2] / "testing" / "standgen" / "README.md")
+    text = readme.read_text()
+    assert markdown_table(FAULT_RANGES) in text and markdown_table(UNLISTED_RANGES) in text
+    rng = np.random.default_rng(0)
+    with pytest.raises(FaultError, match="4 sensors"):
+        draw_fault("sensor_frozen", rng, rate_hz=500.0, duration_s=20.0, sensors=1, cells=4)
+    with pytest.raises(FaultError, match="unknown"):
+        draw_fault("gremlin", rng, rate_hz=500.0, duration_s=20.0, sensors=4, cells=4)
+    with pytest.raises(UnlistedError, match="3 x 3"):
+        draw_unlisted(["thermal_gradient"], rng, (2, 2))
+    with pytest.raises(UnlistedError, match="unknown"):
+        draw_unlisted(["backlash"], rng, (2, 2))
+    with pytest.raises(StandConfigError, match="sensor"):
+        simulate(replace(BASE, faults=Faults(sensor=SensorFault("flat", 4, 0.0, 25.0))))
+    with pytest.raises(StandConfigError, match="actuator"):
+        simulate(replace(BASE, faults=Faults(actuator=ActuatorFault("dead", -1, 0.0))))
+    for family in FAULT_FAMILIES:  # every family draws inside its table's rows
+        faults = draw_fault(family, rng, rate_hz=500.0, duration_s=20.0, sensors=16, cells=16)
+        names = faults.names
+        assert names == (() if family == "independent_drive" else (family,))
+        for name, truth in faults.as_dict().items():
+            assert name == family and truth
+
+
+def test_clock_rate_fault_drifts_the_displacement_stamps_by_its_ppm(tmp_path: Path) -> None:
+    clean = simulate(BASE)
+    rec = simulate(replace(BASE, faults=Faults(clock_rate=ClockRate(60.0))))
+    np.testing.assert_array_equal(rec.displacement_sample_times, clean.displacement_times)
+    np.testing.assert_array_equal(rec.displacement, clean.displacement)
+    np.testing.assert_array_equal(rec.command_times, clean.command_times)
+    t, stamps = rec.displacement_sample_times, rec.displacement_times
+    np.testing.assert_allclose((stamps - t)[1:] / t[1:], 60e-6, rtol=1e-9)
+    assert stamps[-1] - t[-1] == pytest.approx(60e-6 * 20.0, rel=0.01)  # 1.2 ms after 20 s
+    write_bag(rec, tmp_path / "bag")
+    times = read_bag(tmp_path / "bag")["/dm/displacement"].times - BASE.start_time_s
+    np.testing.assert_allclose(times, stamps, atol=2e-6)
+
+
+@pytest.mark.parametrize("kind", ["frozen", "flat", "jump"])
+def test_sensor_faults_change_only_their_sensor(kind: str) -> None:
+    fault = {"frozen": SensorFault("frozen", 5, 9.0),
+             "flat": SensorFault("flat", 5, 0.0, value_degc=24.5),
+             "jump": SensorFault("jump", 5, 6.0, jumps=((6.0, 2.0), (13.0, -1.5)))}[kind]
+    clean = simulate(GRID4)
+    rec = simulate(replace(GRID4, faults=Faults(sensor=fault)))
+    assert rec.temperature.shape == clean.temperature.shape == (clean.temperature_times.size, 16)
+    others = np.arange(16) != 5
+    np.testing.assert_array_equal(rec.temperature[:, others], clean.temperature[:, others])
+    np.testing.assert_array_equal(rec.displacement, clean.displacement)
+    t, mine, was = rec.temperature_times, rec.temperature[:, 5], clean.temperature[:, 5]
+    if kind == "frozen":
+        after = t >= 9.0
+        np.testing.assert_array_equal(mine[~after], was[~after])
+        assert np.all(mine[after] == was[~after][-1])  # constant after the freeze ...
+        assert np.ptp(was[after]) > 1.0  # ... while the mount's temperature moved
+    elif kind == "flat":
+        assert np.all(mine == 24.5)
+    else:
+        steps = np.where(t >= 13.0, 0.5, np.where(t >= 6.0, 2.0, 0.0))
+        np.testing.assert_allclose(mine - was, steps, atol=1e-9)
+
+
+@pytest.mark.parametrize("kind", ["weak", "dead"])
+def test_weak_and_dead_actuators_move_their_fraction(kind: str) -> None:
+    fraction = 0.6 if kind == "weak" else 0.0
+    clean = simulate(GRID4)
+    rec = simulate(replace(GRID4, faults=Faults(actuator=ActuatorFault(kind, 6, fraction))))
+    z, z0 = rec.truth_displacement.reshape(-1, 16), clean.truth_displacement.reshape(-1, 16)
+    np.testing.assert_allclose(z[:, 6], fraction * z0[:, 6], rtol=1e-12, atol=0)
+    others = np.arange(16) != 6
+    np.testing.assert_array_equal(z[:, others], z0[:, others])
+    np.testing.assert_array_equal(rec.law.m2, clean.law.m2)  # the fault is not the law's
+    if kind == "dead":  # the interferometer sees only its noise
+        assert np.std(rec.displacement.reshape(-1, 16)[:, 6]) == pytest.approx(
+            GRID4.noise_rms_m, rel=0.1)
+        assert np.ptp(z0[:, 6]) > 50e-9
+
+
+def test_receive_jitter_delays_stamps_and_delivers_bursts_late_in_order() -> None:
+    jitter = ReceiveJitter(mean_s=1e-3, bursts=((5.0, 0.2, 0.08), (12.0, 0.15, 0.05)))
+    rec = simulate(replace(BASE, faults=Faults(receive_jitter=jitter)))
+    t, stamps = rec.displacement_sample_times, rec.displacement_times
+    late = stamps - t
+    assert np.all(late >= 0) and np.all(np.diff(stamps) >= 0)  # received in sample order
+    for start, length, lateness in jitter.bursts:
+        inside = (t >= start) & (t < start + length)
+        assert inside.sum() > 0.9 * length * BASE.rate_hz
+        np.testing.assert_allclose(stamps[inside], start + length + lateness, atol=1e-3)
+    quiet = (t < 4.5) | ((t > 6.0) & (t < 11.5)) | (t > 13.0)
+    assert np.mean(late[quiet]) == pytest.approx(1e-3, rel=0.15)
+    np.testing.assert_array_equal(rec.command_times,
+                                  simulate(BASE).command_times)  # the command keeps its clock
+
+
+def test_independent_drive_gives_every_actuator_its_own_edges() -> None:
+    rng = np.random.default_rng(3)
+    program = make_independent_program(rng, 20.0, (2, 3), 500.0)
+    starts = [tuple(s.start for s in p.segments) for p in program.programs]
+    assert len(set(starts)) == 6  # no two actuators share their segment edges
+    t = np.arange(0.0, 20.0, 1 / 500.0)
+    v = program(t)
+    assert v.shape == (t.size, 2, 3)
+    np.testing.assert_array_equal(v[:, 1, 2], program.programs[5](t)[:, 0, 0])
+    rec = simulate(replace(GRID4, independent_drive=True))
+    assert rec.command.shape == (rec.command_times.size, 4, 4)
+    assert not np.allclose(rec.command, simulate(GRID4).command)
+
+
+# --- effects in no list of the registry (issue 34) -------------------------------------------
+
+
+def test_slew_limit_and_droop_shape_the_amplifiers_output() -> None:
+    dt = 1e-3
+    t = np.arange(0.0, 1.0, dt)
+    square = np.where((t % 0.2) < 0.1, 200.0, 0.0)[:, None]
+    limited = slew_limited(square, dt, 5e3)
+    assert np.max(np.abs(np.diff(limited, axis=0))) <= 5e3 * dt + 1e-9
+    assert limited[-1, 0] == square[-1, 0] and limited.max() == 200.0  # it gets there, later
+    sine = 100.0 * np.sin(2 * np.pi * 5.0 * t)[:, None]
+    out = drooped(sine, dt, AmplifierDroop(0.05))
+    rate = np.abs(np.gradient(sine, dt, axis=0))
+    np.testing.assert_allclose(out, sine * (1 - 0.05 * np.minimum(rate / 5e3, 1)))
+    clean = simulate(BASE)
+    rec = simulate(replace(BASE, unlisted=Unlisted(slew_limit=SlewLimit(4e3))))
+    assert np.sqrt(np.mean((rec.truth_displacement - clean.truth_displacement) ** 2)) > 1e-9
+    np.testing.assert_array_equal(rec.command, clean.command)  # the command does not show it
+
+
+def test_periodic_nonlinearity_is_in_the_measurement_not_the_mirror() -> None:
+    error = PeriodicNonlinearity(1.0e-9, 0.3, 1.1)
+    clean = simulate(BASE)
+    rec = simulate(replace(BASE, unlisted=Unlisted(periodic_nonlinearity=error)))
+    np.testing.assert_array_equal(rec.truth_displacement, clean.truth_displacement)
+    np.testing.assert_allclose(rec.displacement - clean.displacement,
+                               periodic_error(clean.truth_displacement, error),
+                               atol=0.1e-9 + 1e-15)  # one quantisation step
+    z = np.linspace(0.0, 633e-9 / 2, 1001)  # one fringe: one period of the first order
+    e = periodic_error(z, error)
+    assert e[0] == pytest.approx(e[-1], abs=1e-15) and np.ptp(e) > 1.5e-9
+
+
+def test_creep_grows_by_its_gamma_per_decade_after_a_step() -> None:
+    dt = 1e-3
+    step = np.ones((30_000, 1))
+    step[0] = 0.0
+    z = crept(step, dt, Creep(0.02))[:, 0]
+    t = np.arange(z.size) * dt
+    growth = np.interp(1.0, t, z) - np.interp(0.1, t, z)  # one decade of time
+    assert growth == pytest.approx(0.02, rel=0.3)
+    assert np.all(np.diff(z[1:]) >= 0)  # creep only ever continues the step
+
+
+def test_thermal_gradient_warms_the_centre_late_and_the_sensors_miss_it() -> None:
+    clean = simulate(GRID4)
+    rec = simulate(replace(GRID4, unlisted=Unlisted(thermal_gradient=ThermalGradient(1.0))))
+    np.testing.assert_array_equal(rec.temperature, clean.temperature)
+    offset = rec.actuator_temperature - clean.actuator_temperature
+    rim = depth((4, 4)) == 0
+    np.testing.assert_allclose(offset[:, rim], 0.0, atol=1e-12)
+    t = rec.displacement_sample_times
+    rising = (t > 3.0) & (t < 6.0)  # the Peltier ramps 12 degC over 8 s: ~1.5 degC/s
+    centre = offset[rising][:, ~rim]
+    assert np.all(centre < 0) and np.mean(centre) == pytest.approx(-1.5, rel=0.25)
