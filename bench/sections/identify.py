@@ -27,9 +27,16 @@ def run(context: Context) -> None:
     for name, key in (("identify_single_right", "single_right"),
                       ("identify_pair_right", "pair_right"),
                       ("identify_clean_false_positive", "clean_false_positive_rate"),
-                      ("identify_right_within_1p2_noise", "right_within_1p2_true_noise")):
+                      ("identify_right_within_1p2_noise", "right_within_1p2_true_noise"),
+                      ("identify_fault_named", "fault_named"),
+                      ("identify_fault_law_within_5pct", "fault_law_within_5pct"),
+                      ("identify_unlisted_within_1p3_noise", "unlisted_within_1p3")):
         if summary[key] is not None:
             results.records.append(Record.of(name, n, [summary[key]], "fraction"))
+    for name, key in (("identify_fault_stand_ins", "fault_stand_ins"),
+                      ("identify_unlisted_stand_ins", "unlisted_stand_ins"),
+                      ("identify_clean_discovered", "clean_discovered")):
+        results.records.append(Record.of(name, n, [float(summary[key])], "cases"))
     results.records.append(Record.of("identify_wall_time", n, [wall], "s"))
     results.notes.append(f"identify_*: {n} standgen cases ({'quick' if quick else 'full'}), "
                          f"{jobs} jobs; goals: {'; '.join(identify.goal_lines(summary))}; "

@@ -144,7 +144,7 @@ UNLISTED_RANGES: Final = (
           "amplifier slew-rate limit on the drive (drive side; not compensable beyond it)",
           log=True),
     Range("amplifier_droop", "strength", 0.03, 0.08, "1",
-          "amplifier gain droops with output current: V (1 - s min(|dV/dt| / 5 kV/s, 1)) "
+          "amplifier gain droops with output current: V (1 - s min(abs(dV/dt) / 5 kV/s, 1)) "
           "(drive side)"),
     Range("periodic_nonlinearity", "amplitude_m", 0.6e-9, 1.5e-9, "m",
           "interferometer periodic error: a sin(4 pi z / lambda + phi), lambda 633 nm, plus "
