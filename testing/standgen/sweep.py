@@ -78,6 +78,9 @@ BURST_MARGIN_S: Final = 0.5
 LAW_TOLERANCE: Final = 0.05
 #: Goal of held-out RMS after / true noise on unlisted cases.
 UNLISTED_RMS_GOAL: Final = 1.3
+#: The product's data-driven effect (discovered terms written into the parameters file): not
+#: a registry stand-in when accepted.
+DISCOVERED_EFFECT: Final = "discovered"
 #: Health finding kinds that find each fault family (contract: CALIBRATION_CONTRACT.md).
 FAULT_KINDS: Final = {
     "clock_rate": ("clock_rate",),
@@ -401,7 +404,8 @@ def score(description: dict[str, Any], doc: dict[str, Any] | None) -> dict[str, 
     calibration failed).
 
     Every case: ``stand_ins`` (accepted effects not in the truth; on an unlisted case every
-    accepted effect), ``discovered_terms`` (names). Fault cases: ``found`` and ``named``
+    accepted registry effect; the data-driven ``discovered`` effect is none),
+    ``discovered_terms`` (names). Fault cases: ``found`` and ``named``
     (None where there is nothing to find: an independently driven grid), ``law_error`` and
     ``law_within_5pct``, ``kept_fraction``, ``verdict``. Unlisted cases: ``discovered_found``,
     ``discovered_added``, ``heldout_rms_after_m`` (with the discovered terms when they were
@@ -411,7 +415,7 @@ def score(description: dict[str, Any], doc: dict[str, Any] | None) -> dict[str, 
     accepted = accepted_effects(doc) if doc is not None else ()
     terms, added, discovered_after = _discovered(doc)
     out: dict[str, Any] = {
-        "stand_ins": sorted(set(accepted) - truth),
+        "stand_ins": sorted(set(accepted) - truth - {DISCOVERED_EFFECT}),
         "discovered_terms": [str(t.get("name", "?")) for t in terms],
         "verdict": (str(_dict(doc.get("verdict")).get("level", "")) or None
                     if doc is not None else None),

@@ -304,7 +304,8 @@ def test_scoring_unlisted_cases_and_discoveries_on_clean_data() -> None:
                     "heldout_rms_after_m": 2.0 * noise})
     assert old["stand_ins"] == ["frequency_dispersion"] and old["discovered_found"] is False
     assert old["after_over_true_noise"] == pytest.approx(2.0)
-    new = score(d, {"effects": [{"name": "frequency_dispersion", "enabled": False}],
+    new = score(d, {"effects": [{"name": "frequency_dispersion", "enabled": False},
+                                {"name": "discovered"}],  # the data-driven effect
                     "heldout_rms_after_m": 2.0 * noise,
                     "discovered": {"searched": True, "added": True,
                                    "heldout_rms_before_m": 2.0 * noise,
