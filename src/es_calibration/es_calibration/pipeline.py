@@ -61,14 +61,13 @@ from es_calibration.search.state import (
     heldout_residual,
     screen_block,
 )
+from es_calibration.search.unexplained import NOISE_RATIO_LIMIT
 from es_physics.effects import get
 
 #: Actuators whose full-rate held-out residual is analysed (spectra, correlations).
 ANALYSIS_ACTUATORS: Final = 16
 #: Held-out rows analysed at full rate, at most.
 ANALYSIS_ROWS: Final = 50_000
-#: Ratio of held-out RMS to noise floor above which the residual counts as unexplained.
-NOISE_RATIO_LIMIT: Final = 1.2
 
 
 @dataclass

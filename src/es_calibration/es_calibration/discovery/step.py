@@ -2,7 +2,8 @@
 
 Runs on the screening block (rows of at most ``MAX_ACTUATORS`` of its actuators, at most
 ``TRAIN_ROWS`` training and ``HELD_ROWS`` held-out rows each), only when the held-out RMS
-stands above the noise floor by the search's information criterion. Terms are fitted on the
+stands above the noise floor by ``NOISE_RATIO_LIMIT`` (where the residual counts as unexplained)
+and by the search's information criterion. Terms are fitted on the
 training rows and chosen on the held-out ones (regression.py); the time constants of the
 selected low-passes are then refined on the training rows. Every term's coefficient is
 refitted on each half of the record (time order) for its stability.
@@ -29,6 +30,7 @@ from es_calibration.search.state import (
     heldout_residual,
     information_delta,
 )
+from es_calibration.search.unexplained import NOISE_RATIO_LIMIT
 
 MAX_ACTUATORS: Final = 16
 TRAIN_ROWS: Final = 1500
@@ -192,7 +194,7 @@ def discover(aligned: AlignedData, grid: tuple[int, int], state: ModelState,
     n_eff = max(2.0, r_held.size * held_share)
     floor_sse = noise_floor_m**2 * r_held.size
     above = (np.isfinite(noise_floor_m) and np.isfinite(before)
-             and before > (1.0 + MIN_RELATIVE_GAIN) * noise_floor_m
+             and before > NOISE_RATIO_LIMIT * noise_floor_m
              and information_delta(float(r_held @ r_held), floor_sse, n_eff, 1) < 0)
     if not above:
         return Discovery(False, heldout_rms_before_m=before, heldout_rms_after_m=before,

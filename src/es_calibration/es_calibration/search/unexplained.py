@@ -22,6 +22,9 @@ from es_calibration._typing import BoolArray, FloatArray
 from es_calibration.search.residual import Dependence, ResidualStructure, spectral_lines, spectrum
 
 NM: Final = 1e9
+#: Ratio of held-out RMS to noise floor above which the residual counts as unexplained (and
+#: the discovery step searches its library).
+NOISE_RATIO_LIMIT: Final = 1.2
 #: A correlation must exceed this many times its 95 % bound to be reported.
 CORRELATION_SIGMAS: Final = 3.0
 #: Smallest share of the residual variance a reported dependence must carry.
