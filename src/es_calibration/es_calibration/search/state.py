@@ -138,12 +138,14 @@ class Workspace:
             a = self.aligned
             act = self.actuators
             z = a.displacement[np.ix_(rows, act)].T
+            # an actuator's own unresolvable command edges take out its pairs (edges.py)
+            usable = np.isfinite(z) & ~a.edge_excluded(rows, act)
             self._static_cache[key] = {
                 "t": a.t[rows],
                 "temperature": a.temperature_at(rows, act),
                 "temperature_rate": a.temperature_rate_at(rows, act),
                 "displacement": z,
-                "finite": np.isfinite(z),
+                "finite": usable,
             }
         return self._static_cache[key]
 
