@@ -68,27 +68,35 @@ class ClockRate:
 
 
 def clock_rate(
-    block_times_s: FloatArray, block_delays_s: FloatArray, period_s: float, duration_s: float
+    block_times_s: FloatArray,
+    block_delays_s: FloatArray,
+    block_sigmas_s: FloatArray,
+    period_s: float,
+    duration_s: float,
 ) -> ClockRate:
-    """Return the clock-rate difference the blocks' delays show (a straight-line fit).
+    """Return the clock-rate difference the blocks' delays show (a weighted straight line).
 
     Args:
         block_times_s: (B,) centre times of the blocks (s from the record's start).
         block_delays_s: (B,) delay measured in each block [s] (NaN: not measured).
+        block_sigmas_s: (B,) each delay's standard deviation [s] (the weights; inflated
+            by the line's own scatter when that is larger).
         period_s: the command period [s].
         duration_s: the record's length [s].
 
     """
-    ok = np.isfinite(block_delays_s)
-    t, d = block_times_s[ok], block_delays_s[ok]
+    # the delay scan's own resolution floors each sd (no block is infinitely sure)
+    sd = np.maximum(block_sigmas_s, 1e-3 * period_s)
+    ok = np.isfinite(block_delays_s) & np.isfinite(sd)
+    t, d, w = block_times_s[ok], block_delays_s[ok], 1.0 / sd[ok] ** 2
     if t.size < 3 or np.ptp(t) <= 0.0:
         return ClockRate(0.0, np.inf, block_times_s, block_delays_s, 0.0, False)
-    tc = t - t.mean()
-    slope = float(np.sum(tc * (d - d.mean())) / np.sum(tc * tc))
-    resid = d - d.mean() - slope * tc
-    # the delay scan's own resolution floors the scatter (a perfect line is not infinitely sure)
-    scatter = max(float(np.sum(resid**2) / (t.size - 2)), (1e-3 * period_s) ** 2)
-    sigma = float(np.sqrt(scatter / np.sum(tc * tc)))
+    tc = t - np.sum(w * t) / np.sum(w)
+    mean = np.sum(w * d) / np.sum(w)
+    spread = float(np.sum(w * tc * tc))
+    slope = float(np.sum(w * tc * (d - mean)) / spread)
+    chi2 = float(np.sum(w * (d - mean - slope * tc) ** 2)) / (t.size - 2)
+    sigma = float(np.sqrt(max(chi2, 1.0) / spread))
     drift = slope * duration_s
     significant = abs(slope) >= MIN_T_RATIO * sigma and abs(drift) >= MIN_DRIFT_PERIODS * period_s
     return ClockRate(slope * 1e6, sigma * 1e6, block_times_s, block_delays_s, drift, significant)

@@ -5,12 +5,17 @@ fits best (whole command periods, then ``FINE_STEP`` fractions, the command inte
 search/state.py does) on up to ``ACTUATORS`` actuators of the screening block and rows
 spread over the whole record. With that law fixed, each of ``BLOCKS`` consecutive time blocks
 gets the shift that fits its own rows best (a coarse scan, a fine one, a parabola through
-the best three). A straight line through the blocks' shifts is a clock-rate difference
+the best three). Unlike the model's shift (search/state.py), which counts periods from the
+command in effect at a sample's stamp and so cannot see a stamp moving within a period, the
+shift here is continuous time: the command is interpolated (the same cubic kernel) at the
+instant t - d itself, so a displacement clock drifting against the command's shows. A
+straight line through the blocks' shifts is a clock-rate difference
 between the command's and the displacement's loggers (data/timing.py).
 """
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Final
 
 import numpy as np
@@ -18,7 +23,7 @@ import numpy as np
 from es_calibration._typing import FloatArray, IndexArray
 from es_calibration.data.align import AlignedData
 from es_calibration.data.delayrange import longest_whole_shift
-from es_calibration.model.composite import CompositeModel
+from es_calibration.model.composite import CompositeModel, FitInputs
 from es_calibration.model.fit import levenberg_marquardt
 from es_calibration.search.scans import lowest_shift
 from es_calibration.search.state import Workspace, initial_law
@@ -45,9 +50,36 @@ class _Scan:
         self.period = aligned.command_period
         self.law: FloatArray | None = None
 
+    def inputs(self, rows: IndexArray, shift: float) -> FitInputs:
+        """Return the inputs at ``rows`` with the command at the instants ``shift`` earlier.
+
+        The cubic convolution kernel (Keys, a = -1/2) over the four commands around each
+        instant t - shift periods; samples whose taps are missing or span a gap are left out.
+        """
+        base = self.ws.inputs(rows, 0.0, None)
+        a = self.ws.aligned
+        times = a.command_times
+        when = a.t[rows] - shift * self.period
+        j = np.searchsorted(times, when, side="right") - 1
+        inside = (j >= 1) & (j + 2 < times.size)
+        j = np.clip(j, 1, max(times.size - 3, 1))
+        regular = np.abs(times[j + 2] - times[j - 1] - 3.0 * self.period) < 0.5 * self.period
+        f = np.clip((when - times[j]) / self.period, 0.0, 1.0)
+        weights = (
+            (-(f**3) + 2 * f**2 - f) / 2,
+            (3 * f**3 - 5 * f**2 + 2) / 2,
+            (-3 * f**3 + 4 * f**2 + f) / 2,
+            (f**3 - f**2) / 2,
+        )
+        command = a.command[:, self.ws.actuators]
+        voltage = sum(w[:, None] * command[j + k - 1] for k, w in enumerate(weights))
+        usable = base.valid & (inside & regular)[None, :]
+        return replace(base, voltage=np.asarray(voltage, np.float64).T, valid=usable,
+                       displacement=np.where(usable, base.displacement, 0.0))
+
     def fit(self, rows: IndexArray, shift: float) -> None:
         """Fit the plain law on ``rows`` with the command ``shift`` periods earlier."""
-        inputs = self.ws.inputs(rows, shift * self.period, None)
+        inputs = self.inputs(rows, shift)
         start = initial_law(inputs) if self.law is None else self.law
         self.law = levenberg_marquardt(
             lambda loc, glo, jac: self.model.evaluate(loc, glo, inputs, jac),
@@ -57,7 +89,7 @@ class _Scan:
     def cost(self, rows: IndexArray, shift: float) -> float:
         """Return the mean squared residual of the fixed law on ``rows`` at ``shift``."""
         assert self.law is not None  # fitted first
-        inputs = self.ws.inputs(rows, shift * self.period, None)
+        inputs = self.inputs(rows, shift)
         pred = self.model.evaluate(self.law, np.zeros(0), inputs, jacobian=False).prediction
         resid = np.where(inputs.valid, inputs.displacement - pred, 0.0)
         return float(np.sum(resid * resid) / max(int(inputs.valid.sum()), 1))
@@ -69,20 +101,28 @@ class _Scan:
         return float(shifts[i]), i, costs
 
 
-def _refined(scan: _Scan, rows: IndexArray, centre: float, half: float) -> float:
-    """Return the best shift within ``half`` of ``centre`` [periods], parabola-refined."""
+def _refined(scan: _Scan, rows: IndexArray, centre: float, half: float) -> tuple[float, float]:
+    """Return the best shift within ``half`` of ``centre`` [periods] and its variance.
+
+    The best of a ``FINE_STEP`` scan, refined by a parabola through it and its neighbours;
+    the variance [periods^2] is the least-squares one, 2 c0 / (n c''), of a minimum c0 of
+    the mean squared residual with curvature c'' over n pairs (inf: no curvature).
+    """
     shifts = centre + np.arange(-half, half + 0.5 * FINE_STEP, FINE_STEP)
     best, i, costs = scan.best(rows, shifts)
+    variance = np.inf
     if 0 < i < shifts.size - 1:
         lo, mid, hi = costs[i - 1 : i + 2]
         curve = lo - 2.0 * mid + hi
         if curve > 0:
             best += FINE_STEP * 0.5 * (lo - hi) / curve
-    return best
+            pairs = rows.size * scan.ws.actuators.size
+            variance = 2.0 * mid / (pairs * curve / FINE_STEP**2)
+    return best, variance
 
 
-def block_delays(aligned: AlignedData) -> tuple[FloatArray, FloatArray]:
-    """Return the blocks' centre times (B,) [s] and the delay measured in each (B,) [s].
+def block_delays(aligned: AlignedData) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Return the blocks' centre times, the delay measured in each and its sd (B,) [s].
 
     ``aligned`` is the screening block's alignment. A block with too few rows gets NaN.
     """
@@ -101,15 +141,18 @@ def block_delays(aligned: AlignedData) -> tuple[FloatArray, FloatArray]:
     lowest = np.ceil(lowest_shift(scan.ws))
     whole, _, _ = scan.best(every, np.arange(lowest, longest_whole_shift(scan.period) + 1.0))
     scan.fit(every, whole)
-    shift = _refined(scan, every, whole, 1.0)
+    shift, _ = _refined(scan, every, whole, 1.0)
     scan.fit(every, shift)
     # each block's own shift, the law fixed
     reach = max(1.0, MAX_PPM * 1e-6 * duration / scan.period)
     delays = np.full(BLOCKS, np.nan)
+    sigmas = np.full(BLOCKS, np.inf)
     for b, rows in enumerate(per_block):
         if rows.size < 50:
             continue
         coarse = shift + np.arange(-reach, reach + 0.5 * COARSE_STEP, COARSE_STEP)
         near, _, _ = scan.best(rows, coarse)
-        delays[b] = _refined(scan, rows, near, COARSE_STEP) * scan.period
-    return 0.5 * (edges[:-1] + edges[1:]), delays
+        best, variance = _refined(scan, rows, near, COARSE_STEP)
+        delays[b] = best * scan.period
+        sigmas[b] = np.sqrt(variance) * scan.period
+    return 0.5 * (edges[:-1] + edges[1:]), delays, sigmas
