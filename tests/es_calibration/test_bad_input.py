@@ -129,11 +129,12 @@ def test_nan_samples_are_dropped_and_counted(series, tmp_path: Path) -> None:
     assert run([str(bag), "-o", str(tmp_path / "out"), "-q"]) == 0
     doc = json.loads((tmp_path / "out" / "calibration.json").read_text())
     dropped = doc["data"]["dropped"]
-    # NaN samples the command edges took first are counted there (every 50th sample is NaN:
-    # a contiguous excluded span of L samples holds at most L / 50 + 1 of them)
+    # NaN samples dropped first (before the first command, outside the temperature record)
+    # are counted there; command edges mask pairs and drop no sample (every 50th sample is
+    # NaN: a contiguous span of L samples holds at most L / 50 + 1 of them)
     taken = z[::50].size - dropped["displacement NaN"]
-    edges = doc["data"]["command_edges"]
-    assert 0 <= taken <= edges["excluded_samples"] / 50 + edges["edges"]
+    ends = dropped.get(SPAN_DROPS, 0) + dropped.get("displacement before first command", 0)
+    assert 0 <= taken <= ends / 50 + 2
     assert dropped["command NaN"] == 1
     assert dropped["temperature NaN"] == 1
     assert np.isfinite(doc["heldout_rms_after_m"])

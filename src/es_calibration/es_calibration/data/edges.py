@@ -158,9 +158,10 @@ class EdgeMask:
             # actuators never examined take every examined actuator's edges
             unexamined = np.flatnonzero(~np.isin(actuators, self.examined))
             if unexamined.size:
-                rows = np.concatenate([rows, np.repeat(unexamined, lo_all.size)])
-                lo = np.concatenate([lo, np.tile(lo_all, unexamined.size)])
-                hi = np.concatenate([hi, np.tile(hi_all, unexamined.size)])
+                spans = np.unique(np.stack([lo_all, hi_all], axis=1), axis=0)  # one per edge
+                rows = np.concatenate([rows, np.repeat(unexamined, spans.shape[0])])
+                lo = np.concatenate([lo, np.tile(spans[:, 0], unexamined.size)])
+                hi = np.concatenate([hi, np.tile(spans[:, 1], unexamined.size)])
         for first in range(0, actuators.size, COLUMNS):  # bounded (COLUMNS, n) counters
             pick = (rows >= first) & (rows < first + COLUMNS)
             count = np.zeros((min(COLUMNS, actuators.size - first), t.size + 1), np.int32)
