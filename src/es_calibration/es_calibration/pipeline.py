@@ -28,13 +28,13 @@ from es_calibration.data.align import (
 from es_calibration.data.edges import account
 from es_calibration.data.recording import MemoryRecording, Recording, gather, gather_arrays
 from es_calibration.data.searchspan import SEARCH_BUDGET, search_span, search_windows
-from es_calibration.discovery import Discovery, discover
 from es_calibration.data.timing import (
     clock_rate,
     clock_rate_finding,
     corrected_times,
     stamp_findings,
 )
+from es_calibration.discovery import Discovery, discover
 from es_calibration.grid.tiles import (
     DEFAULT_TILE,
     TEMPERATURE,
