@@ -66,6 +66,7 @@ from es_calibration.search.state import (
     Workspace,
     base_state,
     choose_stamp_convention,
+    fit_state,
     fitted_effect,
     heldout_residual,
     screen_block,
@@ -352,6 +353,13 @@ def _timing_health(recording: Recording) -> tuple[AlignedData, list[Finding], fl
     return aligned, findings, first.ppm
 
 
+def _refitted(ws: Workspace, state: ModelState) -> ModelState:
+    """Return ``state``'s model (per-actuator parameters kept) refitted on ``ws``, from it."""
+    train, held = ws.input_pair(state.delay_s, state.play_thresholds)
+    return fit_state(state.model, train, held, state.fit.local, state.fit.glob,
+                     delay_s=state.delay_s, thresholds=state.thresholds)
+
+
 def _with_delay(aligned: AlignedData, delay_s: float) -> AlignedData:
     """Return ``aligned`` whose edges take only what a known delay ``delay_s`` needs."""
     mask = aligned.edge_mask.with_delay(aligned.command_period, delay_s)
@@ -439,7 +447,7 @@ def calibrate(
     if full_grid and not windowed:
         # refitted on the pairs the known delay keeps
         narrow = Workspace(aligned, np.arange(aligned.n_actuators, dtype=np.intp), block_grid)
-        prefix_states = [subset_state(narrow, s, s.model.effects) for s in screened]
+        prefix_states = [_refitted(narrow, s) for s in screened]
     else:
         if full_grid:
             grid_temperature = _grid_temperature(recording, aligned.start_time)
