@@ -12,7 +12,6 @@ import pytest
 
 from es_calibration.calibrate import EXIT_BAD_INPUT, run
 from es_calibration.data.align import (
-    EDGE_DROPS,
     SPAN_DROPS,
     CalibrationInputError,
     MeasuredData,
@@ -130,11 +129,12 @@ def test_nan_samples_are_dropped_and_counted(series, tmp_path: Path) -> None:
     assert run([str(bag), "-o", str(tmp_path / "out"), "-q"]) == 0
     doc = json.loads((tmp_path / "out" / "calibration.json").read_text())
     dropped = doc["data"]["dropped"]
-    # NaN samples the command edges took first are counted there (every 50th sample is NaN:
-    # a contiguous excluded span of L samples holds at most L / 50 + 1 of them)
+    # NaN samples dropped first (before the first command, outside the temperature record)
+    # are counted there; command edges mask pairs and drop no sample (every 50th sample is
+    # NaN: a contiguous span of L samples holds at most L / 50 + 1 of them)
     taken = z[::50].size - dropped["displacement NaN"]
-    edges = doc["data"]["command_edges"]
-    assert 0 <= taken <= edges["excluded_samples"] / 50 + edges["edges"]
+    ends = dropped.get(SPAN_DROPS, 0) + dropped.get("displacement before first command", 0)
+    assert 0 <= taken <= ends / 50 + 2
     assert dropped["command NaN"] == 1
     assert dropped["temperature NaN"] == 1
     assert np.isfinite(doc["heldout_rms_after_m"])
@@ -165,8 +165,8 @@ def test_consecutive_bags_are_joined(series, tmp_path: Path) -> None:
         bags.append(str(bag))
     assert run([*reversed(bags), "-o", str(tmp_path / "out"), "-q"]) == 0
     doc = json.loads((tmp_path / "out" / "calibration.json").read_text())
-    edged = doc["data"]["dropped"].get(EDGE_DROPS, 0)  # the command's unresolvable edges
-    edged += doc["data"]["dropped"].get(SPAN_DROPS, 0)  # and after the last temperature
+    # edges mask (sample, actuator) pairs, they drop no sample (edges.py)
+    edged = doc["data"]["dropped"].get(SPAN_DROPS, 0)  # samples after the last temperature
     assert doc["data"]["samples"] + edged == series["/dm/displacement"][0].size
     assert doc["heldout_rms_after_m"] < 1.2 * doc["noise_floor_m"]
 
@@ -201,8 +201,8 @@ def test_mostly_repeated_stamps_with_one_displacement_per_command_pair_by_order(
     doc = _calibrate(bag, tmp_path / "out")
     data = doc["data"]
     assert "paired by message order" in data["repeated_stamps"]
-    edged = data["dropped"].get(EDGE_DROPS, 0)  # the command's unresolvable edges
-    edged += data["dropped"].get(SPAN_DROPS, 0)  # and after the last temperature
+    # edges mask (sample, actuator) pairs, they drop no sample (edges.py)
+    edged = data["dropped"].get(SPAN_DROPS, 0)  # samples after the last temperature
     assert data["samples"] + edged == series["/dm/displacement"][0].size
     assert "temperature stamps repeated" in data["repeated_stamps"]
     assert sum(data["dropped"].values()) == edged
@@ -223,8 +223,8 @@ def test_repeated_stamps_with_unequal_counts_drop_and_count_ambiguous_samples(
     doc = _calibrate(bag, tmp_path / "out")
     ambiguous = 2 * stamps[1::5].size
     assert doc["data"]["dropped"]["displacement with ambiguous repeated stamp"] == ambiguous
-    edged = doc["data"]["dropped"].get(EDGE_DROPS, 0)  # the command's unresolvable edges
-    edged += doc["data"]["dropped"].get(SPAN_DROPS, 0)  # and after the last temperature
+    # edges mask (sample, actuator) pairs, they drop no sample (edges.py)
+    edged = doc["data"]["dropped"].get(SPAN_DROPS, 0)  # samples after the last temperature
     assert doc["data"]["samples"] + edged == t.size - ambiguous
     assert "dropped" in doc["data"]["repeated_stamps"]
     assert doc["heldout_rms_after_m"] < 1.2 * doc["noise_floor_m"]

@@ -46,7 +46,7 @@ def test_two_effects_are_found_together_with_shares_that_add_up() -> None:
     assert all(e.share > 0.0 for e in cal.effects)
     assert cal.final.heldout_rms <= 1.2 * NOISE
     doc = calibration_document(cal)
-    assert doc["schema_version"] == 2
+    assert doc["schema_version"] == 3
     assert [e["share"] for e in doc["effects"]] == [e.share for e in cal.effects]
     steps = {c["step"] for r in doc["candidates"] for c in r}
     assert steps == {"forward", "backward"}  # two effects: the backward check ran

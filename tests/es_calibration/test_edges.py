@@ -1,8 +1,10 @@
-"""Command edges the command samples cannot resolve: found, their samples left out, reported.
+"""Command edges the command samples cannot resolve: found, their pairs left out, reported.
 
 The rule (edges.py) on synthetic commands with known steps, on smooth commands (nothing
-goes), end to end through the tool (calibration.json and the report say what went), and on
-an independent test-stand case (testing/standgen) whose delay fit it rescues.
+goes), per actuator (an edge takes only its own actuator's samples, and once the delay is
+known only what that delay needs), end to end through the tool (calibration.json and the
+report say what went), on an independent test-stand case (testing/standgen) whose delay fit
+it rescues, and on an independently driven 8 x 8 stand recording, which keeps >= 90 %.
 """
 
 from __future__ import annotations
@@ -13,15 +15,24 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from standgen import simulate
+from standgen import StandConfig, draw_effects, simulate
 from standgen.sweep import build_cases
 
 from es_calibration.calibrate import run
-from es_calibration.data.align import EDGE_DROPS, MeasuredData, align
+from es_calibration.data.align import MeasuredData, align
 from es_calibration.data.delayrange import shift_span
-from es_calibration.data.edges import EDGE_MARGIN_PERIODS, exclude_edges, find_edges
+from es_calibration.data.edges import (
+    EDGE_MARGIN_PERIODS,
+    REACH_PERIODS,
+    account,
+    edge_mask,
+    edge_pairs,
+    find_edges,
+)
+from es_calibration.pipeline import _with_delay
 
 from . import law_bags as lb
+from .independent_drive import simulate_independent
 from .stand_data import measured
 
 RATE = 250.0
@@ -48,25 +59,47 @@ def test_a_step_is_an_edge_and_takes_the_samples_that_could_read_it() -> None:
     assert k in edges
     assert set(edges) <= {k - 1, k, k + 1}  # the step alone (its neighbours move by half)
     samples = t + 0.5 * T  # a displacement half a period after each command
-    out, account = exclude_edges(samples, t, command)
+    mask = edge_mask(t, command)
+    out = mask.excluded(samples, np.arange(2, dtype=np.intp))
+    assert not out[0].any()  # the step is actuator 1's: actuator 0 keeps every sample
     lowest, highest = shift_span(T)
     first = t[edges[0]] - (1.0 + EDGE_MARGIN_PERIODS - lowest) * T
     last = t[edges[-1] + 1] + (1.0 + EDGE_MARGIN_PERIODS + highest) * T
     eps = 1e-9  # stamps on a span's end may round either way
-    assert out[(samples > first + eps) & (samples < last - eps)].all()
-    assert not out[(samples < first - eps) | (samples > last + eps)].any()
+    assert out[1, (samples > first + eps) & (samples < last - eps)].all()
+    assert not out[1, (samples < first - eps) | (samples > last + eps)].any()
     # every sample whose input at any delay searched (up to 0.1 s here) could read the step
     assert last - t[k + 1] >= 0.1 and t[k] - first >= T
-    assert account.edges == edges.size and account.excluded_samples == int(out.sum())
-    assert account.example_times_s[0] == pytest.approx(t[edges[0]])
-    assert account.fraction == pytest.approx(out.mean())
+    found = account(mask, samples, 2)
+    assert found.edges == edges.size and found.excluded_pairs == int(out.sum())
+    assert found.per_actuator_edges[0] == 0 and found.per_actuator_excluded[0] == 0
+    assert found.example_times_s[0] == pytest.approx(t[edges[0]])
+    assert found.fraction == pytest.approx(out.mean())
+    # once the delay is known (here 3.4 periods) the step takes only what that delay reads
+    delay = 3.4 * T
+    known = mask.with_delay(T, delay).excluded(samples, np.arange(2, dtype=np.intp))
+    reach = (REACH_PERIODS + EDGE_MARGIN_PERIODS) * T
+    lo, hi = t[edges[0]] + delay - reach, t[edges[-1] + 1] + delay + reach
+    assert known[1, (samples > lo + eps) & (samples < hi - eps)].all()
+    assert not known[1, (samples < lo - eps) | (samples > hi + eps)].any()
+    assert known[1].sum() < 0.3 * out[1].sum()
+
+
+def test_an_actuator_never_examined_takes_every_examined_edge() -> None:
+    t = np.arange(0.0, 4.0, T)
+    command = _tones(t)
+    command[t > 2.0012, 1] += 30.0
+    mask = edge_mask(t, command).renumbered(np.array([5, 9], dtype=np.intp))
+    out = mask.excluded(t + 0.5 * T, np.array([5, 9, 7], dtype=np.intp))
+    assert not out[0].any() and out[1].any()
+    assert np.array_equal(out[2], out[1])  # actuator 7's commands were never looked at
 
 
 def test_smooth_commands_lose_nothing_even_with_dropped_messages() -> None:
     t = np.arange(0.0, 60.0, T)
     keep = np.random.default_rng(3).random(t.size) >= 0.02  # 2 % of the messages dropped
-    out, account = exclude_edges(t[keep] + 0.5 * T, t[keep], _tones(t[keep]))
-    assert account.edges == 0 and not out.any()
+    interval, _ = edge_pairs(t[keep], _tones(t[keep]))
+    assert interval.size == 0
     # a ramp and a constant are smooth too; round-off is no edge
     flat = np.stack([np.linspace(0.0, 300.0, t.size), np.full(t.size, 50.0)], axis=1)
     flat[:, 1] += 1e-9 * np.random.default_rng(4).standard_normal(t.size)
@@ -92,16 +125,21 @@ def test_calibration_json_and_report_carry_the_edges(tmp_path: Path) -> None:
     start = doc["data"]["start_time_s"]
     found = np.array(edges["example_times_s"]) - start
     assert np.all(np.min(np.abs(found[:, None] - np.array([5.0, 11.0])[None]), axis=1) < 2.5 * T)
-    assert edges["excluded_samples"] == doc["data"]["dropped"][EDGE_DROPS]
-    # two spans of (2.95 + 1 + 25 + 2.5 + 2) periods and the step's one to three intervals
+    # the steps drive both actuators: each has its own edges and loses its own pairs
+    per = edges["per_actuator"]
+    assert len(per["edges"]) == 2 and min(per["edges"]) >= 2
+    assert sum(per["excluded_samples"]) == edges["excluded_pairs"]
+    # at the delay found, two spans of (2 x (2 + 1) + 1 to 3) periods per actuator
     per_edge = edges["excluded_before_s"] + edges["excluded_after_s"]
-    assert 2 * (per_edge + T) * RATE - 2 <= edges["excluded_samples"]
-    assert edges["excluded_samples"] <= 2 * (per_edge + 3 * T) * RATE + 2
+    assert per_edge == pytest.approx(2 * (REACH_PERIODS + EDGE_MARGIN_PERIODS) * T)
+    for n in per["excluded_samples"]:
+        assert 2 * (per_edge + T) * RATE - 2 <= n <= 2 * (per_edge + 3 * T) * RATE + 2
     assert edges["excluded_fraction"] == pytest.approx(
-        edges["excluded_samples"] / (doc["data"]["samples"] + edges["excluded_samples"])
+        edges["excluded_pairs"] / (2 * doc["data"]["samples"])
     )
+    assert doc["health"]["kept_fraction"] > 0.95
     report = (tmp_path / "out" / "report.md").read_text()
-    assert f"{edges['excluded_samples']} displacement samples" in report
+    assert f"{edges['excluded_pairs']} (sample, actuator) pairs" in report
     assert "cannot resolve" in report
 
 
@@ -124,6 +162,30 @@ def test_standgen_delay_case_is_rescued_by_the_edge_rule() -> None:
     account = aligned.command_edges
     assert account is not None and account.edges > 0
     assert 0.0 < account.fraction < 0.2
+    # the standgen program switches every actuator at once: each has edges of its own
+    assert min(account.per_actuator_edges) > 0
     _, _, _, final, _, _ = _search(aligned, aligned.grid, ("delay", "drift"))
     assert set(final.model.effects) == {"delay", "drift"}
     assert final.heldout_rms < 1.2 * noise
+
+
+def test_independently_driven_8x8_keeps_its_samples() -> None:
+    # each actuator has its own program (its own segment instants): with one edge rule for
+    # the whole grid this recording kept nothing (every sample read some actuator's edge);
+    # per actuator the delay search's window keeps ~88 %, the known delay's >= 90 %
+    effects = draw_effects(["delay"], np.random.default_rng(3), rate_hz=RATE, duration_s=30.0,
+                           shape=(8, 8))
+    config = StandConfig(rows=8, cols=8, rate_hz=RATE, duration_s=30.0, effects=effects,
+                         seed=3, temperature_kind="grid")
+    aligned = align(measured(simulate_independent(config)))
+    mask = aligned.edge_mask
+    assert mask.actuator.size > 64 * 20  # ~20 segment joins per actuator, each an edge
+    whole_grid_rule = replace(mask, examined=np.zeros(0, np.intp))  # any edge takes all
+    old = 1.0 - whole_grid_rule.excluded(aligned.t, np.arange(1, dtype=np.intp)).mean()
+    assert old < 0.05
+    assert aligned.kept_fraction() > 0.8
+    assert effects.delay is not None
+    known = _with_delay(aligned, effects.delay.delay_s)
+    assert known.kept_fraction() >= 0.9
+    assert known.command_edges is not None
+    assert known.command_edges.fraction < 0.06

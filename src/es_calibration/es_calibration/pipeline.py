@@ -11,7 +11,7 @@ import tempfile
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Final
+from typing import Any, Final
 
 import numpy as np
 
@@ -25,8 +25,15 @@ from es_calibration.data.align import (
     resample_temperature,
     temperature_stamps,
 )
+from es_calibration.data.edges import account
 from es_calibration.data.recording import MemoryRecording, Recording, gather, gather_arrays
 from es_calibration.data.searchspan import SEARCH_BUDGET, search_span, search_windows
+from es_calibration.data.timing import (
+    clock_rate,
+    clock_rate_finding,
+    corrected_times,
+    stamp_findings,
+)
 from es_calibration.discovery import Discovery, discover
 from es_calibration.grid.tiles import (
     DEFAULT_TILE,
@@ -40,8 +47,10 @@ from es_calibration.grid.tiles import (
     write_temperature,
 )
 from es_calibration.grid.tilestore import TileStore, layout
+from es_calibration.health.findings import Finding
 from es_calibration.model.composite import CANDIDATES
 from es_calibration.search import unexplained
+from es_calibration.search.blockdelay import block_delays
 from es_calibration.search.local import per_actuator_round
 from es_calibration.search.residual import ResidualStructure, analyse
 from es_calibration.search.selection import (
@@ -57,6 +66,7 @@ from es_calibration.search.state import (
     Workspace,
     base_state,
     choose_stamp_convention,
+    fit_state,
     fitted_effect,
     heldout_residual,
     screen_block,
@@ -115,6 +125,12 @@ class Calibration:
     search_span: str = ""
     #: The discovery step's outcome (terms beyond the registry), None when it did not run.
     discovery: Discovery | None = None
+    #: Health findings (health/findings.py, as calibration.json writes them).
+    findings: list[dict[str, Any]] = field(default_factory=list)
+    #: The displacement clock's rate against the command's [ppm] (None: not estimated).
+    clock_rate_ppm: float | None = None
+    #: Share of the screening block's (sample, actuator) pairs kept for the fit.
+    kept_fraction: float = 1.0
 
     @property
     def noise_floor_m(self) -> float:
@@ -283,6 +299,74 @@ def _search(
     return (other, *second) if preferred_final(second[2], final) else first
 
 
+def _align_block(
+    recording: Recording, clock_fraction: float = 0.0
+) -> tuple[AlignedData, MeasuredData]:
+    """Return the screening block's alignment (stamp convention chosen) and its data.
+
+    ``clock_fraction`` corrects the displacement stamps of a clock that fast (timing.py).
+    """
+    grid = recording.grid
+    idx, block_grid = screen_block(grid)
+    data = recording.block(idx, block_grid)
+    if clock_fraction:
+        origin = float(data.displacement_times[0])
+        data = replace(data, displacement_times=corrected_times(
+            data.displacement_times, clock_fraction, origin))
+    block = align(data)
+    if block_grid != grid:  # the block's model inputs use the whole grid's mean temperature
+        grid_temperature = _grid_temperature(recording, block.start_time)
+        mean, temp_nan = grid_temperature_mean(*grid_temperature)
+        block = replace(block, grid_mean_temperature=mean)
+        block.dropped["temperature NaN"] = temp_nan
+    return choose_stamp_convention(block), data
+
+
+def _timing_health(recording: Recording) -> tuple[AlignedData, list[Finding], float]:
+    """Align the screening block with its timing checked (data/timing.py).
+
+    Returns the alignment (on the corrected displacement time base when the two loggers'
+    clocks differ), the timing findings and the clock-rate difference [ppm]. After a
+    correction the delays are measured again: a rate still left is corrected on top.
+    """
+    aligned, data = _align_block(recording)
+    origin = aligned.start_time
+    findings = [
+        *stamp_findings("command logger", data.command_times, origin),
+        *stamp_findings("displacement logger", data.displacement_times, origin),
+    ]
+    duration = float(aligned.t[-1])
+    fraction = 0.0
+    rate = clock_rate(*block_delays(aligned), aligned.command_period, duration)
+    first = rate
+    for _ in range(2):  # the correction, and what is left after it
+        if not rate.significant:
+            break
+        fraction = (1.0 + fraction) * (1.0 + rate.fraction) - 1.0
+        aligned, _ = _align_block(recording, fraction)
+        rate = clock_rate(*block_delays(aligned), aligned.command_period, duration)
+    if fraction:
+        total = replace(first, ppm=fraction * 1e6, drift_s=fraction * duration)
+        findings.append(clock_rate_finding(total, duration))
+        return aligned, findings, fraction * 1e6
+    return aligned, findings, first.ppm
+
+
+def _refitted(ws: Workspace, state: ModelState) -> ModelState:
+    """Return ``state``'s model (per-actuator parameters kept) refitted on ``ws``, from it."""
+    train, held = ws.input_pair(state.delay_s, state.play_thresholds)
+    return fit_state(state.model, train, held, state.fit.local, state.fit.glob,
+                     delay_s=state.delay_s, thresholds=state.thresholds)
+
+
+def _with_delay(aligned: AlignedData, delay_s: float) -> AlignedData:
+    """Return ``aligned`` whose edges take only what a known delay ``delay_s`` needs."""
+    mask = aligned.edge_mask.with_delay(aligned.command_period, delay_s)
+    edges = account(mask.shifted(-aligned.start_time), aligned.t + aligned.start_time,
+                    aligned.displacement.shape[1])
+    return replace(aligned, edge_mask=mask, command_edges=edges)
+
+
 def calibrate(
     measured: MeasuredData | Recording,
     candidates: tuple[str, ...] = CANDIDATES,
@@ -315,14 +399,10 @@ def calibrate(
     clock = time.perf_counter()
     grid = recording.grid
     idx, block_grid = screen_block(grid)
-    block = align(recording.block(idx, block_grid))
     full_grid = block_grid == grid
-    if not full_grid:  # the block's model inputs use the whole grid's mean temperature
-        grid_temperature = _grid_temperature(recording, block.start_time)
-        mean, temp_nan = grid_temperature_mean(*grid_temperature)
-        block = replace(block, grid_mean_temperature=mean)
-        block.dropped["temperature NaN"] = temp_nan
-    aligned = choose_stamp_convention(block)
+    aligned, findings, ppm = _timing_health(recording)
+    if not full_grid:
+        grid_temperature = _grid_temperature(recording, aligned.start_time)
     searched = search_span(aligned, search_budget)
     windowed = searched is not aligned
     span_note = (
@@ -354,6 +434,9 @@ def calibrate(
     timings["effect search"] = time.perf_counter() - clock
 
     clock = time.perf_counter()
+    # the delay is known: an edge takes only the samples that delay needs (edges.py)
+    aligned = _with_delay(aligned, final_screen.delay_s)
+    kept = aligned.kept_fraction()
     analysis = _Analysis(aligned)
     before, resid_before = analysis.analyse(base_screen)
     timings["residual analysis"] = time.perf_counter() - clock
@@ -361,12 +444,17 @@ def calibrate(
     clock = time.perf_counter()
     screened = [base_screen] + [after_state for _, _, after_state in added]
     if full_grid and not windowed:
-        prefix_states = screened
+        # refitted on the pairs the known delay keeps
+        narrow = Workspace(aligned, np.arange(aligned.n_actuators, dtype=np.intp), block_grid)
+        prefix_states = [_refitted(narrow, s) for s in screened]
     else:
         if full_grid:
             grid_temperature = _grid_temperature(recording, aligned.start_time)
+        # the block's edges named by grid index; the other actuators take all of them
+        on_grid = aligned if full_grid else replace(
+            aligned, edge_mask=aligned.edge_mask.renumbered(idx))
         prefix_states, counts = _grid_refit(
-            recording, aligned, screened, temperature=grid_temperature, tile=tile, run=run
+            recording, on_grid, screened, temperature=grid_temperature, tile=tile, run=run
         )
         aligned = replace(aligned, dropped={**aligned.dropped, **counts})
     timings["grid refit"] = time.perf_counter() - clock
@@ -426,6 +514,9 @@ def calibrate(
         timings_s=timings,
         search_span=span_note,
         discovery=discovery,
+        findings=[f.as_dict() for f in findings],
+        clock_rate_ppm=ppm,
+        kept_fraction=kept,
     )
 
 

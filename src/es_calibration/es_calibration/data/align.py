@@ -9,8 +9,9 @@ uniform resampling of the temperature. Nothing is extrapolated: samples before t
 command, and those before the first or after the last temperature message, are dropped. NaN
 values are dropped per actuator and counted, never propagated. Gaps in any topic are found
 and the samples they would need are removed and counted (gaps.py): nothing is interpolated
-across a gap. So are the samples whose input could read the command
-at an edge its samples cannot resolve (edges.py), the same samples for every model.
+across a gap. The samples whose input could read an actuator's command at an edge its
+samples cannot resolve (edges.py) are masked for that actuator only (:attr:`AlignedData.edge_mask`,
+applied where rows are chosen for a fit or a score), the same pairs for every model.
 
 Training and held-out data are interleaved time blocks (even blocks train, odd blocks are
 held out), so that the held-out score tests interpolation across the run, not extrapolation.
@@ -26,7 +27,7 @@ import numpy as np
 from scipy.signal import savgol_filter
 
 from es_calibration._typing import BoolArray, FloatArray, IndexArray
-from es_calibration.data.edges import EdgeExclusion, exclude_edges
+from es_calibration.data.edges import EdgeExclusion, EdgeMask, account, edge_mask
 from es_calibration.data.gaps import (
     GAP_FACTOR,
     Gap,
@@ -59,8 +60,6 @@ GAP_DROPS: Final = {
 }
 #: Key of :attr:`AlignedData.dropped` for samples outside the temperature topic's span.
 SPAN_DROPS: Final = "displacement outside the temperature record"
-#: Key of :attr:`AlignedData.dropped` for samples an unresolvable command edge takes out.
-EDGE_DROPS: Final = "displacement needing the command at an unresolvable edge"
 #: Actuators resampled at once by :func:`resample_temperature` (bounds its temporaries).
 RESAMPLE_COLUMNS: Final = 512
 #: Number of interleaved blocks for long records, and the shortest block [s].
@@ -114,8 +113,12 @@ class AlignedData:
             only some actuators' columns (None: the mean of ``temperature``).
         command_period_s: the command period [s] when ``command_times`` holds only some
             commands (None: their median spacing).
-        command_edges: what unresolvable command edges took out (edges.py; None: the rule
-            was not applied).
+        command_edges: what unresolvable command edges take out of the (sample, actuator)
+            pairs (edges.py; None: the rule was not applied).
+        edge_mask: the per-actuator edges (edges.py; its times on this time base).
+        columns: the grid (row-major) index of each actuator column (None: the columns are
+            the grid's first ones in order), what ``edge_mask`` names actuators by.
+        recorded_samples: displacement messages of the recording before any was dropped.
         temperature_span: what the ends of the temperature topic took out (gaps.py; None:
             the rule was not applied).
 
@@ -144,6 +147,9 @@ class AlignedData:
     command_period_s: float | None = None
     command_edges: EdgeExclusion | None = None
     temperature_span: TemperatureSpan | None = None
+    edge_mask: EdgeMask = field(default_factory=EdgeMask.empty)
+    columns: IndexArray | None = None
+    recorded_samples: int = 0
 
     @property
     def command_finite_all(self) -> bool:
@@ -204,6 +210,30 @@ class AlignedData:
         tol = self.stamp_tolerance
         when = self.t[rows] - delay_s + (tol if self.include_same_stamp else -tol)
         return np.searchsorted(self.command_times, when, side="right") - 1
+
+    def edge_excluded(self, rows: IndexArray, actuators: IndexArray) -> BoolArray:
+        """Return (len(actuators), len(rows)): the pairs an unresolvable command edge takes out.
+
+        ``actuators`` are column indices of this data (see ``columns``).
+        """
+        named = actuators if self.columns is None else self.columns[actuators]
+        return self.edge_mask.excluded(self.t[rows], np.asarray(named, np.intp))
+
+    def kept_fraction(self) -> float:
+        """Return the share of the recording's (sample, actuator) pairs kept for the fit.
+
+        Kept: a finite displacement that no gap, end of the temperature record, ambiguous
+        stamp or unresolvable command edge of the actuator's own took out (this data's
+        actuators; a finite command in effect is checked where the sample is used).
+        """
+        rows = np.arange(self.t.size, dtype=np.intp)
+        kept = 0
+        for lo in range(0, self.displacement.shape[1], RESAMPLE_COLUMNS):
+            cols = np.arange(lo, min(lo + RESAMPLE_COLUMNS, self.displacement.shape[1]),
+                             dtype=np.intp)
+            kept += int((self.valid[:, cols].T & ~self.edge_excluded(rows, cols)).sum())
+        total = max(self.recorded_samples, self.t.size) * self.displacement.shape[1]
+        return kept / max(total, 1)
 
     def linked(self, rows: IndexArray) -> BoolArray:
         """Return (len(rows) - 1,): whether consecutive ``rows`` are neighbours in time.
@@ -399,6 +429,7 @@ def align(data: MeasuredData, n_blocks: int | None = None) -> AlignedData:
         if times[-1] == times[0]:
             raise CalibrationInputError(f"{name}: all {times.size} messages share one time stamp")
     gaps = _all_gaps(data)
+    recorded = int(data.displacement_times.size)
     data, dropped, stamp_note, index = _resolve_repeated_stamps(data)
     if index is None:
         index = np.arange(data.displacement_times.size)
@@ -431,11 +462,9 @@ def align(data: MeasuredData, n_blocks: int | None = None) -> AlignedData:
     if span.excluded_samples:
         dropped[SPAN_DROPS] = span.excluded_samples
         t_abs, z, index = t_abs[~out], z[~out], index[~out]
-    # samples whose input the commands cannot resolve go (edges.py)
-    out, edge_account = exclude_edges(t_abs, data.command_times, cmd)
-    if edge_account.excluded_samples:
-        dropped[EDGE_DROPS] = edge_account.excluded_samples
-        t_abs, z, index = t_abs[~out], z[~out], index[~out]
+    # pairs whose input the actuator's commands cannot resolve are masked (edges.py)
+    per_actuator_edges = edge_mask(data.command_times, cmd)
+    edge_account = account(per_actuator_edges, t_abs, A)
     if t_abs.size < MIN_SAMPLES:
         raise CalibrationInputError(
             f"too short to fit: {t_abs.size} displacement samples after the first command "
@@ -486,11 +515,14 @@ def align(data: MeasuredData, n_blocks: int | None = None) -> AlignedData:
         sample_index=index,
         command_edges=edge_account,
         temperature_span=span,
+        edge_mask=per_actuator_edges.shifted(start),
+        recorded_samples=recorded,
     )
-    if valid.sum(axis=0).min() < MIN_SAMPLES:
-        worst = int(np.argmin(valid.sum(axis=0)))
+    usable = valid.sum(axis=0) - np.asarray(edge_account.per_actuator_excluded)
+    if usable.min() < MIN_SAMPLES:
+        worst = int(np.argmin(usable))
         raise CalibrationInputError(
-            f"too short to fit: actuator {worst} has {int(valid[:, worst].sum())} usable "
+            f"too short to fit: actuator {worst} has {int(usable[worst])} usable "
             f"samples (need {MIN_SAMPLES})"
         )
     return aligned

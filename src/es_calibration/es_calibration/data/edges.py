@@ -22,18 +22,25 @@ The rule, from the recorded commands only:
   stands out; a step stands out of a flat or smooth neighbourhood;
 - an interval next to a gap (longer than ``GAP_FACTOR`` periods) is never an edge: the
   gap's own exclusion covers it;
-- the samples excluded for an edge are those whose input could read the interval at any
-  shift the delay search considers (delayrange.py), with the interpolation's reach of one
-  period and a margin of ``EDGE_MARGIN_PERIODS`` on each side: the same samples for every
-  candidate model, so candidates are compared on the same samples.
+- an edge takes out only the samples of the actuators whose own command has it
+  (per-actuator masks, :class:`EdgeMask`): independently driven actuators keep their
+  samples between their own edges;
+- before the delay is known (the delay search), the samples an edge takes are those whose
+  input could read the interval at any shift the search considers (delayrange.py), with the
+  interpolation's reach of one period and a margin of ``EDGE_MARGIN_PERIODS`` on each side:
+  the same samples for every candidate model, so candidates are compared on the same
+  samples (:func:`search_window`);
+- once the delay d is known, an edge takes only the samples whose delayed instant t - d
+  lies within ``REACH_PERIODS`` (the cubic interpolation's taps) plus the margin of the
+  interval (:func:`delay_window`): a few periods instead of the whole search span.
 
-With several actuators (the screening block) an interval is an edge when it is one for any
-of them, and the samples go for all of them (the grid refit uses the same samples).
+The pairs (edge, actuator) are kept sparse (their times and the actuator), and a mask is
+made only for the rows and actuators a fit uses, so memory stays bounded on any grid.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Final
 
 import numpy as np
@@ -52,47 +59,176 @@ LOCAL_WINDOW: Final = 8
 EDGE_FLOOR: Final = 1e-3
 #: Margin on each side of an edge's excluded span [command periods].
 EDGE_MARGIN_PERIODS: Final = 1.0
+#: Reach of the fractional-delay interpolation around the delayed instant [command periods]
+#: (the cubic kernel's taps, search/state.py: from 2 - f periods before to 1 + f after it).
+REACH_PERIODS: Final = 2.0
 #: Edges whose times the report and calibration.json list.
 EXAMPLES: Final = 5
-#: Actuators whose departures are computed at once (bounds the temporaries).
+#: Actuators whose departures (or masks) are computed at once (bounds the temporaries).
 COLUMNS: Final = 16
+
+
+def search_window(period_s: float) -> tuple[float, float]:
+    """Return (before, after) [s] of the samples an edge takes while the delay is unknown.
+
+    A sample at t is taken out when c_i - before <= t <= c_i+1 + after for an edge interval
+    (c_i, c_i+1): every shift the delay search reaches, with the reach of one period and
+    the margin on each side.
+    """
+    if period_s <= 0.0:
+        return 0.0, 0.0
+    lowest, highest = shift_span(period_s)
+    return (
+        (1.0 + EDGE_MARGIN_PERIODS - lowest) * period_s,
+        (1.0 + EDGE_MARGIN_PERIODS + highest) * period_s,
+    )
+
+
+def delay_window(period_s: float, delay_s: float) -> tuple[float, float]:
+    """Return (before, after) [s] of the samples an edge takes once the delay is known.
+
+    The samples whose delayed instant t - ``delay_s`` lies within ``REACH_PERIODS`` +
+    ``EDGE_MARGIN_PERIODS`` periods of the edge interval.
+    """
+    reach = (REACH_PERIODS + EDGE_MARGIN_PERIODS) * period_s
+    return reach - delay_s, reach + delay_s
+
+
+@dataclass(frozen=True)
+class EdgeMask:
+    """Per-actuator edges, sparse: which (sample, actuator) pairs they take out.
+
+    Attributes:
+        start_s, end_s: (P,) the stamps of each edge interval [s] (on the aligned time base).
+        actuator: (P,) the actuator (grid row-major index) whose command has that edge.
+        before_s, after_s: the window taken around an interval [s] (:func:`search_window`
+            or :func:`delay_window`).
+        delay_s: the delay the window was made for (None: the delay search's window).
+        examined: the actuators whose commands were examined (None: all of them); any
+            other actuator takes every examined actuator's edges (its own commands were
+            never looked at, so any edge may be its own too).
+
+    """
+
+    start_s: FloatArray
+    end_s: FloatArray
+    actuator: npt.NDArray[np.intp]
+    before_s: float
+    after_s: float
+    delay_s: float | None = None
+    examined: npt.NDArray[np.intp] | None = None
+
+    @classmethod
+    def empty(cls) -> EdgeMask:
+        """Return a mask that takes nothing out."""
+        return cls(np.zeros(0), np.zeros(0), np.zeros(0, np.intp), 0.0, 0.0)
+
+    def with_delay(self, period_s: float, delay_s: float) -> EdgeMask:
+        """Return the mask for a known delay ``delay_s`` [s] at command period ``period_s``."""
+        before, after = delay_window(period_s, delay_s)
+        return replace(self, before_s=before, after_s=after, delay_s=delay_s)
+
+    def shifted(self, offset_s: float) -> EdgeMask:
+        """Return the mask on a time base ``offset_s`` [s] later (times minus the offset)."""
+        return replace(self, start_s=self.start_s - offset_s, end_s=self.end_s - offset_s)
+
+    def renumbered(self, columns: npt.NDArray[np.intp]) -> EdgeMask:
+        """Return the mask with actuator i renamed ``columns[i]``; only those were examined."""
+        return replace(self, actuator=columns[self.actuator], examined=np.sort(columns))
+
+    def excluded(self, t: FloatArray, actuators: npt.NDArray[np.intp]) -> BoolArray:
+        """Return (len(actuators), len(t)): the pairs of samples at ``t`` [s] taken out.
+
+        ``actuators`` are grid row-major indices (as ``actuator`` counts them).
+        """
+        out = np.zeros((actuators.size, t.size), dtype=bool)
+        if not self.actuator.size or not t.size:
+            return out
+        order = None
+        if np.any(np.diff(t) < 0):
+            order = np.argsort(t, kind="stable")
+            t = t[order]
+        lo_all = np.searchsorted(t, self.start_s - self.before_s, side="left")
+        hi_all = np.searchsorted(t, self.end_s + self.after_s, side="right")
+        lookup = np.full(int(max(self.actuator.max(), actuators.max())) + 1, -1, np.intp)
+        lookup[actuators] = np.arange(actuators.size)
+        own = lookup[self.actuator]
+        rows, lo, hi = own[own >= 0], lo_all[own >= 0], hi_all[own >= 0]
+        if self.examined is not None:
+            # actuators never examined take every examined actuator's edges
+            unexamined = np.flatnonzero(~np.isin(actuators, self.examined))
+            if unexamined.size:
+                spans = np.unique(np.stack([lo_all, hi_all], axis=1), axis=0)  # one per edge
+                rows = np.concatenate([rows, np.repeat(unexamined, spans.shape[0])])
+                lo = np.concatenate([lo, np.tile(spans[:, 0], unexamined.size)])
+                hi = np.concatenate([hi, np.tile(spans[:, 1], unexamined.size)])
+        for first in range(0, actuators.size, COLUMNS):  # bounded (COLUMNS, n) counters
+            pick = (rows >= first) & (rows < first + COLUMNS)
+            count = np.zeros((min(COLUMNS, actuators.size - first), t.size + 1), np.int32)
+            np.add.at(count, (rows[pick] - first, lo[pick]), 1)
+            np.add.at(count, (rows[pick] - first, hi[pick]), -1)
+            out[first : first + count.shape[0]] = np.cumsum(count, axis=1)[:, :-1] > 0
+        if order is not None:
+            back = np.empty_like(order)
+            back[order] = np.arange(order.size)
+            out = out[:, back]
+        return out
 
 
 @dataclass(frozen=True)
 class EdgeExclusion:
-    """What the unresolvable command edges take out of the samples.
+    """What the unresolvable command edges take out of the (sample, actuator) pairs.
 
     Attributes:
-        edges: command intervals found to be edges.
-        excluded_samples: displacement samples left out for them (after any gap's).
+        edges: command intervals found to be an edge for at least one actuator.
+        pairs: (edge interval, actuator) pairs (an actuator's own edges, summed).
         samples: displacement samples the rule was applied to.
+        actuators: actuators the rule was applied to.
         example_times_s: bag times of the first edges' earlier command stamps [s].
-        before_s, after_s: samples excluded from this long before an edge's interval to
+        before_s, after_s: pairs excluded from this long before an edge's interval to
             this long after it [s].
+        delay_s: the delay the window was made for (None: the delay search's window).
+        per_actuator_edges: (actuators,) edge intervals of each actuator's own command.
+        per_actuator_excluded: (actuators,) samples each actuator loses to its edges.
 
     """
 
     edges: int
-    excluded_samples: int
+    pairs: int
     samples: int
+    actuators: int
     example_times_s: tuple[float, ...]
     before_s: float
     after_s: float
+    delay_s: float | None
+    per_actuator_edges: tuple[int, ...]
+    per_actuator_excluded: tuple[int, ...]
+
+    @property
+    def excluded_pairs(self) -> int:
+        """Return the (sample, actuator) pairs excluded."""
+        return int(sum(self.per_actuator_excluded))
 
     @property
     def fraction(self) -> float:
-        """Return the fraction of the samples excluded."""
-        return self.excluded_samples / max(self.samples, 1)
+        """Return the fraction of the (sample, actuator) pairs excluded."""
+        return self.excluded_pairs / max(self.samples * self.actuators, 1)
 
     def as_dict(self) -> dict[str, Any]:
         """Return the exclusion as calibration.json writes it (``data.command_edges``)."""
         return {
             "edges": self.edges,
-            "excluded_samples": self.excluded_samples,
+            "pairs": self.pairs,
+            "excluded_pairs": self.excluded_pairs,
             "excluded_fraction": self.fraction,
             "example_times_s": list(self.example_times_s),
             "excluded_before_s": self.before_s,
             "excluded_after_s": self.after_s,
+            "delay_s": self.delay_s,
+            "per_actuator": {
+                "edges": list(self.per_actuator_edges),
+                "excluded_samples": list(self.per_actuator_excluded),
+            },
         }
 
 
@@ -140,50 +276,70 @@ def departures(times: FloatArray, command: FloatArray) -> FloatArray:
     return out
 
 
-def find_edges(times: FloatArray, command: FloatArray) -> npt.NDArray[np.intp]:
-    """Return the indices i of the edge intervals (stamps i to i + 1) of a command.
+def edge_pairs(
+    times: FloatArray, command: FloatArray
+) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.intp]]:
+    """Return the (interval, actuator) pairs where an actuator's command has an edge.
 
     ``times`` (Nc,) [s] sorted stamps, ``command`` (Nc, A) [V] finite values (NaN held
-    from the last finite value, as align.py does).
+    from the last finite value, as align.py does). Interval i runs from stamp i to i + 1.
+    Pairs are sorted by interval, then actuator.
     """
-    edge = np.zeros(max(times.size - 1, 0), dtype=bool)
-    if not command.size:
-        return np.flatnonzero(edge)
-    floor = EDGE_FLOOR * float(command.max() - command.min())
-    for lo in range(0, command.shape[1], COLUMNS):  # bounded temporaries, few chunks
-        dep = departures(times, command[:, lo : lo + COLUMNS])
-        local = np.minimum(_window_max(dep, "before"), _window_max(dep, "after"))
-        edge |= ((dep > EDGE_RATIO * local) & (dep > floor)).any(axis=1)
-    return np.flatnonzero(edge)
+    found: list[tuple[npt.NDArray[np.intp], npt.NDArray[np.intp]]] = []
+    if command.size and times.size > 1:
+        floor = EDGE_FLOOR * float(command.max() - command.min())
+        for lo in range(0, command.shape[1], COLUMNS):  # bounded temporaries, few chunks
+            dep = departures(times, command[:, lo : lo + COLUMNS])
+            local = np.minimum(_window_max(dep, "before"), _window_max(dep, "after"))
+            interval, column = np.nonzero((dep > EDGE_RATIO * local) & (dep > floor))
+            found.append((interval.astype(np.intp), (column + lo).astype(np.intp)))
+    if not found:
+        return np.zeros(0, np.intp), np.zeros(0, np.intp)
+    interval = np.concatenate([f[0] for f in found])
+    actuator = np.concatenate([f[1] for f in found])
+    order = np.lexsort((actuator, interval))
+    return interval[order], actuator[order]
 
 
-def exclude_edges(
-    t: FloatArray, command_times: FloatArray, command: FloatArray
-) -> tuple[BoolArray, EdgeExclusion]:
-    """Return the samples at times ``t`` (N,) [s] that unresolvable command edges exclude.
+def find_edges(times: FloatArray, command: FloatArray) -> npt.NDArray[np.intp]:
+    """Return the indices i of the intervals (stamps i to i + 1) that are an edge for any actuator.
 
-    ``command_times`` (Nc,) [s] on the same time base, ``command`` (Nc, A) [V] finite.
-    Returns the excluded samples (N,) and the account of them.
+    ``times`` (Nc,) [s] sorted stamps, ``command`` (Nc, A) [V] finite values.
     """
-    idx = find_edges(command_times, command)
-    step = np.diff(command_times)
+    return np.unique(edge_pairs(times, command)[0])
+
+
+def edge_mask(times: FloatArray, command: FloatArray) -> EdgeMask:
+    """Return the per-actuator edges of a command with the delay search's window.
+
+    ``times`` (Nc,) [s] sorted stamps, ``command`` (Nc, A) [V] finite values.
+    """
+    interval, actuator = edge_pairs(times, command)
+    step = np.diff(times)
     period = float(np.median(step)) if step.size else 0.0
-    lowest, highest = shift_span(period) if period > 0.0 else (0.0, 0.0)
-    before = (1.0 + EDGE_MARGIN_PERIODS - lowest) * period
-    after = (1.0 + EDGE_MARGIN_PERIODS + highest) * period
-    starts = command_times[idx] - before
-    ends = command_times[idx + 1] + after
-    # a sample is inside some span when more spans have started than ended before it
-    inside = np.searchsorted(np.sort(starts), t, side="right") - np.searchsorted(
-        np.sort(ends), t, side="left"
-    )
-    out = np.asarray(inside > 0)
-    account = EdgeExclusion(
-        edges=int(idx.size),
-        excluded_samples=int(out.sum()),
+    before, after = search_window(period)
+    return EdgeMask(times[interval], times[interval + 1], actuator, before, after)
+
+
+def account(mask: EdgeMask, t: FloatArray, actuators: int) -> EdgeExclusion:
+    """Return what ``mask`` takes out of the samples at ``t`` (N,) [s] of ``actuators``.
+
+    The mask's times must be on the time base of ``t``.
+    """
+    excluded = np.zeros(actuators, np.int64)
+    for lo in range(0, actuators, COLUMNS):
+        cols = np.arange(lo, min(lo + COLUMNS, actuators), dtype=np.intp)
+        excluded[cols] = mask.excluded(t, cols).sum(axis=1)
+    starts = np.unique(mask.start_s)
+    return EdgeExclusion(
+        edges=int(starts.size),
+        pairs=int(mask.actuator.size),
         samples=int(t.size),
-        example_times_s=tuple(float(x) for x in command_times[idx[:EXAMPLES]]),
-        before_s=before,
-        after_s=after,
+        actuators=actuators,
+        example_times_s=tuple(float(x) for x in starts[:EXAMPLES]),
+        before_s=mask.before_s,
+        after_s=mask.after_s,
+        delay_s=mask.delay_s,
+        per_actuator_edges=tuple(int(n) for n in np.bincount(mask.actuator, minlength=actuators)),
+        per_actuator_excluded=tuple(int(n) for n in excluded),
     )
-    return out, account

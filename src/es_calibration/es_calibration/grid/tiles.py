@@ -190,6 +190,7 @@ def tile_data(
         grid=store.tiles[index].shape,
         displacement=displacement,
         valid=np.isfinite(displacement),
+        columns=np.asarray(store.tiles[index].actuators, np.intp),
         command=np.asarray(arrays[COMMAND_ROLE], np.float64),
         command_finite=np.asarray(arrays[COMMAND_FINITE], bool),
         temperature=np.asarray(arrays[TEMPERATURE], np.float64),

@@ -165,12 +165,16 @@ def _edge_lines(a: AlignedData) -> list[str]:
                 "interpolate)"]
     examples = ", ".join(f"{x - a.start_time:.3f}" for x in e.example_times_s)
     more = ", ..." if e.edges > len(e.example_times_s) else ""
+    per = np.asarray(e.per_actuator_edges)
     return [
         f"- {e.edges} command interval(s) with an edge the command samples cannot resolve "
-        f"(e.g. at {examples}{more} s since the first sample); {e.excluded_samples} "
-        f"displacement samples ({100 * e.fraction:.2f} %) whose input could read one at any "
-        f"delay searched ({e.before_s * 1e3:.3g} ms before to {e.after_s * 1e3:.3g} ms after "
-        "it) are left out of fit and scoring",
+        f"(e.g. at {examples}{more} s since the first sample), {e.pairs} edge(s) of single "
+        f"actuators' commands ({per.min()}-{per.max()} per actuator); an edge takes out only "
+        f"the samples of the actuators whose command has it: {e.excluded_pairs} "
+        f"(sample, actuator) pairs ({100 * e.fraction:.2f} %) whose input could read one at "
+        f"the delay found ({e.before_s * 1e3:.3g} ms before to {e.after_s * 1e3:.3g} ms "
+        "after it) are left out of fit and scoring",
+        "",
     ]
 
 

@@ -1,10 +1,10 @@
 """``calibration.json`` and the feedforward parameters YAML written from a :class:`Calibration`.
 
-calibration.json (schema version 2; SI units, degC; "1-sigma" uncertainties inflated for the
+calibration.json (schema version 3; SI units, degC; "1-sigma" uncertainties inflated for the
 residual's autocorrelation)::
 
     {
-      "schema_version": 2,
+      "schema_version": 3,
       "grid": {"rows": R, "cols": C},
       "data": {"start_time_s", "duration_s", "sample_rate_hz", "command_period_s",
                "temperature_topic", "samples", "training_samples", "heldout_samples",
@@ -12,9 +12,15 @@ residual's autocorrelation)::
                "repeated_stamps": how repeated stamps were resolved, "" if none,
                "gaps": [{"topic", "start_s" (bag time of the last message before the gap),
                          "duration_s", "missing_samples", "excluded_samples"}],
-               "command_edges": {"edges", "excluded_samples", "excluded_fraction",
+               "command_edges": {"edges" (intervals that are an edge for some actuator),
+                                 "pairs" (edge x actuator), "excluded_pairs" ((sample,
+                                 actuator) pairs the actuators' own edges take out),
+                                 "excluded_fraction" (of the block's pairs),
                                  "example_times_s" (bag times of the first edges),
-                                 "excluded_before_s", "excluded_after_s"} or null,
+                                 "excluded_before_s", "excluded_after_s" (the window at
+                                 the known delay), "delay_s",
+                                 "per_actuator": {"edges", "excluded_samples"} (lists over
+                                 the screening block's actuators)} or null,
                "temperature_span": {"start_s", "end_s" (bag times of the first and last
                                     temperature messages), "excluded_before",
                                     "excluded_after" (samples outside them)} or null},
@@ -43,7 +49,14 @@ residual's autocorrelation)::
                      "share", "stable", "halves", "mechanism", "side", "compensable"}],
                      "added", "heldout_rms_before_m", "heldout_rms_after_m" (screening
                      block, held-out rows: registry model, + discovered terms), "note",
-                     "library_size", "seconds"} (CALIBRATION_CONTRACT.md)
+                     "library_size", "seconds"} (CALIBRATION_CONTRACT.md),
+      "health": {"findings": [{"kind", "subject", "index", "row", "col", "start_s",
+                               "end_s", "value", "unit", "sentence", "action"}]
+                              (health/findings.py, CALIBRATION_CONTRACT.md),
+                 "clock_rate_ppm": the displacement logger's clock against the command's
+                                   (data/timing.py; null: not estimated),
+                 "kept_fraction": share of the screening block's (displacement sample x
+                                  actuator) pairs kept for the fit}
     }
 
 Effect parameters use the names the effects declare (:mod:`es_physics.effects`); the YAML
@@ -68,7 +81,7 @@ from es_physics.effects import get
 from es_physics.effects.discovered import values_from_terms
 from es_physics.params import ActuatorParams
 
-SCHEMA_VERSION: Final = 2
+SCHEMA_VERSION: Final = 3
 
 
 def fitted_params(cal: Calibration) -> ActuatorParams:
@@ -204,6 +217,11 @@ def calibration_document(cal: Calibration) -> dict[str, Any]:
             "searched": False, "terms": [], "added": False,
             "heldout_rms_before_m": cal.final.heldout_rms,
             "heldout_rms_after_m": cal.final.heldout_rms,
+        },
+        "health": {
+            "findings": cal.findings,
+            "clock_rate_ppm": cal.clock_rate_ppm,
+            "kept_fraction": cal.kept_fraction,
         },
     }
     return dict(_float(doc))

@@ -10,9 +10,10 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
-from typing import Final
+from typing import Any, Final
 
 import numpy as np
+import numpy.typing as npt
 
 from es_calibration._typing import BoolArray, FloatArray, IndexArray
 from es_calibration.data.align import AlignedData, select_rows
@@ -70,7 +71,7 @@ class Workspace:
         self.fit_rows = select_rows(aligned.train, n_fit)
         self.score_rows = select_rows(~aligned.train, n_score)
         self._play: dict[tuple[float, float], FloatArray] = {}
-        self._static_cache: dict[tuple[int, int], dict[str, FloatArray]] = {}
+        self._static_cache: dict[tuple[int, int], dict[str, npt.NDArray[Any]]] = {}
         self._history: DriveHistory | None = None
         self._sub_rows: dict[int, IndexArray] = {}
         self._travel: FloatArray | None = None
@@ -131,19 +132,21 @@ class Workspace:
         stacked = np.stack([self._play[(r, delay_s)] for r in thresholds], axis=1)
         return stacked[: fit_ci.size], stacked[fit_ci.size :]
 
-    def _static(self, rows: IndexArray) -> dict[str, FloatArray]:
+    def _static(self, rows: IndexArray) -> dict[str, npt.NDArray[Any]]:
         """Return the delay-independent inputs at ``rows`` (cached per row set)."""
         key = (id(rows), rows.size)
         if key not in self._static_cache:
             a = self.aligned
             act = self.actuators
             z = a.displacement[np.ix_(rows, act)].T
+            # an actuator's own unresolvable command edges take out its pairs (edges.py)
+            usable = np.isfinite(z) & ~a.edge_excluded(rows, act)
             self._static_cache[key] = {
                 "t": a.t[rows],
                 "temperature": a.temperature_at(rows, act),
                 "temperature_rate": a.temperature_rate_at(rows, act),
                 "displacement": z,
-                "finite": np.isfinite(z),
+                "finite": usable,
             }
         return self._static_cache[key]
 
