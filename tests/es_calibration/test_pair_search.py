@@ -159,7 +159,8 @@ def test_a_rival_with_a_whiter_but_larger_residual_does_not_take_the_place() -> 
     # the sweep's situation had drift's own criterion lowest, not its held-out RMS; the
     # samples at the command's unresolvable edges (edges.py) made that, and are left out now
     assert first["sensor_lag"].rms_after_m < first["drift"].rms_after_m
-    assert rounds[0].added == "sensor_lag"
+    # with per-actuator edge masks coupling may come first; drift must never take a place
+    assert "drift" not in {r.added for r in rounds}
     assert set(final.model.effects) == {"sensor_lag", "coupling"}
     assert final.heldout_rms < 1.2 * noise
     found = effect_parameters(final, "sensor_lag", ws.aligned)
