@@ -273,6 +273,19 @@ def deliver_pending(node: Node, limit: float = DELIVERY_LIMIT) -> list[str]:
     return pending
 
 
+def deliver_and_report(node: Node, limit: float = DELIVERY_LIMIT) -> list[str]:
+    """:func:`deliver_pending`, and a summary line naming the topics still unacknowledged.
+
+    What a node calls before its publishers go (a stop, or the end of its own run): the
+    topics it returns are the ones where some reader may lack messages for good.
+    """
+    unacknowledged = deliver_pending(node, limit)
+    if unacknowledged:
+        summary_line(node.get_name(), f"not acknowledged by every reader within {limit:g} s "
+                     f"at the stop: {', '.join(unacknowledged)}")
+    return unacknowledged
+
+
 def summary_line(node_name: str, text: str) -> None:
     """Print one exit-summary line to stderr, formatted like an rcutils log line.
 
@@ -349,10 +362,7 @@ def _run(make_node: Callable[[], Node], stop: StopSignals, teardown_limit: float
                 for line in counter.log_lines():
                     summary_line(node.get_name(), line)
             if node.context.ok():
-                unacknowledged = deliver_pending(node)
-                if unacknowledged:
-                    summary_line(node.get_name(), "not acknowledged by every reader within "
-                                 f"{DELIVERY_LIMIT:g} s at the stop: {', '.join(unacknowledged)}")
+                deliver_and_report(node)
         # A C-level watchdog: a hung teardown holds the GIL, so no Python thread could act.
         faulthandler.dump_traceback_later(teardown_limit, exit=True)
         try:

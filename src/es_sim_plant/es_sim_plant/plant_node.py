@@ -47,7 +47,7 @@ from std_msgs.msg import Float64MultiArray
 from es_msgs_py import topics
 from es_msgs_py.arrays import LayoutError, grid_to_msg, msg_to_grid, sensors_to_msg
 from es_msgs_py.diagnostics import make_array, make_status, ready_nodes
-from es_msgs_py.node_main import executor_spec, run_node, usage_text
+from es_msgs_py.node_main import deliver_and_report, executor_spec, run_node, usage_text
 from es_msgs_py.param_spec import ParameterValues
 from es_msgs_py.params import declare_parameters
 from es_sim_plant.lockstep import FloatArray, Lockstep
@@ -280,12 +280,12 @@ class PlantNode(Node):
         self.get_logger().info(self.core.summary(self.scenario.name))
         self.publish_diagnostics()
         if self.settings.exit_when_done:
-            # Reliable subscribers (a recorder) must get the final displacement before exit.
-            timeout = rclpy.duration.Duration(seconds=self.settings.command_timeout)
-            for pub in (self._pub_displacement, self._pub_setpoint, self._pub_raw, self._pub_diag):
-                pub.wait_for_all_acked(timeout)
-            if self._pub_resonance is not None:
-                self._pub_resonance.wait_for_all_acked(timeout)
+            # Every reliable reader (a recorder) must hold every message before the writers
+            # go. What a busy reader's full shared-memory port dropped is sent again only on
+            # the writer's next heartbeat (Fast DDS: 3 s), so a wait bounded by the
+            # command_timeout (0.1 s in a fault test) lost the run's last stretch from the
+            # bag (issue 35); run_node's wait is skipped once the context is shut down.
+            deliver_and_report(self)
             rclpy.try_shutdown(context=self.context)
 
     def publish_diagnostics(self) -> None:
