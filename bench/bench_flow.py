@@ -324,7 +324,7 @@ def flow_run(condition: str, shape: tuple[int, int], *, rate_hz: float, seconds:
             "commands_published": published.get(COMMAND, -1),
             "commands_received": client.received,
             "commands_in_bag": len(in_bag[COMMAND]) if COMMAND in in_bag else 0,
-            "recorder_lost": sum(lost for _, _, lost in recorded.values()),
+            "recorder_lost": sum(c.lost for c in recorded.values()),
         }
     return run
 

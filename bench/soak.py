@@ -147,6 +147,7 @@ def check_counts(
     """
     from es_bringup.analysis import node_logs
     from es_bringup.invariants import (
+        RecorderCounts,
         contract_name,
         published_counts_from_log,
         recorder_counts_from_log,
@@ -177,7 +178,7 @@ def check_counts(
         if topic == topics.DISPLACEMENT and in_bag:
             assert series is not None
             end = float(series.times[-1])
-        received, written, lost = recorder.get(topic, (0, 0, 0))
+        received, written, lost, _ = recorder.get(topic, RecorderCounts(0, 0))
         sent = published.get(topic)
         figures[topic] = {
             "published": -1 if sent is None else sent,

@@ -127,7 +127,11 @@ def _load_run(loaded: bool, settings: Settings, log_dir: Path, paced_s: float) -
     """Feedforward at LOAD_SHAPE with a recorder on set points and commands, hogs or not."""
     from load import hogs
 
-    from es_bringup.invariants import published_counts_from_log, recorder_counts_from_log
+    from es_bringup.invariants import (
+        RecorderCounts,
+        published_counts_from_log,
+        recorder_counts_from_log,
+    )
     from es_msgs_py.bag import read_bag
     from es_msgs_py.topics import COMMAND, SETPOINT
 
@@ -164,8 +168,8 @@ def _load_run(loaded: bool, settings: Settings, log_dir: Path, paced_s: float) -
                 "setpoints_sent": client.sent,
                 "commands_published": published.get(COMMAND, -1),
                 "commands_received": client.received,
-                "setpoints_recorded": recorded.get(SETPOINT, (-1, -1, -1))[1],
-                "commands_recorded": recorded.get(COMMAND, (-1, -1, -1))[1],
+                "setpoints_recorded": recorded.get(SETPOINT, RecorderCounts(-1, -1)).written,
+                "commands_recorded": recorded.get(COMMAND, RecorderCounts(-1, -1)).written,
                 "setpoints_in_bag": len(in_bag[SETPOINT]) if SETPOINT in in_bag else 0,
                 "commands_in_bag": len(in_bag[COMMAND]) if COMMAND in in_bag else 0,
             }

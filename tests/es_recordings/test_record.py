@@ -181,6 +181,43 @@ def test_missed_messages_come_from_publication_sequence_numbers() -> None:
     assert on_time.missed_text() == "0"
 
 
+def test_not_received_counts_announced_messages_beyond_the_newest_sequence() -> None:
+    # a hole at the end shows in no sequence number: only the publisher's announced count
+    tail = TopicCount("std_msgs/msg/Float64MultiArray")
+    for sequence in range(1, 221):
+        tail.note_sequence(sequence)
+    tail.announced = 401
+    assert tail.missed == 0 and tail.not_received() == 181
+    gap_and_tail = TopicCount("std_msgs/msg/Float64MultiArray")
+    for sequence in (3, 4, 7):
+        gap_and_tail.note_sequence(sequence)
+    gap_and_tail.announced = 9
+    assert gap_and_tail.not_received() == 2 + 2 + 2  # before joining, the gap, the tail
+    nothing = TopicCount("std_msgs/msg/Float64MultiArray", announced=5)
+    assert nothing.not_received() == 5
+    assert TopicCount("std_msgs/msg/Float64MultiArray").not_received_text() == "unknown"
+
+
+def test_bring_up_reads_holes_from_the_recorders_closing_log() -> None:
+    from es_bringup.invariants import InvariantReport, check_recorder, recorder_counts_from_log
+
+    lines = [
+        "[INFO] [1.0] [record.summary]: /dm/displacement: received 220, written 220, lost "
+        "before reception 0, missed 0, not received 181",
+        "[INFO] [1.0] [record.summary]: /dm/command: received 400, written 400, lost before "
+        "reception 0, missed 0, not received 0",
+        "[INFO] [1.0] [record.summary]: /diagnostics: received 9, written 9, lost before "
+        "reception 0, missed unknown, not received unknown",
+    ]
+    counts = recorder_counts_from_log(lines)
+    assert counts["/dm/displacement"].not_received == 181
+    assert counts["/dm/command"].not_received == 0 and counts["/diagnostics"].received == 9
+    report = InvariantReport()
+    check_recorder(counts, report)
+    assert report.failures == [
+        "/dm/displacement: 181 published messages not received by the recorder"]
+
+
 def test_recorder_reports_what_it_missed_by_joining_late(tmp_path: Path) -> None:
     bag = tmp_path / "bag"
     with ros_node("es_record_late") as node:

@@ -54,7 +54,8 @@ from es_bringup.graph import (
     topic_remaps,
 )
 from es_bringup.graph_waits import DRAIN_IDLE_S, wait_for_recorder, wait_for_subscriptions
-from es_bringup.supervisor import Outcome, ProcessSpec, StopTimeouts, Supervisor
+from es_bringup.invariants import recorder_counts_from_log, recorder_holes
+from es_bringup.supervisor import EXIT_FAILURE, Outcome, ProcessSpec, StopTimeouts, Supervisor
 from es_msgs_py import topics
 
 __all__ = [
@@ -215,7 +216,29 @@ class Bringup:
         # feedforward nodes report on /diagnostics that their inputs are matched (wait_ready).
         self.supervisor.start(plant)
         drain = self._drain_recorder if self.config.bag is not None else None
-        return self.supervisor.run(wall_timeout=self.config.wall_timeout, on_primary_done=drain)
+        outcome = self.supervisor.run(wall_timeout=self.config.wall_timeout, on_primary_done=drain)
+        if self.config.bag is not None:
+            self._fail_on_holes(outcome)
+        return outcome
+
+    def _fail_on_holes(self, outcome: Outcome) -> None:
+        """Make ``outcome`` a failure if the recorder closed its bag knowing of a hole.
+
+        The recorder's closing log names, per topic, the published messages it knew it had
+        not received (gaps in the publishers' sequence numbers, counts announced beyond
+        them): a bag with a hole is no record of the run, whatever the exit codes say.
+        """
+        log = self.config.log_dir / f"{RECORDER}.log"
+        if not log.is_file():
+            return
+        lines = log.read_text(encoding="utf-8", errors="replace").splitlines()
+        holes = recorder_holes(recorder_counts_from_log(lines))
+        if not holes:
+            return
+        for hole in holes:
+            self.supervisor.announce(f"bag incomplete: {hole}")
+        outcome.exit_code = outcome.exit_code or EXIT_FAILURE
+        outcome.reason = f"{outcome.reason}; bag incomplete: {'; '.join(holes)}"
 
     def _drain_recorder(self) -> None:
         """Wait until the recorder has received everything the plant published.

@@ -15,6 +15,7 @@ from __future__ import annotations
 import re
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 import numpy.typing as npt
@@ -24,6 +25,7 @@ import numpy.typing as npt
 _PUBLISHED = re.compile(r"published (/[\w/]+):? (\d+)")
 _RECORDED = re.compile(
     r"(/[\w/]+): received (\d+), written (\d+)(?:, lost before reception (\d+))?"
+    r"(?:, missed (?:\d+|unknown))?(?:, not received (\d+))?"
 )
 
 
@@ -89,24 +91,53 @@ def published_counts_from_log(
     return counts
 
 
-def recorder_counts_from_log(lines: Iterable[str]) -> dict[str, tuple[int, int, int]]:
-    """Return ``{topic: (received, written, lost before reception)}`` from the recorder's log."""
-    counts: dict[str, tuple[int, int, int]] = {}
+class RecorderCounts(NamedTuple):
+    """One topic's counts from the recorder's closing log.
+
+    ``not_received``: what the recorder knew published and not received when it stopped
+    (0 when its log does not say, or says ``unknown``).
+    """
+
+    received: int
+    written: int
+    lost: int = 0
+    not_received: int = 0
+
+
+def recorder_counts_from_log(lines: Iterable[str]) -> dict[str, RecorderCounts]:
+    """Return the recorder's closing counts per topic from its log."""
+    counts: dict[str, RecorderCounts] = {}
     for line in lines:
-        for topic, received, written, lost in _RECORDED.findall(line):
-            counts[topic] = (int(received), int(written), int(lost or 0))
+        for topic, received, written, lost, missing in _RECORDED.findall(line):
+            counts[topic] = RecorderCounts(
+                int(received), int(written), int(lost or 0), int(missing or 0)
+            )
     return counts
 
 
-def check_recorder(counts: Mapping[str, tuple[int, int, int]], report: InvariantReport) -> None:
-    """Fail when the recorder did not write what it received or the middleware lost some."""
+def recorder_holes(counts: Mapping[str, RecorderCounts]) -> list[str]:
+    """Describe each topic with messages the recorder knew it had not received at its stop."""
+    return [
+        f"{topic}: {c.not_received} published messages not received by the recorder"
+        for topic, c in counts.items()
+        if c.not_received
+    ]
+
+
+def check_recorder(counts: Mapping[str, RecorderCounts], report: InvariantReport) -> None:
+    """Fail on what the recorder's closing counts show lost.
+
+    It did not write what it received, the middleware lost messages before reception, or it
+    knew of published messages it had not received when it stopped.
+    """
     if not counts:
         report.failures.append("the recorder reported no counts")
-    for topic, (received, written, lost) in counts.items():
-        if written != received:
-            report.failures.append(f"{topic}: recorder received {received}, wrote {written}")
-        if lost:
-            report.failures.append(f"{topic}: middleware lost {lost} before the recorder")
+    for topic, c in counts.items():
+        if c.written != c.received:
+            report.failures.append(f"{topic}: recorder received {c.received}, wrote {c.written}")
+        if c.lost:
+            report.failures.append(f"{topic}: middleware lost {c.lost} before the recorder")
+    report.failures.extend(recorder_holes(counts))
 
 
 def check_counts(

@@ -119,3 +119,51 @@ def ready_nodes(msg: DiagnosticArray) -> dict[str, bool]:
         if status.name.endswith(suffix):
             out[status.name[: -len(suffix)]] = level_of(status) is Level.OK
     return out
+
+
+#: Aspect under which a node announces how many messages it has published per topic
+#: (``"<node>: published"``, one value per topic): a recorder learns from it how many it
+#: has not received, the end of a run included, which sequence numbers alone cannot show.
+PUBLISHED_ASPECT = "published"
+#: Node name of the recorder (``es_msgs_py record``).
+RECORDER_NODE = "record"
+#: Status in which the recorder reports its counts; ``"<topic> received"`` among its values.
+RECORDER_BAG_STATUS = f"{RECORDER_NODE}: bag"
+#: Suffix of the recorder's per-topic received count in :data:`RECORDER_BAG_STATUS`.
+RECEIVED_SUFFIX = " received"
+
+
+def published_status(node: str, counts: Mapping[str, int]) -> DiagnosticStatus:
+    """Return the ``"<node>: published"`` status: messages published so far, per topic."""
+    return make_status(
+        f"{node}: {PUBLISHED_ASPECT}", Level.OK, "messages published per topic", counts
+    )
+
+
+def announced_counts(msg: DiagnosticArray) -> dict[str, int]:
+    """Return ``{topic: count}`` from every ``"<node>: published"`` status in ``msg``."""
+    suffix = f": {PUBLISHED_ASPECT}"
+    return {
+        kv.key: int(kv.value)
+        for status in msg.status
+        if status.name.endswith(suffix)
+        for kv in status.values
+        if kv.value.isdigit()
+    }
+
+
+def recorder_received(msg: DiagnosticArray) -> dict[str, int]:
+    """Return ``{topic: received}`` from the recorder's report in ``msg`` (``{}`` if none)."""
+    return {
+        kv.key[: -len(RECEIVED_SUFFIX)]: int(kv.value)
+        for status in msg.status
+        if status.name == RECORDER_BAG_STATUS
+        for kv in status.values
+        if kv.key.endswith(RECEIVED_SUFFIX) and kv.value.isdigit()
+    }
+
+
+def not_yet_received(published: Mapping[str, int], received: Mapping[str, int]) -> dict[str, int]:
+    """Return ``{topic: messages}`` published but not received, over the topics in both."""
+    behind = {t: n - received[t] for t, n in published.items() if t in received}
+    return {t: n for t, n in behind.items() if n > 0}

@@ -12,7 +12,12 @@ are not recorded). Counts of received and written messages per topic are publish
 messages the recorder missed: from each message's publication sequence number (the
 publisher's count, 1 for its first message), what was published before the recorder joined
 and what fell into gaps since. That is known
-for topics with one publisher (every /dm topic); elsewhere it is reported as unknown.
+for topics with one publisher (every /dm topic); elsewhere it is reported as unknown. A hole
+at the end of a run shows in no sequence number: nodes announce on /diagnostics how many
+messages they published per topic (``"<node>: published"``, the plant does), and the
+recorder counts as "not received" the missed ones plus what was announced beyond the newest
+sequence number it received, per topic, in its reports and in its closing log (after a last
+report), so that a hole in a bag is never silent.
 ``record: ready`` on /diagnostics says "not ready" until every recorded /dm topic has matched
 a publisher (a lockstep plant can wait for it: nothing of the run is then missed).
 """
@@ -30,6 +35,7 @@ from rclpy.duration import Duration
 from rclpy.event_handler import QoSMessageLostInfo, SubscriptionEventCallbacks
 from rclpy.node import Node
 from rclpy.qos import QoSProfile
+from rclpy.serialization import deserialize_message
 from rclpy.subscription import Subscription
 from rclpy.validate_full_topic_name import validate_full_topic_name
 from rosbags.interfaces import (
@@ -43,10 +49,18 @@ from rosbags.interfaces import (
 
 from es_msgs_py import topics
 from es_msgs_py.bag import STORAGES, BagError, BagWriter
-from es_msgs_py.diagnostics import Level, make_array, make_status, readiness_status, unmatched
+from es_msgs_py.diagnostics import (
+    RECORDER_NODE,
+    Level,
+    announced_counts,
+    make_array,
+    make_status,
+    readiness_status,
+    unmatched,
+)
 from es_msgs_py.node_main import run_node, summary_line
 
-NODE_NAME = "record"
+NODE_NAME = RECORDER_NODE
 #: Topics taken by ``--all-dm``.
 ALL_DM_TOPICS = (*topics.DM_TOPICS, topics.DIAGNOSTICS)
 
@@ -78,6 +92,7 @@ class TopicCount:
     messages the publisher published but this recorder never received (before it joined:
     ``first_sequence - 1``; later: gaps in the sequence numbers); ``None`` when unknown
     (several publishers, or a middleware without publication sequence numbers).
+    ``announced`` is the publisher's own count of what it published (0: none announced).
     """
 
     type_name: str
@@ -87,6 +102,7 @@ class TopicCount:
     missed: int | None = None
     first_sequence: int | None = None
     last_sequence: int = 0
+    announced: int = 0
 
     def note_sequence(self, sequence: int) -> None:
         """Account for a message with publication sequence number ``sequence`` (0: none)."""
@@ -98,6 +114,21 @@ class TopicCount:
         elif sequence > self.last_sequence + 1 and self.missed is not None:
             self.missed += sequence - self.last_sequence - 1
         self.last_sequence = max(self.last_sequence, sequence)
+
+    def not_received(self) -> int | None:
+        """Return the messages known published and not received, ``None`` when unknown.
+
+        The missed ones, plus the announced ones beyond the newest sequence number received
+        (all of them when nothing was received): what a hole at the end of a run leaves.
+        """
+        if self.first_sequence is None:
+            return self.announced or self.missed
+        return (self.missed or 0) + max(self.announced - self.last_sequence, 0)
+
+    def not_received_text(self) -> str:
+        """Return :meth:`not_received`, or ``unknown`` (never a silent 0)."""
+        count = self.not_received()
+        return "unknown" if count is None else str(count)
 
     def missed_text(self) -> str:
         """Return the missed count, or ``unknown`` (never a silent 0)."""
@@ -228,11 +259,14 @@ class Recorder(Node):
         count = self._counts[topic] = TopicCount(type_name)
 
         counts_sequence = topic in SINGLE_PUBLISHER_TOPICS
+        reads_announcements = type_name == topics.DIAGNOSTIC_ARRAY
 
         def on_message(data: bytes, info: Mapping[str, int]) -> None:
             count.received += 1
             if counts_sequence:
                 count.note_sequence(int(info.get("publication_sequence_number", 0)))
+            if reads_announcements:
+                self._note_announcements(data)
             try:
                 self._bag.write(topic, self.get_clock().now().nanoseconds, data, type_name)
             except (BagError, OSError) as err:
@@ -254,6 +288,14 @@ class Recorder(Node):
             raw=True,
             event_callbacks=SubscriptionEventCallbacks(message_lost=on_lost),
         )
+
+    def _note_announcements(self, data: bytes) -> None:
+        """Take the published counts that nodes announce on /diagnostics (few per second)."""
+        message = deserialize_message(data, topics.message_class(topics.DIAGNOSTIC_ARRAY))
+        for topic, published in announced_counts(message).items():
+            count = self._counts.get(topic)
+            if count is not None and topic in SINGLE_PUBLISHER_TOPICS:
+                count.announced = published
 
     def _unmatched(self) -> list[str]:
         """Return the recorded /dm topics without a matched publisher, and undiscovered ones."""
@@ -296,19 +338,20 @@ class Recorder(Node):
             values[f"{topic} written"] = count.written
             values[f"{topic} lost"] = count.lost
             values[f"{topic} missed"] = count.missed_text()
+            values[f"{topic} not received"] = count.not_received_text()
             # publishers matched: what a peer waits for before it publishes (readiness)
             values[f"{topic} publishers"] = self._recorded[topic].get_publisher_count()
         for topic in self._pending:
             values[f"{topic} received"] = "waiting for publisher"
         unwritten = sum(c.received - c.written for c in self._counts.values())
         lost = sum(c.lost for c in self._counts.values())
-        missed = {t: c.missed for t, c in self._counts.items() if c.missed}
+        missing = {t: n for t, c in self._counts.items() if (n := c.not_received())}
         if unwritten:
             level, text = Level.ERROR, f"{unwritten} received messages not written"
-        elif missed:
+        elif missing:
             level = Level.WARN
-            text = "missed " + ", ".join(f"{n} on {t}" for t, n in missed.items()) + (
-                " (published before the recorder joined, or lost)"
+            text = "not received " + ", ".join(f"{n} on {t}" for t, n in missing.items()) + (
+                " (published before the recorder joined, lost, or still on the way)"
             )
         elif lost:
             level, text = Level.WARN, f"middleware lost {lost} messages before reception"
@@ -325,13 +368,19 @@ class Recorder(Node):
         )
 
     def close(self) -> None:
-        """Finish the bag and print the counts per topic (:func:`summary_line`)."""
+        """Report the counts a last time, finish the bag and print them per topic.
+
+        The closing lines (:func:`summary_line`) name, per topic, what the recorder knows it
+        has not received at this moment (:meth:`TopicCount.not_received`).
+        """
+        self._publish_diagnostics()
         self._bag.close()
         for topic, count in self._counts.items():
             summary_line(
                 NODE_NAME,
                 f"{topic}: received {count.received}, written {count.written}, "
-                f"lost before reception {count.lost}, missed {count.missed_text()}",
+                f"lost before reception {count.lost}, missed {count.missed_text()}, "
+                f"not received {count.not_received_text()}",
             )
         summary_line(NODE_NAME, f"bag closed: {self._options.output}")
 

@@ -46,8 +46,14 @@ from std_msgs.msg import Float64MultiArray
 
 from es_msgs_py import topics
 from es_msgs_py.arrays import LayoutError, grid_to_msg, msg_to_grid, sensors_to_msg
-from es_msgs_py.diagnostics import make_array, make_status, ready_nodes
-from es_msgs_py.node_main import deliver_and_report, executor_spec, run_node, usage_text
+from es_msgs_py.diagnostics import make_array, make_status, published_status, ready_nodes
+from es_msgs_py.node_main import (
+    PublishCounter,
+    deliver_and_report,
+    executor_spec,
+    run_node,
+    usage_text,
+)
 from es_msgs_py.param_spec import ParameterValues
 from es_msgs_py.params import declare_parameters
 from es_sim_plant.lockstep import FloatArray, Lockstep
@@ -168,6 +174,12 @@ class PlantNode(Node):
             self.create_timer(_WATCHDOG_PERIOD, self.core.watchdog, clock=wall)
         else:
             self.create_timer(self.plant.dt, self.core.realtime_tick, clock=wall)
+        # what it published per /dm topic, on /diagnostics: a recorder tells from it what it
+        # has not received, the end of the run included (its last report comes after it)
+        self._published = PublishCounter(self)
+        self._announced_topics = {
+            self.resolve_topic_name(t): t for t in (*topics.DM_TOPICS, *topics.OPTIONAL_DM_TOPICS)
+        }
         self.get_logger().info(
             f"scenario '{scenario.name}': {scenario.rows} x {scenario.cols}, "
             f"{self.plant.steps} steps at {scenario.control_rate:g} Hz "
@@ -299,6 +311,12 @@ class PlantNode(Node):
             make_status(f"{NODE_NAME}: {aspect}", level, message, kv)
             for aspect, level, message, kv in self.core.statuses()
         ]
+        announced = {
+            self._announced_topics[t]: n
+            for t, n in self._published.counts.items()
+            if t in self._announced_topics
+        }
+        statuses.append(published_status(NODE_NAME, announced))
         self._pub_diag.publish(make_array(_stamp(self.plant.time), statuses))
 
     def close(self) -> None:
