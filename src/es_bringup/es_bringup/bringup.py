@@ -232,7 +232,19 @@ class Bringup:
         if not log.is_file():
             return
         lines = log.read_text(encoding="utf-8", errors="replace").splitlines()
-        holes = recorder_holes(recorder_counts_from_log(lines))
+        closing = recorder_counts_from_log(lines)
+        holes = recorder_holes(closing)
+        # what the plant logged it published: an announcement on /diagnostics travels the
+        # same way as the messages and can be lost with them
+        plant_log = self.config.log_dir / f"{PLANT}.log"
+        if plant_log.is_file():
+            plant_lines = plant_log.read_text(encoding="utf-8", errors="replace").splitlines()
+            published = plant_published_counts(plant_lines, closing)
+            holes += [
+                f"{topic}: plant published {sent}, recorder received {closing[topic].received}"
+                for topic, sent in published.items()
+                if topic in closing and closing[topic].received < sent
+            ]
         if not holes:
             return
         for hole in holes:
