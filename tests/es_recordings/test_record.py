@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import signal
 import subprocess
 import time
@@ -12,15 +13,25 @@ import pytest
 import yaml
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.duration import Duration
 from rclpy.node import Node
+from rclpy.publisher import Publisher
 from rclpy.qos import QoSProfile
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Float64MultiArray
-from support.ros import NodeProcess, executable, poll_until, wait_matched, wait_until
+from support.ros import (
+    READY_TIMEOUT,
+    NodeProcess,
+    executable,
+    poll_until,
+    wait_matched,
+    wait_until,
+)
 from support.ros import test_node as ros_node
 
 from es_msgs_py.arrays import grid_to_msg, msg_to_grid, msg_to_sensors, sensors_to_msg
 from es_msgs_py.bag import BagError, decode_float64_multi_arrays, read_bag
+from es_msgs_py.diagnostics import make_array, published_status
 from es_msgs_py.topics import (
     CLOCK,
     COMMAND,
@@ -28,6 +39,7 @@ from es_msgs_py.topics import (
     DIAGNOSTICS_QOS,
     DM_DEPTH,
     DM_QOS,
+    SETPOINT,
     TEMPERATURE_RAW,
     qos_for,
 )
@@ -150,6 +162,54 @@ def test_recorder_writes_every_message_and_closes_on_sigint(tmp_path: Path) -> N
     offered = _offered_qos(bag)
     assert offered[COMMAND] == offered[TEMPERATURE_RAW] == [("keep_last", DM_DEPTH, "reliable")]
     assert offered[DIAGNOSTICS] == [("keep_last", DIAGNOSTICS_QOS.depth, "reliable")]
+
+
+def test_a_stopping_recorder_takes_what_is_on_its_way_and_names_what_never_came(
+    tmp_path: Path,
+) -> None:
+    # Forced ordering: the recorder is stopped (SIGSTOP) while messages are sent to it, gets
+    # SIGINT while stopped and continues with the messages still in its DDS queues. Taken
+    # at once, the stop lost them; now it takes them first. The publisher announces 3 more
+    # than it sends: the recorder waits for those, bounded, and names them at its close.
+    sent, never_sent = 200, 3
+    bag = tmp_path / "bag"
+    recorder = NodeProcess("es_recordings", "record", ["-o", str(bag), SETPOINT, DIAGNOSTICS])
+    stopped = False
+    try:
+        with ros_node("es_record_drain_test") as node:
+            data = node.create_publisher(Float64MultiArray, SETPOINT, PUBLISHER_QOS)
+            announcer = node.create_publisher(DiagnosticArray, DIAGNOSTICS, DIAGNOSTICS_QOS)
+            first = grid_to_msg(np.zeros((2, 2)))
+            _acknowledged(data, first, recorder)
+            _acknowledged(announcer, DiagnosticArray(), recorder)
+            os.kill(recorder.pid, signal.SIGSTOP)
+            stopped = True
+            for value in range(sent - 1):
+                data.publish(grid_to_msg(np.full((2, 2), float(value))))
+            announced = published_status("es_record_drain_test", {SETPOINT: sent + never_sent})
+            announcer.publish(make_array(Time(), [announced]))
+            os.kill(recorder.pid, signal.SIGINT)  # handled only once it runs again
+            os.kill(recorder.pid, signal.SIGCONT)
+            stopped = False
+            code = recorder.process.wait(READY_TIMEOUT)  # the publisher lives meanwhile
+    finally:
+        if stopped:
+            os.kill(recorder.pid, signal.SIGCONT)
+        recorder.stop()
+    output = recorder.output()
+    assert code == 0, output
+    assert len(read_bag(bag, [SETPOINT])[SETPOINT]) == sent, output
+    assert (f"{SETPOINT}: received {sent}, written {sent}, lost before reception 0, "
+            f"missed 0, not received {never_sent}") in output
+    assert f"stopped while still waiting for {never_sent} on {SETPOINT}" in output
+
+
+def _acknowledged(publisher: Publisher, msg: object, recorder: NodeProcess) -> None:
+    """Publish ``msg`` once the recorder has matched, and wait until it acknowledged it."""
+    poll_until(lambda: publisher.get_subscription_count() > 0,
+               f"recorder matched on {publisher.topic_name}")
+    publisher.publish(msg)
+    assert publisher.wait_for_all_acked(Duration(seconds=READY_TIMEOUT)), recorder.output()[-400:]
 
 
 def _offered_qos(bag: Path) -> dict[str, list[tuple[str, int, str]]]:

@@ -125,7 +125,7 @@ def ready_nodes(msg: DiagnosticArray) -> dict[str, bool]:
 #: (``"<node>: published"``, one value per topic): a recorder learns from it how many it
 #: has not received, the end of a run included, which sequence numbers alone cannot show.
 PUBLISHED_ASPECT = "published"
-#: Node name of the recorder (``es_msgs_py record``).
+#: Node name of the recorder (``es_recordings record``).
 RECORDER_NODE = "record"
 #: Status in which the recorder reports its counts; ``"<topic> received"`` among its values.
 RECORDER_BAG_STATUS = f"{RECORDER_NODE}: bag"

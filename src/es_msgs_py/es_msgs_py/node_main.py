@@ -26,6 +26,10 @@ has acknowledged what its reliable publishers sent (:func:`deliver_pending`), an
 topics where one has not: a writer destroyed earlier takes the messages a busy reader still
 needed repaired with it.
 
+A node that receives what others publish (a recorder) can ask for its inputs to be drained
+at a stop request: it is :class:`Draining`, and the executor goes on serving it, bounded
+(:data:`DRAIN_LIMIT`), until it says it is settled, before it is closed.
+
 The DDS teardown at the end is bounded (:data:`TEARDOWN_LIMIT`): Fast DDS 2.14 can hang for
 good while it destroys a participant that is handling another participant's goodbye at that
 moment (several nodes stopped at once). The node's own work is finished and flushed by then;
@@ -45,7 +49,7 @@ import sys
 import time
 from collections.abc import Callable, Sequence
 from types import FrameType, TracebackType
-from typing import Final
+from typing import Final, Protocol, runtime_checkable
 
 import rclpy
 import rclpy.logging
@@ -84,6 +88,20 @@ TEARDOWN_LIMIT: Final = 5.0
 #: and a writer destroyed before that takes them with it (33 of 350 commands never reached a
 #: recorder in a stress run). Normally nothing is pending and the wait returns at once.
 DELIVERY_LIMIT: Final = 4.0
+
+
+#: Longest time [s] a :class:`Draining` node is served after a stop request until it is
+#: settled: well within the bring-up's 10 s between SIGINT and SIGTERM.
+DRAIN_LIMIT: Final = 5.0
+
+
+@runtime_checkable
+class Draining(Protocol):
+    """A node that must take what is already on its way to it before it closes."""
+
+    def settled(self) -> bool:
+        """Return whether nothing more is expected (the executor stops serving it then)."""
+        ...
 
 
 class PublishCounter:
@@ -202,7 +220,9 @@ def spin(
     """Spin ``node`` with the executor ``kind`` (one of :data:`EXECUTORS`) until shutdown.
 
     The spin ends when the context shuts down or, at the latest :data:`SPIN_SLICE` seconds
-    after, when ``stopped()`` becomes true (e.g. a :class:`StopSignals`). ``events`` falls
+    after, when ``stopped()`` becomes true (e.g. a :class:`StopSignals`); a
+    :class:`Draining` node is then served on until it is settled, at most
+    :data:`DRAIN_LIMIT` seconds. ``events`` falls
     back to the single-threaded executor, with a warning, on an rclpy without the
     EventsExecutor. Raises ``KeyboardInterrupt`` or ``ExternalShutdownException`` like
     ``rclpy.spin``.
@@ -223,6 +243,11 @@ def spin(
     executor.add_node(node)
     while context.ok() and not stopped():
         executor.spin_once(timeout_sec=SPIN_SLICE)
+    if isinstance(node, Draining):
+        # a stop request: what is already on its way is taken, bounded, before the close
+        deadline = time.monotonic() + DRAIN_LIMIT
+        while context.ok() and not node.settled() and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=SPIN_SLICE)
 
 
 def wants_help(args: Sequence[str]) -> bool:

@@ -6,18 +6,22 @@ bag runs on sim time when ``use_sim_time`` is set (``--ros-args -p use_sim_time:
 Subscriptions use the contract QoS of each topic with a deeper queue, so that a short stall
 (a chunk write, a garbage collection) loses nothing at kHz rates. The bag is flushed every
 ``--flush-interval`` seconds, so even a killed recorder leaves a bag readable up to its last
-flush; SIGINT/SIGTERM close it cleanly (messages still in flight when the signal arrives
-are not recorded). Counts of received and written messages per topic are published on
-/diagnostics every ``--report-period`` seconds (default 1) and logged at exit, with the
-messages the recorder missed: from each message's publication sequence number (the
-publisher's count, 1 for its first message), what was published before the recorder joined
-and what fell into gaps since. That is known
+flush; SIGINT/SIGTERM close it cleanly (after taking what is still on its way, see below).
+Counts of received and written messages per topic are published on /diagnostics every
+``--report-period`` seconds (default 1) and logged at exit, with the messages the recorder
+missed: from each message's publication sequence number (the publisher's count, 1 for its
+first message), what was published before the recorder joined and what fell into gaps
+since. That is known
 for topics with one publisher (every /dm topic); elsewhere it is reported as unknown. A hole
 at the end of a run shows in no sequence number: nodes announce on /diagnostics how many
 messages they published per topic (``"<node>: published"``, the plant does), and the
 recorder counts as "not received" the missed ones plus what was announced beyond the newest
 sequence number it received, per topic, in its reports and in its closing log (after a last
-report), so that a hole in a bag is never silent.
+report), so that a hole in a bag is never silent. At SIGINT/SIGTERM the recorder first takes
+what is already on its way (:class:`es_msgs_py.node_main.Draining`): until no message has
+come for :data:`QUIET_S` and every announced message has arrived, at most
+:data:`es_msgs_py.node_main.DRAIN_LIMIT` seconds; its closing log names what it still
+waited for.
 ``record: ready`` on /diagnostics says "not ready" until every recorded /dm topic has matched
 a publisher (a lockstep plant can wait for it: nothing of the run is then missed).
 """
@@ -26,6 +30,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import NoReturn
@@ -58,7 +63,7 @@ from es_msgs_py.diagnostics import (
     readiness_status,
     unmatched,
 )
-from es_msgs_py.node_main import run_node, summary_line
+from es_msgs_py.node_main import DRAIN_LIMIT, run_node, summary_line
 
 NODE_NAME = RECORDER_NODE
 #: Topics taken by ``--all-dm``.
@@ -77,6 +82,10 @@ class Options:
     #: seconds between the counts on /diagnostics (a flow-controlled source paces on them)
     report_period: float = 1.0
 
+
+#: Wall seconds without a new message after which a stopping recorder takes its queues for
+#: empty: what DDS has already received is taken within milliseconds.
+QUIET_S = 0.2
 
 #: Topics with exactly one publisher by contract: their publication sequence numbers count
 #: every message published, so a missed message shows.
@@ -217,6 +226,7 @@ class Recorder(Node):
         self._recorded: dict[str, Subscription] = {}  # by topic; Node owns `_subscriptions`
         self._pending = [t for t in options.topics if t not in topics.TOPIC_TYPES]
         self._write_failed = False
+        self._last_arrival = time.monotonic()
         for topic in options.topics:
             if topic in topics.TOPIC_TYPES:
                 self._subscribe(topic, topics.TOPIC_TYPES[topic])
@@ -262,6 +272,7 @@ class Recorder(Node):
         reads_announcements = type_name == topics.DIAGNOSTIC_ARRAY
 
         def on_message(data: bytes, info: Mapping[str, int]) -> None:
+            self._last_arrival = time.monotonic()
             count.received += 1
             if counts_sequence:
                 count.note_sequence(int(info.get("publication_sequence_number", 0)))
@@ -296,6 +307,15 @@ class Recorder(Node):
             count = self._counts.get(topic)
             if count is not None and topic in SINGLE_PUBLISHER_TOPICS:
                 count.announced = published
+
+    def awaited(self) -> dict[str, int]:
+        """Return, per topic, the announced messages beyond the newest one received."""
+        behind = {t: c.announced - c.last_sequence for t, c in self._counts.items()}
+        return {t: n for t, n in behind.items() if n > 0}
+
+    def settled(self) -> bool:
+        """Whether a stop may close the bag: queues quiet, every announced message here."""
+        return time.monotonic() - self._last_arrival >= QUIET_S and not self.awaited()
 
     def _unmatched(self) -> list[str]:
         """Return the recorded /dm topics without a matched publisher, and undiscovered ones."""
@@ -375,6 +395,14 @@ class Recorder(Node):
         """
         self._publish_diagnostics()
         self._bag.close()
+        awaited = self.awaited()
+        if awaited:
+            summary_line(
+                NODE_NAME,
+                "stopped while still waiting for "
+                + ", ".join(f"{n} on {t}" for t, n in awaited.items())
+                + f" (announced by their publishers, not here {DRAIN_LIMIT:g} s after the stop)",
+            )
         for topic, count in self._counts.items():
             summary_line(
                 NODE_NAME,
