@@ -9,8 +9,9 @@ from pathlib import Path
 
 import pytest
 
-from es_bringup.bringup import plant_published_counts
+from es_bringup.bringup import Bringup, GraphConfig, plant_published_counts
 from es_bringup.graph import RECORDED_TOPICS, TEST_STAND_TOPICS
+from es_bringup.supervisor import EXIT_FAILURE, Outcome
 
 LAUNCHER = Path(sys.prefix) / "lib" / "es_bringup" / "bringup"
 
@@ -82,3 +83,41 @@ def test_a_closed_loop_waits_for_the_plant_topics_its_recorder_records() -> None
         "/dm/setpoint": 3000,
         "/dm/temperature/raw": 301,
     }
+
+
+def test_a_run_whose_bag_has_a_hole_fails(tmp_path: Path) -> None:
+    # the recorder's closing lines (one hole it knew of by an announced count) and the
+    # plant's own count (one it could not know of: the announcement was lost with the tail)
+    (tmp_path / "record.log").write_text(
+        "[INFO] [1.0] [record.summary]: /dm/displacement: received 220, written 220, lost "
+        "before reception 0, missed 0, not received 0\n"
+        "[INFO] [1.0] [record.summary]: /dm/heat_load: received 38, written 38, lost before "
+        "reception 0, missed 0, not received 2\n"
+    )
+    (tmp_path / "plant.log").write_text(
+        "[INFO] [1.0] [plant.summary]: published /dm/displacement: 401\n"
+        "[INFO] [1.0] [plant.summary]: published /dm/heat_load: 40\n"
+    )
+    messages: list[str] = []
+    bringup = Bringup(GraphConfig(scenario="dm_exposure", bag=tmp_path / "bag", log_dir=tmp_path),
+                      announce=messages.append)
+    outcome = Outcome(0, "plant finished its run; all stopped cleanly", {})
+    bringup._fail_on_holes(outcome)
+    assert outcome.exit_code == EXIT_FAILURE
+    assert "/dm/heat_load: 2 published messages not received by the recorder" in outcome.reason
+    assert "/dm/displacement: plant published 401, recorder received 220" in outcome.reason
+    assert len(messages) == 2 and all(m.startswith("bag incomplete: ") for m in messages)
+
+
+def test_a_run_without_a_hole_keeps_its_outcome(tmp_path: Path) -> None:
+    (tmp_path / "record.log").write_text(
+        "[INFO] [1.0] [record.summary]: /dm/displacement: received 401, written 401, lost "
+        "before reception 0, missed 0, not received 0\n"
+    )
+    (tmp_path / "plant.log").write_text(
+        "[INFO] [1.0] [plant.summary]: published /dm/displacement: 401\n")
+    bringup = Bringup(GraphConfig(scenario="dm_exposure", bag=tmp_path / "bag", log_dir=tmp_path),
+                      announce=lambda _text: None)
+    outcome = Outcome(0, "plant finished its run; all stopped cleanly", {})
+    bringup._fail_on_holes(outcome)
+    assert outcome == Outcome(0, "plant finished its run; all stopped cleanly", {})

@@ -243,7 +243,9 @@ class Bringup:
             holes += [
                 f"{topic}: plant published {sent}, recorder received {closing[topic].received}"
                 for topic, sent in published.items()
-                if topic in closing and closing[topic].received < sent
+                if topic in closing
+                and closing[topic].received < sent
+                and not closing[topic].not_received  # named above already
             ]
         if not holes:
             return
