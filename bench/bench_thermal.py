@@ -7,6 +7,7 @@ Usage (from the repository root, after ./scripts/bootstrap)::
         [--time-scale X] [--sensor-rate HZ] [--sensor-lag]
     .venv/bin/python bench/bench_thermal.py --cost 32x32/2     # build and update time
     .venv/bin/python bench/bench_thermal.py --node-cost 64x64  # ... as the node builds it
+    .venv/bin/python bench/bench_thermal.py --steps [--lag 15]  # stage steps (thesis_ac)
 
 The issue-5 goal run (the defaults): ``dm_exposure`` with 0.01 degC sensor noise, one sensor
 per 2 x 2 actuators (at the block centres, reading the bilinear mean of the four), no sensor
@@ -17,7 +18,10 @@ Butterworth at 0.1 Hz physical, i.e. 0.1 Hz / time_scale in a shortened scenario
 both see the same dynamics. The first 10 % of the run (start-up) is not scored.
 
 :func:`thermal_accuracy` returns the figures (``thermal_rms_model``, ``thermal_rms_lowpass``
-and more) for the benchmark suite, :func:`update_cost` the model estimator's cost,
+and more) for the benchmark suite, :func:`stage_steps` the estimate's error on the stage
+steps of ``thesis_ac`` (2 degC steps, optionally behind a lagging sensor) for the low-pass,
+the model estimator as before and with its stage-step gain, :func:`update_cost` the model
+estimator's cost,
 :func:`node_cost` that of the estimator the thermal node builds for the lockstep benchmark;
 ``main`` prints them as JSON.
 """
@@ -161,6 +165,87 @@ def thermal_accuracy(
     return out
 
 
+#: The estimators :func:`stage_steps` compares: the thesis's low-pass; the model estimator
+#: without the sensor's lag (a thermal node that never heard of it: the lag left to the
+#: feedforward's lead); with the lag as a state of its model; with the lag and the
+#: stage-step gain (``model.step_gate``).
+STEP_ESTIMATORS: tuple[str, ...] = ("lowpass", "model_no_lag", "model_lag", "model_steps")
+#: The stage-step gate of ``model_steps`` [standard deviations of the mean innovation].
+STEP_GATE = 4.0
+#: Error bound of the settling time [degC].
+SETTLED_WITHIN = 0.2
+
+
+def stage_steps(lag_s: float = 0.0, *, scenario: str = "thesis_ac") -> dict[str, float]:
+    """Score the estimators on a scenario's stage (base-plate) steps; return the figures.
+
+    ``thesis_ac``: one actuator, the stage stepped 40 -> 52 degC in 2 degC steps, 150 s per
+    level (physical), the NTC chain's noise (0.02 degC rms, 0.01 degC resolution), no heat
+    load; ``lag_s`` is the sensor's lag [s, physical] (0: none; the scenario's own 3 s lag
+    is replaced). Every estimator is told the network exactly; the ones with the lag get
+    the simulator's. Each level is scored after its step (the first level has no step):
+    per estimator ``<name>_step_max`` (largest error in the first half of a level),
+    ``<name>_step_rms`` (rms error over the first fifth of a level, 30 s physical),
+    ``<name>_settle_s`` (physical s after a step until the error stays within
+    :data:`SETTLED_WITHIN`, the longest over the steps) and ``<name>_steady_rms`` (rms error
+    over the last 30 % of every level: the steady state), all degC unless named.
+    """
+    sc = load_scenario(scenario).with_overrides(effects={"sensor_lag": lag_s > 0.0})
+    ts = sc.time_scale
+    if lag_s > 0.0:
+        settings = tuple(
+            s.with_values(tau_s=lag_s * ts) if s.name == "sensor_lag" else s
+            for s in sc.effects.settings
+        )
+        sc = replace(sc, effects=replace(sc.effects, settings=settings))
+    plant = Plant(sc)
+    result = simulate(plant, commands=np.zeros(plant.steps))
+    steps = result.sensor_step
+    truth = result.actuator_temperature[steps]
+    times = result.sensor_time
+    tuning = KalmanTuning(sensor_noise=max(sc.sensors.noise_sd, 1e-6)).time_scaled(ts)
+    base = EstimatorConfig(
+        rows=sc.rows,
+        cols=sc.cols,
+        positions=actuator_positions(sc.rows, sc.cols),
+        sample_period=1.0 / sc.sensor_rate,
+        lowpass_cutoff_hz=DEFAULT_CUTOFF_HZ / ts,
+        network=NetworkParams(**asdict(sc.thermal)),
+        tuning=tuning,
+    )
+    configs = {
+        "lowpass": replace(base, kind="lowpass"),
+        "model_no_lag": base,
+        "model_lag": replace(base, sensor_tau=lag_s * ts),
+        "model_steps": replace(
+            base, sensor_tau=lag_s * ts,
+            tuning=replace(tuning, step_gate=STEP_GATE),
+        ),
+    }
+    starts = sc.base.times[1:]  # scaled s: the steps
+    level = starts[1] - starts[0]
+    since_step = times - starts[0]
+    phase = np.mod(since_step, level)
+    stepped = since_step >= 0.0
+    out: dict[str, float] = {"lag_s": lag_s}
+    for name in STEP_ESTIMATORS:
+        run = replay(configs[name], times, result.temperature_raw, result.heat_load[steps])
+        err = np.abs(run.estimates - truth).reshape(len(times), -1).max(axis=1)
+        out[f"{name}_step_max"] = float(np.max(err[stepped & (phase < 0.5 * level)]))
+        transient = err[stepped & (phase < 0.2 * level)]
+        steady = err[stepped & (phase > 0.7 * level)]
+        out[f"{name}_step_rms"] = float(np.sqrt(np.mean(transient**2)))
+        out[f"{name}_steady_rms"] = float(np.sqrt(np.mean(steady**2)))
+        settle = 0.0
+        for start in starts:
+            window = (times >= start) & (times < start + level)
+            off = np.flatnonzero(err[window] > SETTLED_WITHIN)
+            if off.size:
+                settle = max(settle, float(times[window][off[-1]] - start + base.sample_period))
+        out[f"{name}_settle_s"] = settle / ts
+    return out
+
+
 def update_cost(
     rows: int, cols: int, pitch: int, *, sensor_tau: float = 0.0, updates: int = 200
 ) -> dict[str, float]:
@@ -249,6 +334,13 @@ def main() -> None:
     parser.add_argument("--sensor-lag", action="store_true", help="simulate sensor lag")
     parser.add_argument("--offsets", action="store_true", help="keep the sensor offsets")
     parser.add_argument(
+        "--steps", action="store_true",
+        help="instead: the estimate's error on the thesis_ac stage steps (see --lag)",
+    )
+    parser.add_argument(
+        "--lag", type=float, default=0.0, help="with --steps: the sensor's lag, physical s"
+    )
+    parser.add_argument(
         "--cost", metavar="RxC/P", help="instead: time the model estimator, e.g. 32x32/2"
     )
     parser.add_argument(
@@ -256,6 +348,9 @@ def main() -> None:
         help="instead: time the estimator as the thermal node builds it for dm_exposure",
     )
     args = parser.parse_args()
+    if args.steps:
+        print(json.dumps(stage_steps(args.lag), indent=2))
+        return
     if args.node_cost:
         rows, cols = (int(v) for v in args.node_cost.split("x"))
         print(json.dumps(node_cost(rows, cols), indent=2))

@@ -4,15 +4,43 @@ from __future__ import annotations
 
 from benchlib import Context, Record
 
+#: Sensor lags [s, physical] of the stage-step runs: none, and the NTC of issue 38's stand.
+STEP_LAGS = (0.0, 15.0)
+
 
 def run(context: Context) -> None:
-    """Estimation accuracy of the thermal issue's goal run (degC rms), both estimators."""
-    from bench_thermal import NODE_COST_GRIDS, node_cost, thermal_accuracy
+    """Estimation accuracy of the thermal goal run and of stage steps (degC rms), costs.
+
+    Stage steps (bench_thermal.stage_steps, thesis_ac: 2 degC steps): per estimator the rms
+    error over the first 30 s after each step (``thermal_step_rms_*``) and in steady state
+    (``thermal_steady_rms_*``), with no sensor lag and with a 15 s one.
+    """
+    from bench_thermal import (
+        NODE_COST_GRIDS,
+        STEP_ESTIMATORS,
+        node_cost,
+        stage_steps,
+        thermal_accuracy,
+    )
 
     settings, results = context.settings, context.results
     figures = thermal_accuracy()  # a seeded simulation: every repeat gives the same figures
     for name in ("thermal_rms_model", "thermal_rms_lowpass"):
         results.records.append(Record.of(name, 144, [figures[name]], "degC"))
+    for lag in STEP_LAGS:  # seeded simulations too: one run each
+        steps = stage_steps(lag)
+        for name in STEP_ESTIMATORS:
+            for figure in ("step_rms", "steady_rms"):
+                results.records.append(
+                    Record.of(f"thermal_{figure}_{name}_lag{lag:g}", 1, [steps[f"{name}_{figure}"]],
+                              "degC")
+                )
+        results.notes.append(
+            f"thermal stage steps, sensor lag {lag:g} s: " + "; ".join(
+                f"{name} max {steps[f'{name}_step_max']:.3g} degC, settled within 0.2 degC "
+                f"after {steps[f'{name}_settle_s']:.0f} s" for name in STEP_ESTIMATORS
+            )
+        )
     for size in NODE_COST_GRIDS:
         costs = [node_cost(size, size) for _ in range(settings.repeats)]
         results.records.append(Record.of("thermal_build_time", size * size,

@@ -49,7 +49,7 @@ def simulate(
     sample_period: float,
     heat: Callable[[float], FloatArray],
     base: Callable[[float], float],
-    sensor_tau: float = 0.0,
+    sensor_tau: float | FloatArray = 0.0,
     noise: float = 0.01,
     substeps: int = 5,
     seed: int = 0,
@@ -57,7 +57,7 @@ def simulate(
     """Integrate the network finely; the heat load is held per sample interval.
 
     ``heat(t)`` is the load from sample time t on (what /dm/heat_load carries); ``base(t)``
-    the base-plate temperature.
+    the base-plate temperature; ``sensor_tau`` one lag for all sensors or one per sensor.
     """
     sampling = sampling_matrix(rows, cols, positions)
     A, B, _, layout = continuous_model(params, rows, cols, sampling, 0.0)
@@ -66,7 +66,8 @@ def simulate(
     b_col = A[:, layout.base].copy()
     keep = np.arange(layout.size - 1)
     A_d, B_d = discretise(A[np.ix_(keep, keep)], np.column_stack([B[keep], b_col[keep]]), dt)
-    decay = np.exp(-dt / sensor_tau) if sensor_tau > 0 else 0.0
+    tau = np.asarray(sensor_tau, float)
+    decay = np.where(tau > 0, np.exp(-dt / np.where(tau > 0, tau, 1.0)), 0.0)
     rng = np.random.default_rng(seed)
     t0 = base(0.0)
     x = np.full(keep.size, t0)

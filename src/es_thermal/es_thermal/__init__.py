@@ -4,7 +4,8 @@ Pure, without rclpy: the estimator (:mod:`.estimator` over :mod:`.lowpass`, :mod
 :mod:`.modal`, :mod:`.network`, :mod:`.interpolation`, :mod:`.faults`), self-sensing
 (:mod:`.selfsensing`, :mod:`.sweep_sync`, :mod:`.resonance_calibration` and its CLI
 :mod:`.calibrate_resonance`), :mod:`.evaluation`, the node's parameters and health
-(:mod:`.node_params`, :mod:`.resonance_params`, :mod:`.node_health`) and :mod:`.errors`
+(:mod:`.node_params`, :mod:`.resonance_params`, :mod:`.node_health`), the sensor
+calibration's parameters file (:mod:`.sensor_params`) and :mod:`.errors`
 (every exception class of the package). The ROS node is :mod:`.thermal_node`. Importing the
 package is cheap: its modules are loaded on first use (``es_thermal.estimator``).
 """
@@ -32,6 +33,7 @@ if TYPE_CHECKING:  # type checkers see the modules; at run time they load on fir
         resonance_calibration,
         resonance_params,
         selfsensing,
+        sensor_params,
         sweep_sync,
         thermal_node,
     )
@@ -53,6 +55,7 @@ __all__ = [
     "resonance_calibration",
     "resonance_params",
     "selfsensing",
+    "sensor_params",
     "sweep_sync",
     "thermal_node",
 ]

@@ -32,7 +32,7 @@ from es_thermal.faults import FaultConfig, SensorFaultMonitor, SensorHealth, hea
 from es_thermal.interpolation import interpolation_matrix
 from es_thermal.kalman import KalmanTuning, ModelEstimator
 from es_thermal.lowpass import DEFAULT_CUTOFF_HZ, DEFAULT_ORDER, LowpassBank
-from es_thermal.network import NetworkParams
+from es_thermal.network import NetworkParams, per_sensor, sensor_lags
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
@@ -55,7 +55,12 @@ class EstimatorConfig:
         kind: ``"model"`` or ``"lowpass"``.
         sample_period: sensor sample period the filters are discretised for [s].
         lowpass_cutoff_hz, lowpass_order: the low-pass filter.
-        sensor_tau: first-order lag of the sensors [s] (model estimator).
+        sensor_tau: first-order lag of the sensors [s], one for all or one per sensor
+            (model estimator).
+        sensor_offsets: what each sensor reads above its site's temperature [degC], one for
+            all or one per sensor (a calibration's); subtracted from the readings.
+        sensor_offset_sd: the offsets' uncertainty, 1 sigma [degC], one for all or one per
+            sensor: a constant error of the estimate no filter can remove (reported).
         network: the thermal network the model estimator assumes.
         tuning: noise levels the model estimator assumes.
         faults: sensor fault thresholds.
@@ -69,7 +74,9 @@ class EstimatorConfig:
     sample_period: float = 0.1
     lowpass_cutoff_hz: float = DEFAULT_CUTOFF_HZ
     lowpass_order: int = DEFAULT_ORDER
-    sensor_tau: float = 0.0
+    sensor_tau: float | FloatArray = 0.0
+    sensor_offsets: float | FloatArray = 0.0
+    sensor_offset_sd: float | FloatArray = 0.0
     network: NetworkParams = field(default_factory=NetworkParams)
     tuning: KalmanTuning = field(default_factory=KalmanTuning)
     faults: FaultConfig = field(default_factory=FaultConfig)
@@ -90,8 +97,11 @@ class EstimatorConfig:
             raise ThermalConfigError(f"positions must have shape (S >= 1, 2), got {pos.shape}")
         if not np.isfinite(self.sample_period) or self.sample_period <= 0.0:
             raise ThermalConfigError(f"sample_period must be > 0, got {self.sample_period}")
-        if not np.isfinite(self.sensor_tau) or self.sensor_tau < 0.0:
-            raise ThermalConfigError(f"sensor_tau must be >= 0, got {self.sensor_tau}")
+        count = pos.shape[0]
+        sensor_lags(self.sensor_tau, count)
+        per_sensor(self.sensor_offsets, count, "sensor offsets")
+        if np.any(per_sensor(self.sensor_offset_sd, count, "sensor offset sd") < 0.0):
+            raise ThermalConfigError("sensor offset sd must be >= 0")
 
     @property
     def sensor_count(self) -> int:
@@ -125,6 +135,7 @@ class TemperatureEstimator:
         self.positions: FloatArray = np.asarray(cfg.positions, float)
         self.monitor = SensorFaultMonitor(cfg.sensor_count, cfg.faults)
         self._cells = cfg.rows * cfg.cols
+        self._offsets = per_sensor(cfg.sensor_offsets, cfg.sensor_count, "sensor offsets")
         self._heat_now: FloatArray = np.zeros(self._cells)
         self._heat_then: FloatArray = np.zeros(self._cells)
         self._interp_cache: dict[bytes, sparse.csr_matrix] = {}
@@ -191,7 +202,7 @@ class TemperatureEstimator:
 
         """
         health = self.monitor.check(readings, now)
-        values = np.asarray(readings, dtype=float)
+        values = np.asarray(readings, dtype=float) - self._offsets
         steps, restart = self._periods_since_last(now)
         valid = health.valid
         heat = self._heat_then  # the load published at the previous sample held since

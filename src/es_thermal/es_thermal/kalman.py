@@ -3,8 +3,21 @@
 The network (:mod:`es_thermal.network`) is driven by the known heat load, so the estimate
 follows heating without the lag of a low-pass filter; the sensors correct what the model gets
 wrong (its parameters are never exactly the mirror's, and the base-plate temperature is not
-measured at all). Sensor lag is part of the model, so the estimate is of the actuator, not of
-the lagging sensor.
+measured at all). Sensor lag is part of the model: each sensor's own temperature is a state,
+a first-order lag (one time constant per sensor) of the actuator field at its position, and
+the readings measure those states. The filter so undoes the lag with the noise model (the
+gain weighs the lag's inversion against the sensor noise), and the estimate is of the
+actuator, not of the lagging sensor; nothing differentiates a reading.
+
+Stage steps (optional, ``KalmanTuning.step_gate``): the base plate is a slow random walk in
+the model, right for a temperature-controlled stage at a set point, too slow for a stage
+stepped to a new set point, which the steady-state filter then follows only after seconds.
+With the gate on, the filter keeps a second steady-state gain, solved for a base plate that
+moves fast (``step_drift``), and uses it after the mean innovation of the sensors (a stage
+step moves every sensor alike) stands out of its noise: from a sample whose mean
+innovation exceeds ``step_gate`` standard deviations for the step's settling time (three
+sensor lags plus three sample periods), then the quiet gain again. The model-error fit
+pauses meanwhile: a stage step is no model error.
 
 Everything that does not depend on the data is computed once: the zero-order-hold
 discretisation (matrix exponential) and the steady-state gain (discrete algebraic Riccati
@@ -29,12 +42,14 @@ from scipy import sparse
 
 from es_thermal.errors import EstimatorStateError, ThermalConfigError, ThermalInputError
 from es_thermal.interpolation import sparse_sampling
-from es_thermal.modal import modal_solution
+from es_thermal.modal import ModalSolution, modal_solution
 from es_thermal.network import (
     GridTransform,
     NetworkParams,
     StateLayout,
+    lag_states,
     modal_model,
+    sensor_lags,
     sensor_transform,
 )
 
@@ -62,6 +77,11 @@ class KalmanTuning:
         adaptation_time: memory of the model-error estimates [s] (older data fade out).
         bias_prior: how far off the model is expected to be (relative, 1 sigma).
         bias_limit: the model-error estimates are clipped to +- this (relative).
+        step_gate: stage-step tracking: the sensors' mean innovation, in its standard
+            deviations, beyond which the base plate is followed with the step gain (0: off,
+            the filter has its quiet gain only).
+        step_drift: random-walk intensity of the base plate while a step is followed
+            [degC/sqrt(s)].
 
     """
 
@@ -71,6 +91,8 @@ class KalmanTuning:
     adaptation_time: float = 60.0
     bias_prior: float = 0.3
     bias_limit: float = 0.6
+    step_gate: float = 0.0
+    step_drift: float = 0.3
 
     def __post_init__(self) -> None:
         """Check the values.
@@ -81,11 +103,13 @@ class KalmanTuning:
         """
         for name in (
             "sensor_noise", "process_noise", "base_drift", "adaptation_time", "bias_prior",
-            "bias_limit",
+            "bias_limit", "step_drift",
         ):
             value = getattr(self, name)
             if not np.isfinite(value) or value <= 0.0:
                 raise ThermalConfigError(f"{name}={value} must be finite and > 0")
+        if not np.isfinite(self.step_gate) or self.step_gate < 0.0:
+            raise ThermalConfigError(f"step_gate={self.step_gate} must be finite and >= 0")
 
     def time_scaled(self, time_scale: float) -> KalmanTuning:
         """Return the tuning for a run whose slow times are multiplied by ``time_scale``.
@@ -98,6 +122,7 @@ class KalmanTuning:
             self,
             process_noise=self.process_noise * rate,
             base_drift=self.base_drift * rate,
+            step_drift=self.step_drift * rate,
             adaptation_time=self.adaptation_time * time_scale,
         )
 
@@ -125,7 +150,9 @@ class ModelEstimator:
         rows, cols: actuator grid.
         positions: sensor (row, col) positions (S, 2) (:mod:`es_thermal.interpolation`).
         params: the network's parameters as the estimator believes them.
-        sensor_tau: first-order sensor lag [s] (0: none).
+        sensor_tau: first-order sensor lag [s], one for all sensors or one per sensor (S,)
+            (0: none). Lags that differ between sensors keep the sensors in their own
+            coordinates, as an irregular layout does (a denser gain, a longer build).
         sample_period: the sensor sample period the filter is discretised for [s].
         tuning: assumed noise levels and how the model error is tracked.
 
@@ -140,7 +167,7 @@ class ModelEstimator:
         positions: FloatArray,
         *,
         params: NetworkParams,
-        sensor_tau: float,
+        sensor_tau: float | FloatArray,
         sample_period: float,
         tuning: KalmanTuning,
     ) -> None:
@@ -150,22 +177,42 @@ class ModelEstimator:
             ThermalConfigError: a value out of range (the message names it).
 
         """
-        if sample_period <= 0.0 or sensor_tau < 0.0:
-            raise ThermalConfigError("sample_period must be > 0 and sensor_tau >= 0")
+        if sample_period <= 0.0:
+            raise ThermalConfigError(f"sample_period must be > 0, got {sample_period}")
+        taus = sensor_lags(sensor_tau, positions.shape[0])
+        lags = lag_states(taus, sample_period)
         self._grid = GridTransform.dct(rows, cols)
-        self._sensors = sensor_transform(positions)
-        A, B, H, layout = modal_model(
-            params, rows, cols, positions, sensor_tau, sensors=self._sensors
+        self._sensors = (
+            sensor_transform(positions)
+            if lags is None or np.ptp(lags) == 0.0
+            else GridTransform.eye(positions.shape[0])
         )
+        A, B, H, layout = modal_model(params, rows, cols, positions, lags, sensors=self._sensors)
         q = np.zeros(layout.size)
         q[layout.face] = tuning.process_noise**2
         q[layout.actuator] = tuning.process_noise**2
         q[layout.sensor] = (1e-3 * tuning.process_noise) ** 2  # lag model taken as known
         q[layout.base] = tuning.base_drift**2
+
         # Every noise is isotropic within its group of states, so it looks the same in modes.
-        modal = modal_solution(
-            A, B, H, q=q * sample_period, r=tuning.sensor_noise**2, dt=sample_period
-        )
+        def solve(q: FloatArray) -> ModalSolution:
+            return modal_solution(
+                A, B, H, q=q * sample_period, r=tuning.sensor_noise**2, dt=sample_period
+            )
+
+        modal = solve(q)
+        self._step_gain: sparse.csr_matrix | None = None
+        if tuning.step_gate > 0.0:
+            q[layout.base] = tuning.step_drift**2
+            self._step_gain = solve(q).gain
+        # The sensors' mean innovation: its weights in sensor modes and its standard deviation.
+        self._mean_weights = self._sensors.forward(np.full(positions.shape[0], 1.0))
+        self._mean_weights /= positions.shape[0]
+        spread = self._mean_weights @ (modal.innovation_cov @ self._mean_weights)
+        self._mean_sd = float(np.sqrt(spread))
+        #: Samples a stage step takes to settle: three sensor lags and three periods.
+        self._step_settling = 3 + int(np.ceil(3.0 * float(np.max(taus)) / sample_period))
+        self._quiet_samples = self._step_settling  # since the mean innovation passed the gate
         self.layout: StateLayout = layout
         self.sampling: sparse.csr_matrix = sparse_sampling(rows, cols, positions)
         self.tuning = tuning
@@ -199,6 +246,11 @@ class ModelEstimator:
             return float("nan")
         base = self.layout.base
         return float(self._state[base] + self._sens[base] @ self._bias)
+
+    @property
+    def following_step(self) -> bool:
+        """True while a stage step is followed with the step gain (``step_gate`` on)."""
+        return self._step_gain is not None and self._quiet_samples < self._step_settling
 
     @property
     def biases(self) -> dict[str, float]:
@@ -241,6 +293,7 @@ class ModelEstimator:
         self._info = self._prior_info.copy()
         self._info_vector[:] = 0.0
         self._bias[:] = 0.0
+        self._quiet_samples = self._step_settling
 
     def predict(self, heat_load: FloatArray, steps: int = 1) -> None:
         """Advance the model ``steps`` sample periods with the heat load (N,) held.
@@ -272,24 +325,48 @@ class ModelEstimator:
     def correct(self, readings: FloatArray, valid: BoolArray) -> FloatArray:
         """Correct the predicted state with the valid readings; return the innovations.
 
-        Invalid sensors get a zero innovation: their gain columns are left out.
+        Invalid sensors get a zero innovation: their gain columns are left out. With
+        ``step_gate`` on, a stage step is followed with the step gain (module docstring).
         """
         x = self._require_state()
         seen = self._sensors.inverse(np.asarray(self._H @ np.column_stack([x, self._sens])))
         innovation = np.where(valid, readings - seen[:, 0], 0.0)
         regressor = seen[:, 1:]
         regressor[~valid] = 0.0
+        modal = self._sensors.forward(np.column_stack([innovation, -regressor]))
+        gain = self._gain
+        if self._step_gain is not None:
+            self._watch_for_steps(modal[:, 0], valid)
+            if self.following_step:
+                gain = self._step_gain
         # One pass over the (sparse, modal) gain corrects the state and the sensitivities.
-        update = np.asarray(
-            self._gain @ self._sensors.forward(np.column_stack([innovation, -regressor]))
-        )
+        update = np.asarray(gain @ modal)
         self._state = x + update[:, 0]
         self._sens = self._sens + update[:, 1:]
+        if self.following_step:
+            return innovation  # a stage step is no model error: the fit pauses
         self._fit_biases(
             np.clip(innovation, -BIAS_FIT_LIMIT, BIAS_FIT_LIMIT),
             np.clip(regressor, -BIAS_FIT_LIMIT, BIAS_FIT_LIMIT),
         )
         return innovation
+
+    def _watch_for_steps(self, modal_innovation: FloatArray, valid: BoolArray) -> None:
+        """Start or end following a stage step from the sensors' mean innovation.
+
+        ``modal_innovation`` is the innovation in sensor modes (invalid sensors at 0); the
+        mean over fewer valid sensors has a proportionally larger spread.
+        """
+        count = int(np.count_nonzero(valid))
+        if count == 0:
+            return
+        share = count / valid.size
+        z = abs(float(self._mean_weights @ modal_innovation)) / share
+        z /= self._mean_sd / np.sqrt(share)
+        if z > self.tuning.step_gate:
+            self._quiet_samples = 0
+        else:
+            self._quiet_samples = min(self._quiet_samples + 1, self._step_settling)
 
     def _fit_biases(self, innovation: FloatArray, regressor: FloatArray) -> None:
         """Update the model-error estimates by least squares pulled towards zero bias.

@@ -12,7 +12,12 @@ neighbours), P the absorbed power per cell [W]. This is the simulator's network
 parameters separately, because a real mirror's are never known exactly. The base-plate
 temperature T_b is not measured: the estimator carries it as a random-walk state (a Peltier
 stage or thermal control may move it with no heat load).
-Sensors see the actuator field at their positions through a first-order lag ``tau``.
+Sensors see the actuator field at their positions through a first-order lag ``tau`` each
+(one value for all, or one per sensor): the sensor temperatures are states of the model,
+
+    tau_i dT_s,i/dt = (S T_a)_i - T_s,i
+
+with ``S`` the sensors' bilinear view of the actuator field, and the readings measure T_s.
 """
 
 from __future__ import annotations
@@ -136,21 +141,86 @@ class StateLayout:
         return 2 * self.cells + self.sensors + 1
 
 
+#: A sensor without lag among lagging ones gets a lag state of this many sample periods: it
+#: follows its site within a hundredth of a period, far below any sample's resolution.
+NO_LAG_PERIODS = 0.01
+
+
+def per_sensor(value: float | npt.ArrayLike, count: int, what: str) -> FloatArray:
+    """Return ``value`` as one finite value per sensor (count,).
+
+    ``value`` is one value for every sensor or a sequence of one per sensor.
+
+    Raises:
+        ThermalConfigError: a value that is not finite, or a sequence whose length is not
+            ``count`` (the message names ``what``).
+
+    """
+    values = np.asarray(value, float)
+    if values.ndim == 0:
+        values = np.full(count, float(values))
+    if values.shape != (count,):
+        raise ThermalConfigError(
+            f"{what}: one value or one per sensor ({count}), got shape {values.shape}"
+        )
+    if not np.all(np.isfinite(values)):
+        raise ThermalConfigError(f"{what} must be finite, got {values.tolist()}")
+    return values
+
+
+def sensor_lags(sensor_tau: float | npt.ArrayLike, count: int) -> FloatArray:
+    """Return the first-order lag of each of ``count`` sensors (count,) [s].
+
+    ``sensor_tau`` is one value for every sensor or one per sensor.
+
+    Raises:
+        ThermalConfigError: a lag that is negative or not finite, or a per-sensor list whose
+            length is not ``count``.
+
+    """
+    taus = per_sensor(sensor_tau, count, "sensor lag")
+    if np.any(taus < 0.0):
+        raise ThermalConfigError(f"sensor lags must be >= 0, got {taus.tolist()}")
+    return taus
+
+
+def lag_states(taus: FloatArray, sample_period: float) -> FloatArray | None:
+    """Return the time constants of the sensors' lag states (S,) [s], None without lag.
+
+    ``taus`` (S,) are the sensors' lags (:func:`sensor_lags`). No sensor lags: no lag
+    states. Any lags: every sensor gets a state, a sensor without lag one of
+    :data:`NO_LAG_PERIODS` sample periods.
+    """
+    if not np.any(taus > 0.0):
+        return None
+    return np.maximum(taus, NO_LAG_PERIODS * sample_period)
+
+
 def continuous_model(
     params: NetworkParams,
     rows: int,
     cols: int,
     sampling: FloatArray,
-    sensor_tau: float,
+    sensor_tau: float | FloatArray,
 ) -> tuple[FloatArray, FloatArray, FloatArray, StateLayout]:
     """Return (A, B, H, layout) of dx/dt = A x + B P, y = H x in grid coordinates (dense).
 
     ``sampling`` (S x N) maps the actuator field to the sensors; ``sensor_tau`` [s] is their
-    first-order lag (0: no lag states, the sensors see the actuators directly).
+    first-order lag, one for all or one per sensor (all 0: no lag states, the sensors see
+    the actuators directly).
+
+    Raises:
+        ThermalConfigError: a lag out of range (:func:`sensor_lags`), or some sensors
+            without lag among lagging ones (the estimator gives those a short lag of its
+            sample period, :func:`lag_states`).
+
     """
+    taus = sensor_lags(sensor_tau, sampling.shape[0])
+    if np.any(taus > 0.0) and not np.all(taus > 0.0):
+        raise ThermalConfigError("sensor lags: all > 0 or all 0 in the continuous model")
     A, B, H, layout = _assemble(
         params, grid_laplacian(rows, cols), np.ones(rows * cols),
-        sparse.csr_matrix(sampling), sensor_tau,
+        sparse.csr_matrix(sampling), taus if np.any(taus > 0.0) else None,
     )
     return A.toarray(), B.toarray(), H.toarray(), layout
 
@@ -303,14 +373,17 @@ def modal_model(
     rows: int,
     cols: int,
     positions: FloatArray,
-    sensor_tau: float,
+    lags: FloatArray | None,
     *,
     sensors: GridTransform,
 ) -> tuple[sparse.csr_matrix, sparse.csr_matrix, sparse.csr_matrix, StateLayout]:
     """Return :func:`continuous_model` in modal coordinates, as sparse matrices.
 
-    Face and actuator fields are expressed in grid DCT modes (:meth:`GridTransform.dct`), lag
-    states and measurements through the sensor transform ``sensors``. The network is then
+    ``lags`` are the time constants of the sensors' lag states (S,) [s] (:func:`lag_states`;
+    None: no lag states). Face and actuator fields are expressed in grid DCT modes
+    (:meth:`GridTransform.dct`), lag states and measurements through the sensor transform
+    ``sensors``; lags that differ between sensors need the identity there (the lag is
+    diagonal only in sensor coordinates, or when it is one value). The network is then
     block diagonal: mode k of the face sheet couples only to mode k of the actuators, the
     base plate only to mode 0, and a sensor mode only to the few actuator modes that alias
     onto it. The input is the heat load in modes as well.
@@ -319,7 +392,9 @@ def modal_model(
     uniform = np.zeros(rows * cols)
     uniform[0] = np.sqrt(rows * cols)  # a uniform field is all mode 0 (exactly, not ~1e-16)
     sampled = modal_sampling(rows, cols, positions, sensors)
-    return _assemble(params, lam, uniform, sampled, sensor_tau)
+    if lags is not None and not sensors.identity and np.ptp(lags) > 0.0:
+        raise ThermalConfigError("sensor lags that differ need the identity sensor transform")
+    return _assemble(params, lam, uniform, sampled, lags)
 
 
 def _assemble(
@@ -327,16 +402,17 @@ def _assemble(
     lap: sparse.spmatrix,
     base_coupling: FloatArray,
     sampling: sparse.spmatrix,
-    sensor_tau: float,
+    lags: FloatArray | None,
 ) -> tuple[sparse.csr_matrix, sparse.csr_matrix, sparse.csr_matrix, StateLayout]:
     """Build sparse (A, B, H, layout) in any orthonormal basis of the grid.
 
     ``lap`` is the Laplacian, ``base_coupling`` a uniform unit field and ``sampling`` the
-    sensors' view of the actuator field, all in that basis.
+    sensors' view of the actuator field, all in that basis; ``lags`` the lag states' time
+    constants (S,), diagonal in the sensors' basis (None: no lag states).
     """
     cells = lap.shape[0]
     count = sampling.shape[0]
-    layout = StateLayout(cells, count if sensor_tau > 0.0 else 0)
+    layout = StateLayout(cells, 0 if lags is None else count)
     eye = sparse.identity(cells, format="csr")
     p = params
     base = sparse.csr_matrix(base_coupling[:, None])
@@ -350,8 +426,9 @@ def _assemble(
          base * p.actuator_to_base / p.actuator_capacitance],
     ]
     lag_eye = sparse.identity(count, format="csr")
-    if layout.sensors:
-        blocks.append([None, sampling / sensor_tau, -lag_eye / sensor_tau, None])
+    if lags is not None:
+        rate = sparse.diags(1.0 / lags, format="csr")
+        blocks.append([None, rate @ sampling, -rate, None])
     blocks.append([None, None, None, sparse.csr_matrix((1, 1))])
     if not layout.sensors:
         blocks = [[b for j, b in enumerate(row) if j != 2] for row in blocks]

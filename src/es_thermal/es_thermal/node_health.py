@@ -17,6 +17,7 @@ from es_msgs_py.diagnostics import Level
 from es_thermal.estimator import Estimate, EstimatorConfig
 from es_thermal.faults import StaleWatch
 from es_thermal.kalman import ModelEstimator
+from es_thermal.network import per_sensor
 from es_thermal.sweep_sync import SampleSync
 
 __all__ = ["REJECTION_HOLD", "NodeHealth", "Row"]
@@ -47,6 +48,10 @@ class NodeHealth:
         """
         self.config = config
         self.selfsensing = selfsensing
+        #: The largest 1-sigma offset uncertainty of a sensor [degC] (0: none given).
+        self._offset_sd_max = float(
+            np.max(per_sensor(config.sensor_offset_sd, config.sensor_count, "sensor offset sd"))
+        )
         self.raw_watch = StaleWatch(config.faults.stale_timeout)
         self.heat_watch = StaleWatch(config.faults.stale_timeout)
         self.rejected_counts = {"raw": 0, "heat_load": 0, "resonance": 0, "command": 0}
@@ -138,8 +143,11 @@ class NodeHealth:
             kv["update_ms_mean"] = 1e3 * float(np.mean(self._update_seconds))
             kv["update_ms_median"] = 1e3 * float(np.median(self._update_seconds))
             kv["update_ms_max"] = 1e3 * float(np.max(self._update_seconds))
+        if self._offset_sd_max > 0.0:  # a constant error no filter can remove
+            kv["sensor_offset_sd_max_degc"] = self._offset_sd_max
         if model is not None and model.initialised:
             kv["base_plate_degc"] = model.base_temperature
+            kv["following_stage_step"] = model.following_step
             kv.update({f"model_error_{k}": v for k, v in model.biases.items()})
         if fused is not None:
             kv["min_degc"] = float(np.min(fused))

@@ -10,8 +10,10 @@
 from __future__ import annotations
 
 import array
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import fields
+
+import numpy as np
 
 from es_msgs_py.param_spec import ParameterSpec, ParameterValues
 from es_thermal.estimator import ESTIMATORS, EstimatorConfig
@@ -21,7 +23,13 @@ from es_thermal.kalman import KalmanTuning
 from es_thermal.lowpass import DEFAULT_CUTOFF_HZ, DEFAULT_ORDER
 from es_thermal.network import NetworkParams
 
-__all__ = ["SPECS", "config_from_parameters"]
+__all__ = ["SPECS", "config_from_parameters", "per_sensor_value"]
+
+#: Ranges of the per-sensor calibration parameters (one value for all or one per sensor):
+#: the lag [s], the offset and its uncertainty [degC].
+LAG_RANGE = (0.0, 1e4)
+OFFSET_RANGE = (-100.0, 100.0)
+OFFSET_SD_RANGE = (0.0, 100.0)
 
 
 def _check_positions(value: object) -> str | None:
@@ -35,6 +43,43 @@ def _check_positions(value: object) -> str | None:
     if len(value) % 2:
         return "sensor_positions needs an even count [r0, c0, r1, c1, ...]"
     return None
+
+
+def _per_sensor_check(name: str, low: float, high: float) -> Callable[[object], str | None]:
+    """Return the check of a parameter that is one number or a list of one per sensor."""
+
+    def check(value: object) -> str | None:
+        items = list(value) if isinstance(value, list | tuple | array.array) else [value]
+        numbers = [v for v in items if isinstance(v, int | float) and not isinstance(v, bool)]
+        if len(numbers) != len(items):
+            return f"{name} must be a number or a list of numbers (one per sensor)"
+        if not numbers or not all(low <= v <= high for v in numbers):
+            return f"{name}={value!r}: every value must lie in [{low}, {high}]"
+        return None
+
+    return check
+
+
+def _per_sensor(name: str, range_: tuple[float, float], description: str) -> ParameterSpec:
+    """Return the spec of a number, or a list of one per sensor, within ``range_``."""
+    return ParameterSpec(
+        name, 0.0, description + " One value for all sensors, or a list of one per sensor.",
+        *range_, check=_per_sensor_check(name, *range_), read_only=True, dynamic_typing=True,
+    )
+
+
+def per_sensor_value(values: ParameterValues, name: str) -> float | list[float]:
+    """Return parameter ``name``: one number for all sensors, or a list of one per sensor.
+
+    Raises:
+        KeyError: ``name`` is absent.
+        es_msgs_py.errors.ParameterTypeError: neither a number nor a list of numbers.
+
+    """
+    raw = values[name]
+    if isinstance(raw, int | float) and not isinstance(raw, bool):
+        return values.get_float(name)
+    return values.get_floats(name)
 
 
 _NETWORK = NetworkParams()
@@ -104,9 +149,17 @@ SPECS: tuple[ParameterSpec, ...] = (
         1e4,
         read_only=True,
     ),
-    ParameterSpec(
-        "sensor_lag_tau", 0.0, "First-order sensor lag compensated by the model, s.", 0.0, 1e4,
-        read_only=True,
+    _per_sensor(
+        "sensor_lag_tau", LAG_RANGE,
+        "First-order lag of the sensor behind its site, a state of the model, s.",
+    ),
+    _per_sensor(
+        "sensor_offsets", OFFSET_RANGE,
+        "What a sensor reads above its site (a calibration's), subtracted, degC.",
+    ),
+    _per_sensor(
+        "sensor_offsets_sd", OFFSET_SD_RANGE,
+        "1-sigma uncertainty of sensor_offsets, degC (reported on the estimate diagnostic).",
     ),
     ParameterSpec(
         "lowpass.cutoff_hz", DEFAULT_CUTOFF_HZ, "Low-pass cut-off, Hz.", 1e-5, 1e4,
@@ -146,6 +199,16 @@ SPECS: tuple[ParameterSpec, ...] = (
         1e-3, 1e7, read_only=True,
     ),
     ParameterSpec(
+        "model.step_gate", _TUNING.step_gate,
+        "Stage steps: the sensors' mean innovation, in standard deviations, beyond which the "
+        "base plate is followed with the step gain (0: off).", 0.0, 1e3, read_only=True,
+    ),
+    ParameterSpec(
+        "model.step_drift", _TUNING.step_drift,
+        "Random-walk intensity of the base plate while a stage step is followed, "
+        "degC/sqrt(s).", 1e-9, 1e3, read_only=True,
+    ),
+    ParameterSpec(
         "fault.valid_min", _FAULTS.valid_min, "Lowest physical reading, degC.", -273.0, 1000.0,
         read_only=True,
     ),
@@ -183,9 +246,12 @@ SPECS: tuple[ParameterSpec, ...] = (
 def config_from_parameters(values: Mapping[str, object]) -> EstimatorConfig:
     """Build the estimator configuration from the values of :data:`SPECS` by name.
 
+    ``sensor_lag_tau``, ``sensor_offsets`` and ``sensor_offsets_sd`` are one number for all
+    sensors or a list of one per sensor (:func:`per_sensor_value`).
+
     Raises:
         ValueError: an inconsistent combination (positions outside the grid, cut-off above
-            Nyquist, ...); the message says which.
+            Nyquist, a per-sensor list of the wrong length, ...); the message says which.
         KeyError: a parameter of :data:`SPECS` is missing from ``values``.
         es_msgs_py.errors.ParameterTypeError: a value has the wrong type (a ``TypeError``).
 
@@ -207,6 +273,8 @@ def config_from_parameters(values: Mapping[str, object]) -> EstimatorConfig:
         process_noise=num("model.process_noise"),
         base_drift=num("model.base_drift"),
         adaptation_time=num("model.adaptation_time"),
+        step_gate=num("model.step_gate"),
+        step_drift=num("model.step_drift"),
     ).time_scaled(scale)
     faults = FaultConfig(
         valid_min=num("fault.valid_min"),
@@ -225,7 +293,9 @@ def config_from_parameters(values: Mapping[str, object]) -> EstimatorConfig:
         sample_period=1.0 / num("sample_rate"),
         lowpass_cutoff_hz=num("lowpass.cutoff_hz") / scale,
         lowpass_order=typed.get_int("lowpass.order"),
-        sensor_tau=num("sensor_lag_tau") * scale,
+        sensor_tau=np.asarray(per_sensor_value(typed, "sensor_lag_tau"), float) * scale,
+        sensor_offsets=np.asarray(per_sensor_value(typed, "sensor_offsets"), float),
+        sensor_offset_sd=np.asarray(per_sensor_value(typed, "sensor_offsets_sd"), float),
         network=network,
         tuning=tuning,
         faults=faults,
