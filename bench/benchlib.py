@@ -22,8 +22,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
 
-from es_msgs_py.middleware import configure_middleware
 from es_msgs_py.topics import reserve_domain_id
+from es_node_runtime.middleware import configure_middleware
 
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 # a domain no other es_dm process here holds (a test run beside the benchmark, say)

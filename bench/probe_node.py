@@ -111,7 +111,7 @@ def make_probed(kind: str, out: Path) -> Callable[[], Any]:
 
 def main() -> int:
     """Run the probed node until SIGINT/SIGTERM, then write its stamps."""
-    from es_msgs_py import node_main
+    from es_node_runtime import node_main
 
     if os.environ.get("PROBE_GC_FREEZE") == "0":  # the A of an A/B of run_node's freeze
         node_main.settle_garbage = lambda: None

@@ -16,9 +16,9 @@ import sys
 from rclpy.node import Node
 from std_msgs.msg import Float64MultiArray
 
-from es_msgs_py.node_main import EXECUTOR_PARAMETER, EXECUTORS, run_node
-from es_msgs_py.params import ParameterSpec, declare_parameters
 from es_msgs_py.topics import COMMAND, SETPOINT, qos_for
+from es_node_runtime.node_main import EXECUTOR_PARAMETER, EXECUTORS, run_node
+from es_node_runtime.params import ParameterSpec, declare_parameters
 
 
 class Relay(Node):

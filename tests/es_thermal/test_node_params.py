@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from es_msgs_py.errors import ParameterTypeError
+from es_node_runtime.errors import ParameterTypeError
 from es_thermal.node_params import SPECS, config_from_parameters
 
 

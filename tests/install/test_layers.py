@@ -1,12 +1,12 @@
 """The packages' layers (docs/architecture.md): every import of ours points down, none up.
 
-Layer 1 is the contract (es_msgs_py) and the shared physics (es_physics), layer 2 the three
-roles (es_sim_plant, es_thermal, es_feedforward, es_recordings: they never import each other), layer 3 the
-offline calibration (es_calibration) beside the bring-up and evaluation (es_bringup): nothing
-under src/ imports either, and they never import each other (the bring-up runs the calibration
-tool as an executable). Read from the source
-with ast, every module of every package (launch files included), so a new import that breaks
-the rule fails here with its file and line.
+Layer 1 is the contract (es_msgs_py), what every node runs on (es_node_runtime) and the shared
+physics (es_physics), none importing another; layer 2 the roles (es_sim_plant, es_thermal,
+es_feedforward, es_recordings: they never import each other), layer 3 the offline calibration
+(es_calibration) beside the bring-up and evaluation (es_bringup): nothing under src/ imports
+either, and they never import each other (the bring-up runs the calibration tool as an
+executable). Read from the source with ast, every module of every package (launch files
+included), so a new import that breaks the rule fails here with its file and line.
 """
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ SRC = ROOT / "src"
 #: Layer of each package; a module may import packages of a lower layer only.
 LAYER = {
     "es_msgs_py": 1,
+    "es_node_runtime": 1,
     "es_physics": 1,
     "es_sim_plant": 2,
     "es_thermal": 2,
@@ -87,12 +88,13 @@ def test_imports_point_only_down() -> None:
 
 def test_the_roles_and_the_bottom_use_what_the_doc_says() -> None:
     uses = _uses()
-    assert uses["es_msgs_py"] == set() and uses["es_physics"] == set()
-    assert uses["es_sim_plant"] <= {"es_msgs_py", "es_physics"}
-    assert uses["es_feedforward"] <= {"es_msgs_py", "es_physics"}
-    assert uses["es_thermal"] <= {"es_msgs_py", "es_physics"}
-    assert uses["es_recordings"] <= {"es_msgs_py"}
-    assert uses["es_calibration"] <= {"es_msgs_py", "es_physics", "es_feedforward", "es_recordings"}
+    assert uses["es_msgs_py"] == uses["es_node_runtime"] == uses["es_physics"] == set()
+    bottom = {"es_msgs_py", "es_node_runtime", "es_physics"}
+    assert uses["es_sim_plant"] <= bottom
+    assert uses["es_feedforward"] <= bottom
+    assert uses["es_thermal"] <= bottom
+    assert uses["es_recordings"] <= {"es_msgs_py", "es_node_runtime"}
+    assert uses["es_calibration"] <= bottom | {"es_feedforward", "es_recordings"}
     assert not any({"es_bringup", "es_calibration"} & used for used in uses.values())
 
 

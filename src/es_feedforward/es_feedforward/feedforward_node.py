@@ -54,8 +54,6 @@ from es_msgs_py.diagnostics import (
     unreached,
 )
 from es_msgs_py.grid_wire import GridWire
-from es_msgs_py.node_main import run_node, summary_line, usage_text
-from es_msgs_py.params import ParameterValues, declare_parameters
 from es_msgs_py.topics import (
     COMMAND,
     DIAGNOSTICS,
@@ -65,6 +63,8 @@ from es_msgs_py.topics import (
     TEMPERATURE_RAW,
     qos_for,
 )
+from es_node_runtime.node_main import run_node, summary_line, usage_text
+from es_node_runtime.params import ParameterValues, declare_parameters
 from es_physics.laws import Status
 
 NODE_NAME: Final = "feedforward"

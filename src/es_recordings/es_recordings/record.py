@@ -44,7 +44,7 @@ from rosbags.interfaces import (
 from es_msgs_py import topics
 from es_msgs_py.bag import STORAGES, BagError, BagWriter
 from es_msgs_py.diagnostics import Level, make_array, make_status, readiness_status, unmatched
-from es_msgs_py.node_main import run_node, summary_line
+from es_node_runtime.node_main import run_node, summary_line
 
 NODE_NAME = "record"
 #: Topics taken by ``--all-dm``.

@@ -64,9 +64,9 @@ from es_msgs_py.diagnostics import (
     unmatched,
     unreached,
 )
-from es_msgs_py.errors import ParameterValueError
-from es_msgs_py.node_main import executor_spec, run_node, usage_text
-from es_msgs_py.params import declare_parameters
+from es_node_runtime.errors import ParameterValueError
+from es_node_runtime.node_main import executor_spec, run_node, usage_text
+from es_node_runtime.params import declare_parameters
 from es_thermal.estimator import SampleClock, TemperatureEstimator
 from es_thermal.node_health import NodeHealth
 from es_thermal.node_params import SPECS, config_from_parameters
