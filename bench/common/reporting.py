@@ -11,7 +11,7 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-from benchlib import Record, Results, Settings
+from common.benchlib import Record, Results, Settings
 
 TARGETS = (
     ("kernel_inverse_hyperbolic", 4096, "ratio", "<=", 10.0, "kernels <= 10x np.sqrt at 4096"),

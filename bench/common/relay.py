@@ -6,7 +6,7 @@ latency can be compared with what plain rclpy costs for the same message size on
 machine. ``-p executor:=events`` runs it on the EventsExecutor the feedforward node uses (a
 second reference). Run as its own process (``bench/run.py`` starts it):
 
-    .venv/bin/python bench/relay.py [--ros-args -p executor:=events ...]
+    (cd bench && ../.venv/bin/python -m common.relay [--ros-args -p executor:=events ...])
 """
 
 from __future__ import annotations
