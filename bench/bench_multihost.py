@@ -174,7 +174,7 @@ def section_multihost(settings: Settings, results: Results, log_dir: Path) -> No
         f"multihost_*: {rows} x {cols} set points paced at {MULTIHOST_RATE:g} Hz for "
         f"{seconds:g} s from host A to the feedforward node on host B, commands back; the "
         "hosts are two network namespaces joined by a veth pair (MTU 1500), Fast DDS over "
-        "UDPv4 only with initial peers (hosttools.multihost, the README's recipe); ratio = "
+        "UDPv4 only with initial peers (hosttools.multihost, docs/scaling.md's recipe); ratio = "
         "p99 across the link / p99 of the same client and node on one host (shared memory, "
         "local_feedforward_*); multihost_relay_*: the relay (EventsExecutor) across the link; "
         "link_bytes_per_setpoint: bytes through host B's end of the link (both directions, "

@@ -3,8 +3,8 @@ recorder on the other, two network namespaces joined by a veth pair (hosttools.m
 
 Needs root (CAP_NET_ADMIN) for the namespaces, as CI has; without it the test fails with the
 reason, it does not skip. Discovery and data go over UDP across the link only (no shared
-memory, no localhost): the Fast DDS initial-peers profile the README's deployment recipe
-describes.
+memory, no localhost): the Fast DDS initial-peers profile the deployment recipe in
+docs/scaling.md describes.
 """
 
 from __future__ import annotations
