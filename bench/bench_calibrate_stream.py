@@ -37,7 +37,7 @@ from typing import TYPE_CHECKING, Final, NamedTuple
 from bench_calibrate import write_measured_bag
 
 if TYPE_CHECKING:
-    from benchlib import Results, Settings
+    from common.benchlib import Results, Settings
 
 #: Search budget of the case that searches the whole record (more than any case's values).
 WHOLE: Final = 10**12
@@ -156,7 +156,7 @@ def line(r: StreamRun) -> str:
 
 def section_calibrate_stream(settings: Settings, results: Results) -> None:
     """bench/run.py section: the quick cases with --quick, else the issue's cases."""
-    from benchlib import Record
+    from common.benchlib import Record
 
     quick = settings.repeats == 1
     names = list(QUICK_CASES if quick else CASES)

@@ -7,7 +7,7 @@ Usage (from the repository root, after ./scripts/bootstrap)::
 The feedforward node (``--shape``, default 64 x 64 = 4096 actuators) and a recorder of
 /dm/setpoint and /dm/command run as processes; a client in this process publishes set points
 at ``--rate`` for ``--seconds``, first on an idle machine, then beside two CPU hogs
-(bench/load.py). Flow control (docs/architecture.md "QoS"): the client never has more than
+(bench/common/load.py). Flow control (docs/architecture.md "QoS"): the client never has more than
 ``--window`` set points without their command, and at most RECORDER_WINDOW set points or
 commands that the recorder has not reported received (it reports every REPORT_PERIOD_S on
 /diagnostics); a set point that is due while a window is full waits, and is counted as
@@ -39,9 +39,6 @@ from typing import Any
 import numpy as np
 
 from es_msgs_py.topic_names import DM_DEPTH
-
-BENCH_DIR = Path(__file__).resolve().parent
-sys.path.insert(0, str(BENCH_DIR))
 
 #: Longest wait [s] for readiness, for the last commands, and for a process to stop.
 READY_S = 120.0
@@ -251,7 +248,7 @@ def flow_run(condition: str, shape: tuple[int, int], *, rate_hz: float, seconds:
         RuntimeError: a process died, or readiness or the last commands never came.
 
     """
-    from load import hogs
+    from common.load import hogs
 
     from es_bringup.bringup import executable
     from es_bringup.invariants import published_counts_from_log, recorder_counts_from_log
@@ -345,7 +342,7 @@ def flow_runs(shape: tuple[int, int] = (64, 64), *, rate_hz: float = 1000.0,
 
 def section_flow(settings: Any, results: Any, log_dir: Path) -> None:
     """``./scripts/bench --only flow``: the runs, in turns per repeat, as bench records."""
-    from benchlib import Record
+    from common.benchlib import Record
 
     seconds = 10.0 if settings.repeats > 1 else 3.0
     runs: dict[str, list[FlowRun]] = {}
@@ -377,7 +374,7 @@ def section_flow(settings: Any, results: Any, log_dir: Path) -> None:
         f"flow_*: set points at 1 kHz for {seconds:g} s to the feedforward node at 64 x 64 with "
         f"a recorder on /dm/setpoint and /dm/command, at most {DEFAULT_WINDOW} without their "
         "command (flow control, docs/architecture.md QoS); idle, then beside two CPU hogs "
-        "(bench/load.py). rate: set points per second the stream achieved; latency: set "
+        "(bench/common/load.py). rate: set points per second the stream achieved; latency: set "
         "point published -> its command received; held_back: set points that waited for the "
         "window; node_cpu: the node process's CPU time per set point during the stream (the "
         "rest of its wall time per set point is waiting for a core); lost: runs where "

@@ -11,7 +11,6 @@ large grid's thermal start-up is not in the figure.
 from __future__ import annotations
 
 import argparse
-import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -19,10 +18,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
 if TYPE_CHECKING:
-    from benchlib import Results, Settings
+    from common.benchlib import Results, Settings
 
     from es_bringup.graph import ParamValue
 
@@ -77,7 +74,13 @@ def lockstep_run(rows: int, cols: int, duration: float, log_dir: Path,
     """
     import re
 
-    from benchlib import Process, plant_speedup, processes, run_until_exit, wait_for_controllers
+    from common.benchlib import (
+        Process,
+        plant_speedup,
+        processes,
+        run_until_exit,
+        wait_for_controllers,
+    )
 
     from es_bringup.bringup import GraphConfig, node_specs
 
@@ -112,7 +115,7 @@ def lockstep_run(rows: int, cols: int, duration: float, log_dir: Path,
 def section_lockstep_scale(settings: Settings, results: Results, log_dir: Path,
                            overrides: Overrides | None = None) -> None:
     """Lockstep closed loop at 32 x 32 and 64 x 64: x real time beside the issue's floors."""
-    from benchlib import Record, load_note
+    from common.benchlib import Record, load_note
 
     for rows, cols, floor in LOCKSTEP_CASES:
         runs = [lockstep_run(rows, cols, settings.lockstep_duration, log_dir, overrides)
@@ -156,7 +159,7 @@ def parse_overrides(items: Sequence[str]) -> Overrides:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the lockstep_scale section alone and print its records and notes."""
-    from benchlib import Results, Settings
+    from common.benchlib import Results, Settings
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=30.0, help="sim time of each run")

@@ -1,6 +1,6 @@
 """The node graph across two hosts: set points from one, feedforward commands from the other.
 
-Two network namespaces joined by a veth pair stand for two machines (multihost.py); Fast DDS
+Two network namespaces joined by a veth pair stand for two machines (hosttools.multihost); Fast DDS
 finds the peers from an initial-peers profile, over UDP only. The benchmark client (the
 dds_client DdsClient) runs on host A and streams paced set points; the feedforward node (or the
 plain relay, the floor) runs on host B with the same parameters as in the feedforward
@@ -23,22 +23,18 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
-
-BENCH_DIR = Path(__file__).resolve().parent
-sys.path.insert(0, str(BENCH_DIR))
-
-from bench_scale import (  # noqa: E402
+from bench_scale import (
     KINDS,
     PacedRun,
     node_command,
     paced_run,
     start_client,
 )
-from benchlib import load_note  # noqa: E402
-from multihost import Host, host_environment, two_hosts  # noqa: E402
+from common.benchlib import load_note
+from hosttools.multihost import Host, host_environment, two_hosts
 
 if TYPE_CHECKING:
-    from benchlib import Results, Settings
+    from common.benchlib import Results, Settings
 
 #: The issue's case: 64 x 64 at 1 kHz across the link.
 MULTIHOST_SHAPE = (64, 64)
@@ -109,7 +105,7 @@ def measure_local(kind: str, shape: tuple[int, int], rate_hz: float, seconds: fl
 def _client_and_node(kind: str, shape: tuple[int, int], rate_hz: float, seconds: float,
                      log_dir: Path, *, on_b: Callable[[list[str]], list[str]],
                      on_a: Callable[[list[str]], list[str]]) -> PacedRun:
-    from benchlib import Process, processes
+    from common.benchlib import Process, processes
 
     rows, cols = shape
     node = Process(f"multihost_{kind}_{rows}x{cols}", on_b(node_command(kind, shape)), log_dir)
@@ -137,7 +133,7 @@ def section_multihost(settings: Settings, results: Results, log_dir: Path) -> No
         multihost.NetnsError: the namespaces cannot be made (not root).
 
     """
-    from benchlib import Record
+    from common.benchlib import Record
 
     rows, cols = MULTIHOST_SHAPE
     n = rows * cols
@@ -178,7 +174,7 @@ def section_multihost(settings: Settings, results: Results, log_dir: Path) -> No
         f"multihost_*: {rows} x {cols} set points paced at {MULTIHOST_RATE:g} Hz for "
         f"{seconds:g} s from host A to the feedforward node on host B, commands back; the "
         "hosts are two network namespaces joined by a veth pair (MTU 1500), Fast DDS over "
-        "UDPv4 only with initial peers (bench/multihost.py, the README's recipe); ratio = "
+        "UDPv4 only with initial peers (hosttools.multihost, docs/scaling.md's recipe); ratio = "
         "p99 across the link / p99 of the same client and node on one host (shared memory, "
         "local_feedforward_*); multihost_relay_*: the relay (EventsExecutor) across the link; "
         "link_bytes_per_setpoint: bytes through host B's end of the link (both directions, "

@@ -11,7 +11,7 @@ random 0.1-1 s and sends SIGINT to the recorder by PID while still publishing (w
 does during a run). A stop is a crash when the recorder exits otherwise than 0 (SIGSEGV:
 -11), a native stack was printed (faulthandler), it took longer than :data:`STOP_LIMIT_S`,
 or the bag has no metadata.yaml.
-``--cpu-hogs`` CPU hogs (``bench/load.py``) run beside the storm. :func:`recorder_stops`
+``--cpu-hogs`` CPU hogs (``bench/common/load.py``) run beside the storm. :func:`recorder_stops`
 returns the counts and stop times; ``main`` prints them as JSON.
 """
 
@@ -32,6 +32,7 @@ from pathlib import Path
 
 import numpy as np
 import rclpy
+from common.load import hogs
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.executors import Executor, SingleThreadedExecutor
 from std_msgs.msg import Float64MultiArray
@@ -42,8 +43,6 @@ from es_msgs_py.diagnostics import ready_nodes
 from es_recordings.record import NODE_NAME
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "bench"))
-from load import hogs  # noqa: E402
 
 RECORD = ROOT / ".venv" / "lib" / "es_recordings" / "record"
 #: Longest wait [s] for the recorder's subscriptions to match, and for a stop to finish.

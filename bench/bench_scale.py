@@ -13,7 +13,6 @@ an error: the loss is one of the figures.
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -22,13 +21,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-BENCH_DIR = Path(__file__).resolve().parent
-sys.path.insert(0, str(BENCH_DIR))
-
 if TYPE_CHECKING:
-    from benchlib import Results, Settings
-    from dds_client import DdsClient
-    from stall_witness import MachineCheck
+    from common.benchlib import Results, Settings
+    from common.dds_client import DdsClient
+    from hosttools.stall_witness import MachineCheck
 
 
 #: (rows, cols, set-point rate [Hz], p99 target [ms], p99 target as a multiple of the relay's
@@ -43,7 +39,7 @@ WARMUP = 50
 #: p99 is its 1 %-worst, so that one stall of the machine of a few tens of ms (tens of late
 #: set points) is not the p99 alone.
 PACED_SAMPLES = 10_000
-#: The node under test and its floor (bench/relay.py on the EventsExecutor).
+#: The node under test and its floor (bench/common/relay.py on the EventsExecutor).
 KINDS = ("relay_events", "feedforward")
 
 
@@ -103,7 +99,7 @@ def start_client(shape: tuple[int, int], timeout: float, hold_check: bool) -> Dd
         RuntimeError: the peer never showed up, or (``hold_check``) it answered 0 V only.
 
     """
-    from dds_client import DdsClient
+    from common.dds_client import DdsClient
 
     client = DdsClient(shape)
     try:
@@ -121,11 +117,11 @@ def start_client(shape: tuple[int, int], timeout: float, hold_check: bool) -> Dd
 
 def node_command(kind: str, shape: tuple[int, int]) -> list[str]:
     """Return the argv of ``feedforward`` (its defaults) or ``relay_events``."""
-    from benchlib import launcher
+    from common.benchlib import helper_command, launcher
 
     if kind == "relay_events":
-        return [sys.executable, str(BENCH_DIR / "relay.py"), "--ros-args", "-r",
-                "__node:=relay", "-p", "executor:=events"]
+        return helper_command("relay", "--ros-args", "-r", "__node:=relay", "-p",
+                              "executor:=events")
     rows, cols = shape
     return [launcher("es_feedforward", "feedforward_node"), "--ros-args", "-p", f"rows:={rows}",
             "-p", f"cols:={cols}", "-p", "temperature_timeout:=0.0"]
@@ -172,11 +168,11 @@ def measure(kind: str, shape: tuple[int, int], rate_hz: float, seconds: float,
         feedforward node never answered (from the count of published commands in its exit
         summary; the rest of ``PacedRun.lost`` was lost on the way back to the client;
         ``None`` for the relay, whose plain publisher is not counted), and the set points
-        slower than ``target_s`` beside the machine's stalls (bench/stall_witness.py).
+        slower than ``target_s`` beside the machine's stalls (hosttools.stall_witness).
 
     """
-    from benchlib import Process, processes
-    from stall_witness import MachineCheck, load_all, witness_commands
+    from common.benchlib import Process, processes
+    from hosttools.stall_witness import MachineCheck, load_all, witness_commands
 
     rows, cols = shape
     name = f"scale_{kind}_{rows}x{cols}"
@@ -205,7 +201,7 @@ def measure(kind: str, shape: tuple[int, int], rate_hz: float, seconds: float,
 
 def section_scale(settings: Settings, results: Results, log_dir: Path) -> None:
     """Paced p99, rate and loss at 66 x 66 / 2 kHz and 128 x 128 / 1 kHz, beside the relay."""
-    from benchlib import Record, load_note
+    from common.benchlib import Record, load_note
 
     durations = []
     for rows, cols, rate, target_ms, target_ratio in SCALE_CASES:
@@ -257,7 +253,7 @@ def section_scale(settings: Settings, results: Results, log_dir: Path) -> None:
         "lost on the way back); per run: set points over the target, in episodes (a stall and "
         "its backlog), and how many were in episodes that began during a stall of the machine "
         "itself (one process per CPU beside the run that only sleeps 1 ms at a time woke at "
-        "least half the target late: bench/stall_witness.py); "
+        "least half the target late: hosttools.stall_witness); "
         f"{load_note()}"
     )
 
@@ -274,7 +270,7 @@ def target_line(rows: int, cols: int, rate: float, *, p99_ms: float, ratio: floa
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the scale section alone and print its records and notes."""
-    from benchlib import Results, Settings
+    from common.benchlib import Results, Settings
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=3.0,

@@ -1,7 +1,7 @@
 """Where a paced run's latency tail comes from: set point -> node -> command, leg by leg.
 
 The scale case of bench_scale.py (paced set points, one command each) with the node under
-test started as bench/probe_node.py, which stamps its /dm/setpoint callback's start and end;
+test started as common.probe_node, which stamps its /dm/setpoint callback's start and end;
 the client stamps its publishes and receptions and its own garbage collections. All stamps
 are CLOCK_MONOTONIC (``time.perf_counter``) of one host, so each sample's latency splits into
 
@@ -27,7 +27,6 @@ import argparse
 import gc
 import os
 import signal
-import sys
 import threading
 import time
 from collections.abc import Sequence
@@ -35,9 +34,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-
-BENCH_DIR = Path(__file__).resolve().parent
-sys.path.insert(0, str(BENCH_DIR))
 
 #: Set points at the start of a paced run whose latency is shown apart (one-off costs).
 FIRST = 200
@@ -92,8 +88,9 @@ def node_command(kind: str, shape: tuple[int, int], out: Path, env: Sequence[str
     rows, cols = shape
     ros = (["-r", "__node:=relay", "-p", "executor:=events"] if kind == "relay" else
            ["-p", f"rows:={rows}", "-p", f"cols:={cols}", "-p", "temperature_timeout:=0.0"])
-    return ["env", *env, sys.executable, str(BENCH_DIR / "probe_node.py"), kind, "--out",
-            str(out), "--ros-args", *ros]
+    from common.benchlib import helper_command
+
+    return ["env", *env, *helper_command("probe_node", kind, "--out", str(out), "--ros-args", *ros)]
 
 
 def pause_later(pid: int, at_s: float, pause_s: float) -> threading.Thread:
@@ -126,8 +123,8 @@ def probed_run(kind: str, label: str, shape: tuple[int, int], *, rate_hz: float,
 
     """
     from bench_scale import WARMUP, start_client
-    from benchlib import Process, processes
-    from stall_witness import load_all, witness_commands
+    from common.benchlib import Process, processes
+    from hosttools.stall_witness import load_all, witness_commands
 
     out = log_dir / f"tail_{label}.npz"
     out.unlink(missing_ok=True)
@@ -249,7 +246,7 @@ def report(run: ProbedRun, rate_hz: float, stall_s: float = 1e-3,
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the probed paced runs in turns and print each run's tail breakdown."""
-    import benchlib  # noqa: F401  (the DDS environment of the benchmark)
+    import common.benchlib  # noqa: F401  (the DDS environment of the benchmark)
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--grid", type=int, default=128, help="rows = cols")

@@ -32,9 +32,11 @@ DDS runs use ROS_DOMAIN_ID from the environment (default 1 + pid % 101) and loca
 discovery only. Nothing here is asserted: targets are compared in the notes.
 
 Layout: each section is a module ``bench/sections/<module>.py`` with ``run(context)`` (a
-:class:`benchlib.Context`: settings, results, output folder), listed once in ``SECTIONS``
-below; ``benchlib`` holds what sections share (settings, records, node processes, waits),
-``dds_client`` the in-process DDS client, ``reporting`` the report files. Adding a section is
+:class:`common.benchlib.Context`: settings, results, output folder), listed once in
+``SECTIONS`` below; the benchmarks proper are ``bench/bench_*.py``; what they share is the
+package ``bench/common/`` (``benchlib``: settings, records, node processes, waits;
+``dds_client``: the in-process DDS client; ``reporting``: the report files; ``relay``,
+``probe_node``, ``load``: helpers run as processes of their own). Adding a section is
 one new module and one line of ``SECTIONS``.
 """
 
@@ -49,8 +51,8 @@ import traceback
 from collections.abc import Sequence
 from pathlib import Path
 
-from benchlib import Context, Results, Settings, machine_info  # sets the DDS environment
-from reporting import write_report, write_summary
+from common.benchlib import Context, Results, Settings, machine_info  # sets the DDS environment
+from common.reporting import write_report, write_summary
 
 #: Every section, in the order they run: ``--only`` name -> module with ``run(context)``.
 SECTIONS: dict[str, str] = {

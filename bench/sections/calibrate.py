@@ -6,7 +6,7 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
-from benchlib import Context, Record, top_of
+from common.benchlib import Context, Record, top_of
 
 
 def run(context: Context) -> None:

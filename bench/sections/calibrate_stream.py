@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from benchlib import Context
+from common.benchlib import Context
 
 
 def run(context: Context) -> None:

@@ -7,18 +7,18 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
-from benchlib import (
-    BENCH_DIR,
+from common.benchlib import (
     Context,
     Process,
     Record,
     Results,
     Settings,
+    helper_command,
     launcher,
     processes,
     top_of,
 )
-from dds_client import PACED_RATE, RATE_WINDOW, DdsClient
+from common.dds_client import PACED_RATE, RATE_WINDOW, DdsClient
 
 #: Grid shapes of the DDS benchmark (N = 144, 1024, 4096).
 DDS_SHAPES = ((12, 12), (32, 32), (64, 64))
@@ -53,8 +53,8 @@ def _measure_node(kind: str, shape: tuple[int, int], settings: Settings, log_dir
     rows, cols = shape
     if kind in ("relay", "relay_events"):
         executor = "events" if kind == "relay_events" else "single_threaded"
-        command = [sys.executable, str(BENCH_DIR / "relay.py"), "--ros-args", "-r",
-                   "__node:=relay", "-p", f"executor:={executor}"]
+        command = helper_command("relay", "--ros-args", "-r", "__node:=relay", "-p",
+                                 f"executor:={executor}")
     else:
         args = ["--ros-args", "-p", f"rows:={rows}", "-p", f"cols:={cols}",
                 "-p", "temperature_timeout:=0.0"]

@@ -10,8 +10,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from benchlib import Context, Process, Record, Settings, launcher, processes
-from dds_client import PACED_RATE, RATE_WINDOW, DdsClient
+from common.benchlib import Context, Process, Record, Settings, launcher, processes
+from common.dds_client import PACED_RATE, RATE_WINDOW, DdsClient
 
 #: Grid and CPU hogs of the feedforward-under-load run (4096 doubles, two hogs: issue 17).
 LOAD_SHAPE = (64, 64)
@@ -125,7 +125,7 @@ def _wait_recorder_has(client: DdsClient, recorder: Process) -> None:
 
 def _load_run(loaded: bool, settings: Settings, log_dir: Path, paced_s: float) -> LoadRun:
     """Feedforward at LOAD_SHAPE with a recorder on set points and commands, hogs or not."""
-    from load import hogs
+    from common.load import hogs
 
     from es_bringup.invariants import (
         RecorderCounts,
@@ -207,7 +207,7 @@ def run(context: Context) -> None:
     results.notes.append(
         f"load_*: the feedforward node at {LOAD_SHAPE[0]} x {LOAD_SHAPE[1]} with a recorder on "
         f"/dm/setpoint and /dm/command, idle and beside {LOAD_CPU_HOGS} CPU hogs "
-        "(bench/load.py), in turns; latency_p99 one set point at a time, rate with "
+        "(bench/common/load.py), in turns; latency_p99 one set point at a time, rate with "
         f"{RATE_WINDOW} in flight, paced_latency_p99 while set points stream at "
         f"{PACED_RATE:g} Hz for {paced_s:g} s; lost: set points without a command back plus "
         "set points and commands missing from the bag (published == received == recorded "

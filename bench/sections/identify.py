@@ -6,7 +6,7 @@ import datetime as dt
 import os
 import time
 
-from benchlib import Context, Record
+from common.benchlib import Context, Record
 
 
 def run(context: Context) -> None:

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
-from benchlib import Context, Record
+from common.benchlib import Context, Record
 
 
 def run(context: Context) -> None:

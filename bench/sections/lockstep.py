@@ -6,7 +6,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from benchlib import (
+from common.benchlib import (
     Context,
     Process,
     Record,

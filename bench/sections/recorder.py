@@ -5,7 +5,7 @@ from __future__ import annotations
 import tempfile
 from pathlib import Path
 
-from benchlib import (
+from common.benchlib import (
     Context,
     Process,
     Record,

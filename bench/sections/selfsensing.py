@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from benchlib import Context, Record
+from common.benchlib import Context, Record
 
 
 def run(context: Context) -> None:

@@ -6,7 +6,7 @@ flight (bench_recorder_stops.py).
 
 from __future__ import annotations
 
-from benchlib import Context, Record
+from common.benchlib import Context, Record
 
 
 def run(context: Context) -> None:

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from benchlib import Context, Record
+from common.benchlib import Context, Record
 
 #: Sensor lags [s, physical] of the stage-step runs: none, and the NTC of issue 38's stand.
 STEP_LAGS = (0.0, 15.0)

@@ -10,7 +10,8 @@ from types import ModuleType
 import pytest
 
 PACKAGES = (
-    "es_msgs_py", "es_physics", "es_feedforward", "es_sim_plant", "es_thermal", "es_bringup",
+    "es_msgs_py", "es_node_runtime", "es_physics", "es_feedforward", "es_sim_plant", "es_thermal",
+    "es_bringup",
 )  # fmt: skip
 
 
@@ -48,7 +49,7 @@ def test_importing_a_package_and_its_errors_loads_no_rclpy(name: str) -> None:
 
 def test_pure_node_cores_load_no_rclpy() -> None:
     modules = (
-        "es_msgs_py.param_spec", "es_sim_plant.lockstep", "es_sim_plant.node_config",
+        "es_node_runtime.param_spec", "es_sim_plant.lockstep", "es_sim_plant.node_config",
         "es_thermal.node_params", "es_thermal.node_health", "es_thermal.resonance_params",
     )  # fmt: skip
     code = f"import sys; import {', '.join(modules)}; print('rclpy' in sys.modules)"

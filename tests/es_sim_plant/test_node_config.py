@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from es_msgs_py.errors import ParameterTypeError
-from es_msgs_py.param_spec import ParameterValues
+from es_node_runtime.errors import ParameterTypeError
+from es_node_runtime.param_spec import ParameterValues
 from es_sim_plant.effects import EFFECT_NAMES
 from es_sim_plant.node_config import (
     SPECS,

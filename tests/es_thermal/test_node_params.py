@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from es_msgs_py.errors import ParameterTypeError
+from es_node_runtime.errors import ParameterTypeError
 from es_thermal.kalman import KalmanTuning
 from es_thermal.node_params import SPECS, config_from_parameters
 

@@ -3,7 +3,7 @@
 Every test of this directory reports the fault cases it injected through the ``fault_cases``
 fixture: what was tried, whether it held (no crash, no non-finite or out-of-limit command,
 the documented error or diagnostic, nothing lost), and the commands it checked on the way.
-``pytest_terminal_summary`` prints the totals that the README's "Reliability" table states.
+``pytest_terminal_summary`` prints the totals that docs/reliability.md's table states.
 """
 
 from __future__ import annotations

@@ -1,30 +1,26 @@
 """The closed-loop graph split over two hosts: the plant on one, thermal + feedforward +
-recorder on the other, two network namespaces joined by a veth pair (bench/multihost.py).
+recorder on the other, two network namespaces joined by a veth pair (hosttools.multihost).
 
 Needs root (CAP_NET_ADMIN) for the namespaces, as CI has; without it the test fails with the
 reason, it does not skip. Discovery and data go over UDP across the link only (no shared
-memory, no localhost): the Fast DDS initial-peers profile the README's deployment recipe
-describes.
+memory, no localhost): the Fast DDS initial-peers profile the deployment recipe in
+docs/scaling.md describes.
 """
 
 from __future__ import annotations
 
 import re
 import subprocess
-import sys
 from dataclasses import replace
 from pathlib import Path
 
 import pytest
+from hosttools.multihost import NetnsError, fastdds_profile, host_environment, two_hosts
 
 from es_bringup.bringup import GraphConfig, node_specs
 from es_bringup.supervisor import Supervisor
 from es_msgs_py import topics
 from es_msgs_py.bag import read_bag
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
-
-from multihost import NetnsError, fastdds_profile, host_environment, two_hosts
 
 ROWS, COLS = 4, 4
 #: Seconds of sim time: 300 lockstep steps at the scenario's 100 Hz.

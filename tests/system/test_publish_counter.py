@@ -5,8 +5,8 @@ from __future__ import annotations
 from std_msgs.msg import Float64MultiArray
 from support import ros
 
-from es_msgs_py.node_main import PublishCounter
 from es_msgs_py.topics import COMMAND, DM_QOS
+from es_node_runtime.node_main import PublishCounter
 
 
 def test_counter_counts_every_publish_per_topic_and_logs_them() -> None:

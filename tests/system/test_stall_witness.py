@@ -11,11 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-BENCH = Path(__file__).resolve().parents[2] / "bench"
-sys.path.insert(0, str(BENCH))
-
-from stall_witness import (  # noqa: E402
+from hosttools.stall_witness import (
     MachineCheck,
     during_stalls,
     load,
@@ -66,7 +62,7 @@ def test_nothing_slow_and_no_stall() -> None:
 
 def test_the_witness_process_writes_its_late_wake_ups_at_sigint(tmp_path: Path) -> None:
     out = tmp_path / "witness.npy"
-    proc = subprocess.Popen([sys.executable, str(BENCH / "stall_witness.py"), "--out",
+    proc = subprocess.Popen([sys.executable, "-m", "hosttools.stall_witness", "--out",
                              str(out)], stdout=subprocess.PIPE, text=True)
     try:
         assert proc.stdout is not None

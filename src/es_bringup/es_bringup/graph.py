@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Final
 
 from es_msgs_py import topics
-from es_msgs_py.param_yaml import dump_parameters, floats_from_strings
+from es_node_runtime.param_yaml import dump_parameters, floats_from_strings
 
 ParamValue = bool | int | float | str | list[float] | list[int] | list[str]
 
@@ -374,7 +374,7 @@ def namespaced_params_file(path: Path, node: str, config: GraphConfig) -> Path:
     A parameters file names the node it configures by its full name (``feedforward`` is
     ``/feedforward``); in a namespaced graph the node is ``/<namespace>/feedforward``. The
     copy goes into ``config.log_dir``; its floats are written so that every ROS 2 reader
-    reads them as floats (:mod:`es_msgs_py.param_yaml`).
+    reads them as floats (:mod:`es_node_runtime.param_yaml`).
 
     Raises:
         GraphError: the file is no ROS 2 parameters file.

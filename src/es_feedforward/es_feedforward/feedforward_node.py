@@ -54,8 +54,6 @@ from es_msgs_py.diagnostics import (
     unreached,
 )
 from es_msgs_py.grid_wire import GridWire
-from es_msgs_py.node_main import run_node, summary_line, usage_text
-from es_msgs_py.params import ParameterValues, declare_parameters
 from es_msgs_py.topics import (
     COMMAND,
     DIAGNOSTICS,
@@ -65,6 +63,9 @@ from es_msgs_py.topics import (
     TEMPERATURE_RAW,
     qos_for,
 )
+from es_node_runtime.node_main import run_node, summary_line, usage_text
+from es_node_runtime.params import ParameterValues, declare_parameters
+from es_node_runtime.readiness import Readiness
 from es_physics.laws import Status
 
 NODE_NAME: Final = "feedforward"
@@ -150,11 +151,9 @@ class FeedforwardNode(Node):
             "setpoints": 0, "commands": 0, "held": 0, "temperatures": 0, "waited": 0
         }
         self._hold_reason: str | None = None  # why the last command was held, None: it was not
-        self._waiting_for = self._unconnected_inputs()
-        self._ready_timer = self.create_timer(
-            READY_CHECK_PERIOD,
-            self._check_ready,
-            clock=Clock(clock_type=ClockType.STEADY_TIME),
+        self._readiness = Readiness(
+            self, self._unconnected_inputs, self._publish_diagnostics, READY_CHECK_PERIOD,
+            on_ready=lambda: self.get_logger().info("ready: every input matched a publisher"),
         )
         self._rejected = {SETPOINT: 0, TEMPERATURE: 0}
         self._last_rejection: dict[str, str | None] = {SETPOINT: None, TEMPERATURE: None}
@@ -294,16 +293,6 @@ class FeedforwardNode(Node):
         wanted = int(self._values["ready_subscribers"])  # type: ignore[call-overload]
         return [*unmatched(needed), *unreached(self._command_pub, wanted)]
 
-    def _check_ready(self) -> None:
-        """Follow the inputs' matching until ready; say so on /diagnostics at once."""
-        waiting = self._unconnected_inputs()
-        if waiting != self._waiting_for:
-            self._waiting_for = waiting
-            self._publish_diagnostics()
-        if not waiting:
-            self._ready_timer.cancel()
-            self.get_logger().info("ready: every input matched a publisher")
-
     def _reject(self, topic: str, reason: str) -> None:
         self._rejected[topic] += 1
         self._last_rejection[topic] = reason
@@ -348,7 +337,7 @@ class FeedforwardNode(Node):
         core = self._core
         config: FeedforwardConfig = core.config
         now = self._now()
-        out = [readiness_status(NODE_NAME, self._waiting_for)]
+        out = [readiness_status(NODE_NAME, self._readiness.waiting)]
         problem = core.temperature_problem(now)
         level = self._temperature_level(problem)
         if not core.needs_temperature:
@@ -467,7 +456,7 @@ class FeedforwardNode(Node):
         if self._hold_reason is not None:
             actuators = max(actuators, _WARN)
         setpoint = _ERROR if self._last_rejection[SETPOINT] else _OK
-        ready = _WARN if self._waiting_for else _OK
+        ready = _WARN if self._readiness.waiting else _OK
         return (ready, temperature, actuators, setpoint, _OK)
 
     def _publish_diagnostics_on_change(self, now: float | None = None) -> None:

@@ -22,8 +22,8 @@ from es_feedforward.feedforward import (
 )
 from es_feedforward.feedforward_config import OBSERVER_ITERATIONS_RANGE, OBSERVER_TOLERANCE_RANGE
 from es_feedforward.param_file import LAW_FIELDS, LAW_PREFIX, OBSERVER_PREFIX
-from es_msgs_py.node_main import executor_spec
-from es_msgs_py.params import Check, ParameterSpec
+from es_node_runtime.node_main import executor_spec
+from es_node_runtime.params import Check, ParameterSpec
 from es_physics.laws import DEFAULT_V_LIMIT
 from es_physics.params import ActuatorParams
 

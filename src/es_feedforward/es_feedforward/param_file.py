@@ -6,7 +6,7 @@ One flat set of parameter names (``docs/architecture.md``, README of es_feedforw
 and ``observer.<kp|ki|iterations|tolerance>``. The calibration tool writes files with
 :func:`write_params_file`; the node is started with ``--ros-args --params-file FILE`` and
 checks every set with :func:`config_from_parameters`, the same code path as
-:func:`read_params_file`. Files are written with :func:`es_msgs_py.param_yaml.dump_parameters`
+:func:`read_params_file`. Files are written with :func:`es_node_runtime.param_yaml.dump_parameters`
 (every float with a dot, so ``ros2 param load`` reads it as a float too), and a dot-less
 exponent such as ``-4e-17`` (a string to YAML 1.1, as ``ros2 param dump`` may write it) is
 read as the float it stands for.
@@ -26,8 +26,8 @@ from es_feedforward.compensation import PREFIX as COMPENSATION_PREFIX
 from es_feedforward.compensation import RANGES as COMPENSATION_RANGES
 from es_feedforward.errors import ParameterError, ParamsFileError
 from es_feedforward.feedforward import FeedforwardConfig, Mode, ObserverGains
-from es_msgs_py.param_spec import ParameterValues
-from es_msgs_py.param_yaml import dump_parameters, floats_from_strings
+from es_node_runtime.param_spec import ParameterValues
+from es_node_runtime.param_yaml import dump_parameters, floats_from_strings
 from es_physics.params import ActuatorParams
 
 LAW_PREFIX: Final = "law."
@@ -168,7 +168,7 @@ def read_params_file(path: str | Path, node_name: str = DEFAULT_NODE_NAME) -> Fe
 
     Takes the parameters of ``node_name`` (with or without a leading ``/``) and of ``/**``
     (wildcard), the node's own entries winning, as ROS does. Dot-less exponent strings
-    (``-4e-17``) are read as floats (:func:`es_msgs_py.param_yaml.floats_from_strings`).
+    (``-4e-17``) are read as floats (:func:`es_node_runtime.param_yaml.floats_from_strings`).
 
     Raises:
         es_feedforward.errors.ParamsFileError: unreadable file, no parameters for the node,

@@ -5,12 +5,11 @@ so that data from a real test stand can replace the simulator at any point.
 
 Importing the package is cheap and needs no rclpy: its modules are loaded on first use
 (``es_msgs_py.bag`` or ``from es_msgs_py import bag``). Pure, without rclpy: :mod:`.bag`
-(bag I/O, needs rosbags and numpy), :mod:`.topic_names` (the contract's topic names),
-:mod:`.param_spec` (what a node parameter accepts, typed parameter values) and
+(bag I/O, needs rosbags and numpy), :mod:`.topic_names` (the contract's topic names) and
 :mod:`.errors` (every exception class of the package). The others need rclpy or the ROS
-message packages: :mod:`.arrays` (message classes), :mod:`.topics`, :mod:`.params`,
-:mod:`.diagnostics`, :mod:`.node_main`. The recorder and the lab importer are the package
-``es_recordings``.
+message packages: :mod:`.arrays` (message classes), :mod:`.topics`, :mod:`.diagnostics`.
+What every node runs on (``run_node``, the middleware profile, parameters) is the package
+``es_node_runtime``; the recorder and the lab importer are the package ``es_recordings``.
 """
 
 from __future__ import annotations
@@ -25,9 +24,6 @@ if TYPE_CHECKING:  # type checkers see the modules; at run time they load on fir
         bag,
         diagnostics,
         errors,
-        node_main,
-        param_spec,
-        params,
         topic_names,
         topics,
     )
@@ -41,9 +37,6 @@ __all__ = [
     "bag",
     "diagnostics",
     "errors",
-    "node_main",
-    "param_spec",
-    "params",
     "topic_names",
     "topics",
 ]

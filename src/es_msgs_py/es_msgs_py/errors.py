@@ -1,19 +1,15 @@
 """The exception classes of es_msgs_py, in one place (pure: no imports at all).
 
-Every class subclasses the builtin it refines (``ValueError``; one also ``TypeError``), so a
-generic handler still catches them, while a caller that wants "a bag problem" or "a layout
-problem" catches just that.
+Every class subclasses the builtin it refines (``ValueError``), so a generic handler still
+catches them, while a caller that wants "a bag problem" or "a layout problem" catches just that.
 
 - :class:`LayoutError`: a ``Float64MultiArray`` (message or bag payload) breaks the contract's
   layout, size or length (raised by :mod:`es_msgs_py.arrays` and the bag codec).
 - :class:`BagError` and its subclasses: a bag cannot be read or written
   (:mod:`es_msgs_py.bag`; also exported there as :mod:`es_msgs_py.bag.errors`). Each message
   is one readable line.
-- :class:`ParameterTypeError` (a ``TypeError`` and ``ValueError``): a parameter read back with a
-  typed getter of :class:`es_msgs_py.param_spec.ParameterValues` has another type.
-- :class:`ParameterValueError`: a node parameter's initial value is not acceptable
-  (:func:`es_msgs_py.params.declare_parameters`, the executor choice of
-  :mod:`es_msgs_py.node_main`).
+
+The node runtime's parameter errors are :mod:`es_node_runtime.errors`.
 """
 
 from __future__ import annotations
@@ -28,8 +24,6 @@ __all__ = [
     "LayoutError",
     "MissingTopicError",
     "NotABagError",
-    "ParameterTypeError",
-    "ParameterValueError",
     "UnknownMessageTypeError",
     "UnsupportedBagError",
 ]
@@ -77,15 +71,3 @@ class BagWriteError(BagError):
 
 class BagExistsError(BagWriteError):
     """The path of a new bag exists already; a bag is never overwritten."""
-
-
-class ParameterTypeError(TypeError, ValueError):
-    """A node parameter's value has the wrong type for what reads it (a string for a number).
-
-    A ``TypeError`` by nature, and a ``ValueError`` too: a node that meets it at start-up
-    exits with one readable line like for any other invalid parameter.
-    """
-
-
-class ParameterValueError(ValueError):
-    """A node parameter's initial value is not acceptable (range, choice or check)."""

@@ -2,8 +2,10 @@
 
 No ROS here: parameters and their temperature laws (:mod:`.params`), the displacement models
 and their inverses (:mod:`.laws`), the effects beyond the basic law with their registry
-(:mod:`.effects`) and every exception class of the package (:mod:`.errors`). Importing the
-package is cheap: its modules are loaded on first use (``es_physics.laws``).
+(:mod:`.effects`), the mirror's per-cell thermal parameters shared by the simulator and the
+estimator (:mod:`.thermal_network`) and every exception class of the package
+(:mod:`.errors`). Importing the package is cheap: its modules are loaded on first use
+(``es_physics.laws``).
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ if TYPE_CHECKING:  # type checkers see the modules; at run time they load on fir
         errors,
         laws,
         params,
+        thermal_network,
     )
 
 __version__ = "0.1.0"
@@ -29,6 +32,7 @@ __all__ = [
     "errors",
     "laws",
     "params",
+    "thermal_network",
 ]
 
 

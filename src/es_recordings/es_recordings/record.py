@@ -18,9 +18,9 @@ messages they published per topic (``"<node>: published"``, the plant does), and
 recorder counts as "not received" the missed ones plus what was announced beyond the newest
 sequence number it received, per topic, in its reports and in its closing log (after a last
 report), so that a hole in a bag is never silent. At SIGINT/SIGTERM the recorder first takes
-what is already on its way (:class:`es_msgs_py.node_main.Draining`): until no message has
+what is already on its way (:class:`es_node_runtime.node_main.Draining`): until no message has
 come for :data:`QUIET_S` and every announced message has arrived, at most
-:data:`es_msgs_py.node_main.DRAIN_LIMIT` seconds; its closing log names what it still
+:data:`es_node_runtime.node_main.DRAIN_LIMIT` seconds; its closing log names what it still
 waited for.
 ``record: ready`` on /diagnostics says "not ready" until every recorded /dm topic has matched
 a publisher (a lockstep plant can wait for it: nothing of the run is then missed).
@@ -63,7 +63,7 @@ from es_msgs_py.diagnostics import (
     readiness_status,
     unmatched,
 )
-from es_msgs_py.node_main import DRAIN_LIMIT, run_node, summary_line
+from es_node_runtime.node_main import DRAIN_LIMIT, run_node, summary_line
 
 NODE_NAME = RECORDER_NODE
 #: Topics taken by ``--all-dm``.

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
-from es_msgs_py.param_spec import ParameterSpec, ParameterValues
+from es_node_runtime.param_spec import ParameterSpec, ParameterValues
 from es_sim_plant.effects import EFFECT_NAMES
 from es_sim_plant.scenario import Scenario, load_scenario, resolve_scenario
 
@@ -240,7 +240,7 @@ def configured_scenario(
     Raises:
         ValueError: an override gives an out-of-range scenario (the message says which).
         KeyError: a parameter of :data:`SPECS` or a switch is missing from the values.
-        es_msgs_py.errors.ParameterTypeError: a value has the wrong type.
+        es_node_runtime.errors.ParameterTypeError: a value has the wrong type.
 
     """
 
@@ -294,7 +294,7 @@ def settings_from_parameters(values: ParameterValues) -> LockstepSettings:
 
     Raises:
         KeyError: a parameter of :data:`SPECS` is missing from ``values``.
-        es_msgs_py.errors.ParameterTypeError: a value has the wrong type.
+        es_node_runtime.errors.ParameterTypeError: a value has the wrong type.
 
     """
     return LockstepSettings(

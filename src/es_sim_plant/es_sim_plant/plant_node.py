@@ -47,15 +47,15 @@ from std_msgs.msg import Float64MultiArray
 from es_msgs_py import topics
 from es_msgs_py.arrays import LayoutError, grid_to_msg, msg_to_grid, sensors_to_msg
 from es_msgs_py.diagnostics import make_array, make_status, published_status, ready_nodes
-from es_msgs_py.node_main import (
+from es_node_runtime.node_main import (
     PublishCounter,
     deliver_and_report,
     executor_spec,
     run_node,
     usage_text,
 )
-from es_msgs_py.param_spec import ParameterValues
-from es_msgs_py.params import declare_parameters
+from es_node_runtime.param_spec import ParameterValues
+from es_node_runtime.params import declare_parameters
 from es_sim_plant.lockstep import FloatArray, Lockstep
 from es_sim_plant.node_config import (
     SPECS,

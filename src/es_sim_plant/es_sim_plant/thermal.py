@@ -21,16 +21,12 @@ dt (matrix exponential of the 5 x 5 augmented matrix) is computed once; a step t
 the inputs (DCT as two small dense matrix products, D_R X D_C^T), multiplies each mode's 2 x 2
 matrix and transforms back: O(N (R + C)) and exact for inputs held over dt.
 
-Default values (a 5 mm pitch grid behind a 4 mm glass face sheet, PMN-PT actuator columns):
-- face sheet cell, ULE/fused silica (k = 1.3 W/m/K, rho c = 1.63 MJ/m^3/K), 5 x 5 x 4 mm:
-  C_f = 0.163 J/K; lateral conductance k t = 1.3 * 0.004 = 5.2 mW/K;
-- actuator column 3 x 3 x 8 mm (PMN-PT layers, glue, pedestal; k ~ 1.5 W/m/K,
-  rho c ~ 2.6 MJ/m^3/K): C_a = 0.187 J/K, column conductance k A / h = 1.7 mW/K, split into
-  face->actuator and actuator->base halves of twice that (3.4 mW/K each, in series);
-- lateral conduction in the actuator layer (filler, flexures): 0.2 mW/K.
-Resulting time constants (:meth:`ThermalNetwork.time_constants`, 12 x 12 grid): 131 s for the
-uniform mode (the whole face sheet through the columns) down to 3.7 s (actuator-local,
-high-order lateral modes): seconds to minutes, as in a real mirror. 10 mW held in every cell
+Default values (a 5 mm pitch grid behind a 4 mm glass face sheet, PMN-PT actuator columns;
+their one definition and derivation: :mod:`es_physics.thermal_network`, shared with the
+estimator). Resulting time constants (:meth:`ThermalNetwork.time_constants`, 12 x 12 grid):
+131 s for the uniform mode (the whole face sheet through the columns) down to 3.7 s
+(actuator-local, high-order lateral modes): seconds to minutes, as in a real mirror. 10 mW
+held in every cell
 heats the actuators by 10e-3 / 3.4e-3 = 2.9 degC and the face sheet by 5.9 degC at steady
 state. Every value is a parameter; scenarios shorten time by scaling the capacitances
 (``ThermalParams.time_scaled``).
@@ -46,6 +42,7 @@ import numpy as np
 import numpy.typing as npt
 import scipy.linalg
 
+from es_physics.thermal_network import CellThermalParams
 from es_sim_plant.errors import ScenarioError
 
 FloatArray = npt.NDArray[np.float64]
@@ -54,25 +51,8 @@ PATTERNS: Final = ("uniform", "dipole", "quadrupole", "off_axis_spot", "annular"
 
 
 @dataclass(frozen=True)
-class ThermalParams:
-    """Uniform per-cell parameters of the thermal network (SI units, see the module docstring).
-
-    Attributes:
-        face_capacitance: C_f, heat capacity of one face-sheet cell [J/K].
-        actuator_capacitance: C_a, heat capacity of one actuator column [J/K].
-        face_to_actuator: G_fa, face-sheet cell to actuator conductance [W/K].
-        actuator_to_base: G_ab, actuator to base-plate conductance [W/K].
-        face_lateral: G_ff, face-sheet conductance between neighbouring cells [W/K].
-        actuator_lateral: G_aa, actuator-layer conductance between neighbours [W/K].
-
-    """
-
-    face_capacitance: float = 0.163
-    actuator_capacitance: float = 0.187
-    face_to_actuator: float = 3.4e-3
-    actuator_to_base: float = 3.4e-3
-    face_lateral: float = 5.2e-3
-    actuator_lateral: float = 0.2e-3
+class ThermalParams(CellThermalParams):
+    """The simulator's thermal parameters: the shared fields and defaults, a scenario's checks."""
 
     @classmethod
     def from_dict(cls, data: dict[str, Any] | None) -> ThermalParams:

@@ -8,7 +8,8 @@ heat load) and the actuator itself, plus one base plate shared by all cells:
 
 ``lap`` is the 4-neighbour graph Laplacian (positive semi-definite; edges: only existing
 neighbours), P the absorbed power per cell [W]. This is the simulator's network
-(es_sim_plant.thermal) with the same parameter names and defaults; the estimator takes its
+(es_sim_plant.thermal) with the same parameter names and defaults (one definition:
+es_physics.thermal_network.CellThermalParams); the estimator takes its
 parameters separately, because a real mirror's are never known exactly. The base-plate
 temperature T_b is not measured: the estimator carries it as a random-walk state (a Peltier
 stage or thermal control may move it with no heat load).
@@ -29,6 +30,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy import fft, sparse
 
+from es_physics.thermal_network import CellThermalParams
 from es_thermal.errors import ThermalConfigError
 from es_thermal.interpolation import sampling_matrix
 
@@ -36,11 +38,11 @@ FloatArray = npt.NDArray[np.float64]
 
 
 @dataclass(frozen=True)
-class NetworkParams:
+class NetworkParams(CellThermalParams):
     """Lumped thermal parameters of one actuator cell (uniform over the grid).
 
     Defaults: a 5 mm pitch grid behind a 4 mm glass face sheet with PMN-PT actuator columns
-    (the simulator's defaults; their derivation is in es_sim_plant.thermal).
+    (the simulator's defaults, one definition: es_physics.thermal_network).
 
     Attributes:
         face_capacitance: C_f, heat capacity of the face-sheet cell above one actuator [J/K].
@@ -51,13 +53,6 @@ class NetworkParams:
         actuator_lateral: G_aa, conductance between neighbouring actuators [W/K].
 
     """
-
-    face_capacitance: float = 0.163
-    actuator_capacitance: float = 0.187
-    face_to_actuator: float = 3.4e-3
-    actuator_to_base: float = 3.4e-3
-    face_lateral: float = 5.2e-3
-    actuator_lateral: float = 0.2e-3
 
     def __post_init__(self) -> None:
         """Check the values.

@@ -15,7 +15,7 @@ from dataclasses import fields
 
 import numpy as np
 
-from es_msgs_py.param_spec import ParameterSpec, ParameterValues
+from es_node_runtime.param_spec import ParameterSpec, ParameterValues
 from es_thermal.estimator import ESTIMATORS, EstimatorConfig
 from es_thermal.faults import FaultConfig
 from es_thermal.interpolation import block_centre_positions, sensor_positions
@@ -253,7 +253,7 @@ def config_from_parameters(values: Mapping[str, object]) -> EstimatorConfig:
         ValueError: an inconsistent combination (positions outside the grid, cut-off above
             Nyquist, a per-sensor list of the wrong length, ...); the message says which.
         KeyError: a parameter of :data:`SPECS` is missing from ``values``.
-        es_msgs_py.errors.ParameterTypeError: a value has the wrong type (a ``TypeError``).
+        es_node_runtime.errors.ParameterTypeError: a value has the wrong type (a ``TypeError``).
 
     """
     typed = ParameterValues(values)

@@ -11,7 +11,7 @@ from __future__ import annotations
 import array
 from collections.abc import Mapping
 
-from es_msgs_py.param_spec import ParameterSpec, ParameterValues
+from es_node_runtime.param_spec import ParameterSpec, ParameterValues
 from es_thermal.selfsensing import (
     FusionConfig,
     ResonanceCalibration,

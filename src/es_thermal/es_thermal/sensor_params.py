@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from es_msgs_py.param_yaml import dump_parameters
+from es_node_runtime.param_yaml import dump_parameters
 from es_thermal.errors import ThermalConfigError
 from es_thermal.network import per_sensor
 from es_thermal.node_params import LAG_RANGE, OFFSET_RANGE, OFFSET_SD_RANGE
@@ -103,7 +103,7 @@ def write_sensor_params(
     """Write ``calibration`` as a ROS 2 parameters YAML for the node ``node_name``.
 
     Floats are written so that every ROS 2 reader reads them as floats
-    (:func:`es_msgs_py.param_yaml.dump_parameters`).
+    (:func:`es_node_runtime.param_yaml.dump_parameters`).
 
     Raises:
         ThermalConfigError: a value out of range (:func:`sensor_parameters`).

@@ -64,9 +64,10 @@ from es_msgs_py.diagnostics import (
     unmatched,
     unreached,
 )
-from es_msgs_py.errors import ParameterValueError
-from es_msgs_py.node_main import executor_spec, run_node, usage_text
-from es_msgs_py.params import declare_parameters
+from es_node_runtime.errors import ParameterValueError
+from es_node_runtime.node_main import executor_spec, run_node, usage_text
+from es_node_runtime.params import declare_parameters
+from es_node_runtime.readiness import Readiness
 from es_thermal.estimator import SampleClock, TemperatureEstimator
 from es_thermal.node_health import NodeHealth
 from es_thermal.node_params import SPECS, config_from_parameters
@@ -150,8 +151,7 @@ class ThermalNode(Node):
         # Readiness: the estimator is built; ready once the raw readings' publisher matched
         # and the estimates' publisher has matched its ``ready_subscribers``.
         self._ready_subscribers = values.get_int("ready_subscribers")
-        self._waiting_for = self._unready()
-        self._ready_timer = self.create_timer(0.05, self._check_ready, clock=self._wall)
+        self._readiness = Readiness(self, self._unready, self._publish_diagnostics, 0.05)
         period = values.get_float("diagnostics_period")
         self.create_timer(period, self._publish_diagnostics, clock=self._wall)
         rate = values.get_float("publish_rate")
@@ -278,15 +278,6 @@ class ThermalNode(Node):
         """Return what readiness still waits for: the raw input, the estimates' subscribers."""
         return [*unmatched([self._raw_sub]), *unreached(self._pub, self._ready_subscribers)]
 
-    def _check_ready(self) -> None:
-        """Follow the raw input's and the output's matching until ready; say so at once."""
-        waiting = self._unready()
-        if waiting != self._waiting_for:
-            self._waiting_for = waiting
-            self._publish_diagnostics()
-        if not waiting:
-            self._ready_timer.cancel()
-
     def _statuses(self) -> list[DiagnosticStatus]:
         health, wall = self.health, self._wall_now()
         rows = [
@@ -296,7 +287,7 @@ class ThermalNode(Node):
         ]
         if self._sync is not None:
             rows.append(("self-sensing", health.selfsensing_status(self._sync, self._now())))
-        out = [readiness_status(self.get_name(), self._waiting_for)]
+        out = [readiness_status(self.get_name(), self._readiness.waiting)]
         for aspect, (level, message, kv) in rows:
             self._levels[aspect] = level
             out.append(make_status(f"{self.get_name()}: {aspect}", level, message, kv))

@@ -16,7 +16,7 @@ from typing import IO
 import numpy as np
 
 from es_recordings.labimport.errors import SourceError
-from es_recordings.labimport.sources import FloatArray, Variable
+from es_recordings.labimport.recording import FloatArray, Variable
 
 
 class DelimitedSource:

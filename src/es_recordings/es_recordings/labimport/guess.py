@@ -25,7 +25,8 @@ from es_msgs_py.topic_names import (
     TEMPERATURE_RAW,
 )
 from es_recordings.labimport.mapfile import TOPICS, UNITS
-from es_recordings.labimport.sources import Source, Variable, find_timeseries
+from es_recordings.labimport.recording import Source, Variable
+from es_recordings.labimport.sources import find_timeseries
 
 #: Name patterns (on the last name part, case-insensitive) that suggest each topic.
 KEYWORDS: Final[Mapping[str, str]] = {

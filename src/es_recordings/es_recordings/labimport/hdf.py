@@ -16,7 +16,7 @@ import h5py
 import numpy as np
 
 from es_recordings.labimport.errors import SourceError
-from es_recordings.labimport.sources import FloatArray, Variable, first_line, numeric_dtype
+from es_recordings.labimport.recording import FloatArray, Variable, first_line, numeric_dtype
 
 _MATLAB_NON_NUMERIC = (b"char", b"cell", b"function_handle")
 

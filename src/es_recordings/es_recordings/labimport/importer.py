@@ -22,7 +22,8 @@ from es_msgs_py.bag import FLOAT64_MULTI_ARRAY, BagError, BagWriter, encode_floa
 from es_recordings.labimport.errors import LabImportError, SourceError
 from es_recordings.labimport.mapfile import ImportMap
 from es_recordings.labimport.plan import TopicPlan, plan_import
-from es_recordings.labimport.sources import FloatArray, Source, open_source
+from es_recordings.labimport.recording import FloatArray, Source
+from es_recordings.labimport.sources import open_source
 
 #: Bytes of messages encoded per chunk: the import's working set is a few times this.
 CHUNK_BYTES: Final = 1 << 22

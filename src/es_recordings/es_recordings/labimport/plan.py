@@ -15,13 +15,8 @@ import numpy as np
 
 from es_recordings.labimport.errors import MapError, SourceError
 from es_recordings.labimport.mapfile import ImportMap, TimeBase, TopicMap
-from es_recordings.labimport.sources import (
-    FloatArray,
-    Source,
-    Timeseries,
-    Variable,
-    find_timeseries,
-)
+from es_recordings.labimport.recording import FloatArray, Source, Timeseries, Variable
+from es_recordings.labimport.sources import find_timeseries
 
 _SHOWN_NAMES = 12
 

@@ -22,71 +22,22 @@ from __future__ import annotations
 import zipfile
 import zlib
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Final, Protocol
+from typing import Final
 
 import numpy as np
-import numpy.typing as npt
 
 from es_recordings.labimport.errors import SourceError
-
-FloatArray = npt.NDArray[np.float64]
+from es_recordings.labimport.recording import (
+    FloatArray,
+    Source,
+    Timeseries,
+    Variable,
+    first_line,
+    numeric_dtype,
+)
 
 _MAT73_TEXT: Final = b"MATLAB 7.3 MAT-file"
-
-
-@dataclass(frozen=True)
-class Variable:
-    """One array of a recording: its name, shape and dtype (``numeric`` False: unusable)."""
-
-    name: str
-    shape: tuple[int, ...]
-    dtype: str
-    numeric: bool = True
-
-
-@dataclass(frozen=True)
-class Timeseries:
-    """A timeseries-like struct: the variables holding its time stamps and its data."""
-
-    time: str
-    data: str
-
-
-class Source(Protocol):
-    """A recording opened for import."""
-
-    path: Path
-
-    def variables(self) -> Mapping[str, Variable]:
-        """Every array of the recording, numeric or not, by name."""
-        ...
-
-    def read(self, names: Sequence[str], axes: Sequence[int], start: int, stop: int
-             ) -> list[FloatArray]:
-        """Return samples ``start:stop`` of each variable along its time axis (moved first).
-
-        Raises:
-            SourceError: a variable is missing or not numeric, or the file is damaged.
-
-        """
-        ...
-
-    def close(self) -> None:
-        """Release the file."""
-        ...
-
-
-def first_line(err: BaseException) -> str:
-    """Return the first line of an exception's message (its class name if it has none)."""
-    text = str(err).strip()
-    return text.splitlines()[0] if text else type(err).__name__
-
-
-def numeric_dtype(dtype: np.dtype) -> bool:
-    """Return whether arrays of ``dtype`` can become float64 values (bool, int, float)."""
-    return dtype.kind in "biuf"
 
 
 def find_timeseries(variables: Mapping[str, Variable]) -> dict[str, Timeseries]:

@@ -7,7 +7,7 @@ tenants, the kernel). A set point that was slow while the witness was late was s
 of the machine; one that was slow while the witness was on time was slow because of us
 (the node, the client, DDS). Its CPU is a few per cent of one core.
 
-    .venv/bin/python bench/stall_witness.py --out FILE [--cpu N]   (until SIGINT/SIGTERM)
+    .venv/bin/python -m hosttools.stall_witness --out FILE [--cpu N]   (until SIGINT/SIGTERM)
 
 ``--cpu N`` pins it to CPU N: on a virtual machine the host can stall one virtual CPU and not
 the other, so a benchmark runs one witness per CPU (:func:`witness_commands`) and merges

@@ -1,8 +1,8 @@
 """Shared pieces of the benchmark sections: settings, records, node processes, waits.
 
 Importing it sets the DDS environment of every benchmark run (localhost discovery, a
-ROS_DOMAIN_ID of its own unless given, Fast DDS with the nodes' profile) and puts bench/ on
-``sys.path`` for the sibling ``bench_*.py`` modules.
+ROS_DOMAIN_ID of its own unless given, Fast DDS with the nodes' profile). The helpers that
+run as processes of their own (relay, probe_node) are started with :func:`helper_command`.
 """
 
 from __future__ import annotations
@@ -22,8 +22,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
 
-from es_msgs_py.middleware import configure_middleware
 from es_msgs_py.topics import reserve_domain_id
+from es_node_runtime.middleware import configure_middleware
 
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 # a domain no other es_dm process here holds (a test run beside the benchmark, say)
@@ -35,9 +35,8 @@ os.environ.setdefault("PYTHONUNBUFFERED", "1")
 import numpy as np
 
 configure_middleware()  # the nodes' Fast DDS profile, for this process and its children
-BENCH_DIR = Path(__file__).resolve().parent
-if str(BENCH_DIR) not in sys.path:
-    sys.path.insert(0, str(BENCH_DIR))  # the sibling bench_*.py modules
+#: bench/: the folder of the ``common`` package, the benchmarks and their sections.
+BENCH_DIR = Path(__file__).resolve().parents[1]
 
 
 
@@ -223,6 +222,16 @@ def processes(*started: Process) -> Iterator[tuple[Process, ...]]:
     finally:
         for proc in started:
             proc.stop()
+
+
+def helper_command(module: str, *args: str) -> list[str]:
+    """Return the argv that runs the helper ``common.<module>`` as a process of its own.
+
+    ``python -m common.<module>`` with bench/ first on the child's PYTHONPATH: the helper then
+    imports its siblings as ``common.*``, as every benchmark does, from wherever it is started.
+    """
+    path = os.pathsep.join(p for p in (str(BENCH_DIR), os.environ.get("PYTHONPATH", "")) if p)
+    return ["env", f"PYTHONPATH={path}", sys.executable, "-m", f"common.{module}", *args]
 
 
 def launcher(package: str, name: str) -> str:

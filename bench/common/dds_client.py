@@ -31,8 +31,8 @@ class DdsClient:
         from std_msgs.msg import Float64MultiArray
 
         from es_msgs_py.arrays import grid_to_msg
-        from es_msgs_py.middleware import configure_middleware
         from es_msgs_py.topics import COMMAND, SETPOINT, TEMPERATURE, qos_for
+        from es_node_runtime.middleware import configure_middleware
         from es_physics.laws import z_sat
         from es_physics.params import ActuatorParams
 

@@ -3,7 +3,7 @@
 :class:`ParameterSpec` states one parameter (default, description with its unit, range,
 choices, custom check); :class:`ParameterValues` holds the values a node declared and hands
 them out typed (``values.get_float("time_scale")``), so the modules that map parameters to a
-configuration are checked by mypy and tested without ROS. :mod:`es_msgs_py.params` declares
+configuration are checked by mypy and tested without ROS. :mod:`es_node_runtime.params` declares
 the specs on a node and returns a :class:`ParameterValues`.
 """
 
@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from numbers import Integral, Real
 from typing import overload
 
-from es_msgs_py.errors import ParameterTypeError
+from es_node_runtime.errors import ParameterTypeError
 
 __all__ = ["Check", "ParameterSpec", "ParameterValues", "Scalar"]
 

@@ -1,10 +1,10 @@
 """Declare ROS parameters with descriptors, ranges and validation on set.
 
 rclpy itself rejects a value outside a declared ``FloatingPointRange``/``IntegerRange`` when
-it is set at run time; :class:`ParameterSpec` (:mod:`es_msgs_py.param_spec`, pure) adds
+it is set at run time; :class:`ParameterSpec` (:mod:`es_node_runtime.param_spec`, pure) adds
 choices and custom checks and gives the same readable reason for all of them.
 :func:`declare_parameters` returns the initial values as a typed
-:class:`~es_msgs_py.param_spec.ParameterValues`.
+:class:`~es_node_runtime.param_spec.ParameterValues`.
 """
 
 from __future__ import annotations
@@ -21,8 +21,8 @@ from rclpy.exceptions import ParameterException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
-from es_msgs_py.errors import ParameterValueError
-from es_msgs_py.param_spec import Check, ParameterSpec, ParameterValues, Scalar
+from es_node_runtime.errors import ParameterValueError
+from es_node_runtime.param_spec import Check, ParameterSpec, ParameterValues, Scalar
 
 __all__ = [
     "Check",

@@ -1,7 +1,7 @@
 """A node under test with timestamps: where the set-point-to-command time goes (bench only).
 
 Runs the feedforward node (``feedforward``, its defaults) or the plain relay (``relay``,
-bench/relay.py on the EventsExecutor) as ``run_node`` does, with the /dm/setpoint callback
+bench/common/relay.py on the EventsExecutor) as ``run_node`` does, with the /dm/setpoint callback
 wrapped: it records ``time.perf_counter()`` (CLOCK_MONOTONIC, one clock for every process of
 the host) when the callback starts and when it returns (the command published). It also
 records its timers' callbacks the same way and every garbage collection of the process
@@ -10,7 +10,7 @@ records its timers' callbacks the same way and every garbage collection of the p
 The wrapper costs two clock reads and an append per set point. ``PROBE_GC_FREEZE=0`` in the
 environment skips run_node's collection and ``gc.freeze()`` before the spin (an A/B of it).
 
-    .venv/bin/python bench/probe_node.py {feedforward,relay} --out FILE [--ros-args ...]
+    (cd bench && ../.venv/bin/python -m common.probe_node {feedforward,relay} --out FILE ...)
 """
 
 from __future__ import annotations
@@ -25,9 +25,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-
-BENCH_DIR = Path(__file__).resolve().parent
-sys.path.insert(0, str(BENCH_DIR))
 
 
 class Stamps:
@@ -85,7 +82,7 @@ def make_probed(kind: str, out: Path) -> Callable[[], Any]:
 
     def make() -> Any:
         if kind == "relay":
-            from relay import Relay
+            from common.relay import Relay
 
             node: Any = Relay()
         else:
@@ -111,7 +108,7 @@ def make_probed(kind: str, out: Path) -> Callable[[], Any]:
 
 def main() -> int:
     """Run the probed node until SIGINT/SIGTERM, then write its stamps."""
-    from es_msgs_py import node_main
+    from es_node_runtime import node_main
 
     if os.environ.get("PROBE_GC_FREEZE") == "0":  # the A of an A/B of run_node's freeze
         node_main.settle_garbage = lambda: None

@@ -6,7 +6,7 @@ latency can be compared with what plain rclpy costs for the same message size on
 machine. ``-p executor:=events`` runs it on the EventsExecutor the feedforward node uses (a
 second reference). Run as its own process (``bench/run.py`` starts it):
 
-    .venv/bin/python bench/relay.py [--ros-args -p executor:=events ...]
+    (cd bench && ../.venv/bin/python -m common.relay [--ros-args -p executor:=events ...])
 """
 
 from __future__ import annotations
@@ -16,9 +16,9 @@ import sys
 from rclpy.node import Node
 from std_msgs.msg import Float64MultiArray
 
-from es_msgs_py.node_main import EXECUTOR_PARAMETER, EXECUTORS, run_node
-from es_msgs_py.params import ParameterSpec, declare_parameters
 from es_msgs_py.topics import COMMAND, SETPOINT, qos_for
+from es_node_runtime.node_main import EXECUTOR_PARAMETER, EXECUTORS, run_node
+from es_node_runtime.params import ParameterSpec, declare_parameters
 
 
 class Relay(Node):

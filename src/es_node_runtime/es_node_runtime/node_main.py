@@ -15,7 +15,7 @@ walks only what was allocated since. Measured with the feedforward node at 128 x
 loaded machine): its one young (generation 1) collection per 10 s of 1 kHz set points took
 0.9-1.0 ms, frozen 0.1 ms; an unfrozen full collection took 17-24 ms.
 
-Fast DDS gets the es_dm profile (:func:`es_msgs_py.middleware.configure_middleware`: a
+Fast DDS gets the es_dm profile (:func:`es_node_runtime.middleware.configure_middleware`: a
 shared-memory segment that holds a hundred 128 x 128 grids) unless the environment names one.
 
 A node picks its executor with a read-only ``executor`` parameter (see :data:`EXECUTORS`);
@@ -62,9 +62,9 @@ from rclpy.publisher import Publisher
 from rclpy.qos import ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 
-from es_msgs_py.errors import ParameterValueError
-from es_msgs_py.middleware import configure_middleware
-from es_msgs_py.param_spec import ParameterSpec
+from es_node_runtime.errors import ParameterValueError
+from es_node_runtime.middleware import configure_middleware
+from es_node_runtime.param_spec import ParameterSpec
 
 #: Name of the read-only parameter through which a node chooses its executor.
 EXECUTOR_PARAMETER: Final = "executor"

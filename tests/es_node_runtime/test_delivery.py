@@ -1,4 +1,4 @@
-"""es_msgs_py.node_main.deliver_pending: a stopping node waits, bounded, until its readers
+"""es_node_runtime.node_main.deliver_pending: a stopping node waits, bounded, until its readers
 have acknowledged what it published, and names the topics they have not."""
 
 from __future__ import annotations
@@ -16,8 +16,8 @@ from support.ros import READY_TIMEOUT, NodeProcess
 from support.ros import test_node as ros_node
 
 from es_msgs_py.arrays import grid_to_msg
-from es_msgs_py.node_main import deliver_pending
 from es_msgs_py.topics import COMMAND, qos_for
+from es_node_runtime.node_main import deliver_pending
 
 pytestmark = pytest.mark.dds
 

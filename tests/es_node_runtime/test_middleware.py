@@ -1,4 +1,4 @@
-"""es_msgs_py.middleware: the Fast DDS profile with a shared-memory segment that holds grids."""
+"""es_node_runtime.middleware: the Fast DDS profile, a shared-memory segment that holds grids."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from es_msgs_py.middleware import (
+from es_node_runtime.middleware import (
     PROFILES_VARIABLE,
     SHM_SEGMENT_BYTES,
     configure_middleware,
@@ -89,7 +89,7 @@ NODE_WITH_PROFILE = r"""
 import os
 import sys
 from rclpy.node import Node
-from es_msgs_py.node_main import run_node
+from es_node_runtime.node_main import run_node
 
 class Says(Node):
     def __init__(self):

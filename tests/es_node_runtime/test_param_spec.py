@@ -1,4 +1,4 @@
-"""es_msgs_py.param_spec: what a parameter accepts, and typed read-back of declared values."""
+"""es_node_runtime.param_spec: what a parameter accepts, and typed read-back of declared values."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ import array
 import numpy as np
 import pytest
 
-from es_msgs_py.errors import ParameterTypeError
-from es_msgs_py.param_spec import ParameterSpec, ParameterValues
+from es_node_runtime.errors import ParameterTypeError
+from es_node_runtime.param_spec import ParameterSpec, ParameterValues
 
 VALUES = ParameterValues(
     {

@@ -1,4 +1,4 @@
-"""es_msgs_py.param_yaml: floats every ROS 2 reader reads as floats, and the trap read back."""
+"""es_node_runtime.param_yaml: floats every ROS 2 reader reads as floats, and the trap read back."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from rcl_interfaces.msg import ParameterType
 from rclpy.parameter import parameter_dict_from_yaml_file
 
-from es_msgs_py.param_yaml import dump_parameters, floats_from_strings
+from es_node_runtime.param_yaml import dump_parameters, floats_from_strings
 
 
 def test_dotless_exponents_are_strings_to_pyyaml_which_is_the_trap() -> None:

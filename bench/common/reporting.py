@@ -11,7 +11,7 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-from benchlib import Record, Results, Settings
+from common.benchlib import Record, Results, Settings
 
 TARGETS = (
     ("kernel_inverse_hyperbolic", 4096, "ratio", "<=", 10.0, "kernels <= 10x np.sqrt at 4096"),
@@ -99,7 +99,8 @@ def write_report(out: Path, results: Results, machine: dict[str, Any], settings:
     (out / "bench.md").write_text("\n".join(md))
 
 
-#: Figures of the README's compact table: (name prefix, sizes; empty = every size).
+#: Figures of the compact table (summary.md, docs/benchmarks.md): (name prefix, sizes; empty =
+#: every size).
 SUMMARY_ROWS: tuple[tuple[str, tuple[int, ...]], ...] = (
     ("kernel_", (4096,)),
     ("convert_", (4096,)),
@@ -115,8 +116,8 @@ SUMMARY_ROWS: tuple[tuple[str, tuple[int, ...]], ...] = (
 )
 
 
-def write_summary(out: Path, results: Results, machine: dict[str, Any], date: str) -> None:
-    """Write summary.md: the compact table the README shows (full tables in bench.md)."""
+def summary_lines(results: Results, machine: dict[str, Any], date: str) -> list[str]:
+    """Return summary.md's lines: the compact table of the main figures and the targets."""
     lines = [
         f"Measured {date} on {machine['cores']} cores, {machine['cpu_model']} (load average "
         f"{machine['load_average_at_start'][0]} at the start: a shared machine); median "
@@ -131,4 +132,9 @@ def write_summary(out: Path, results: Results, machine: dict[str, Any], date: st
                           f"{_fmt(r.max * scale)})")
                 lines.append(f"| {r.name} | {r.n} | {spread} | {unit} | {_fmt(r.ratio)} |")
     lines += ["", "Targets (issue 9):", "", *[f"- {t}" for t in check_targets(results)], ""]
-    (out / "summary.md").write_text("\n".join(lines))
+    return lines
+
+
+def write_summary(out: Path, results: Results, machine: dict[str, Any], date: str) -> None:
+    """Write summary.md: the compact table docs/benchmarks.md shows (full tables in bench.md)."""
+    (out / "summary.md").write_text("\n".join(summary_lines(results, machine, date)))

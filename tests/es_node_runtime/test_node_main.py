@@ -1,4 +1,4 @@
-"""es_msgs_py.node_main: the executor choice (parameter, both executors, fallback) and the
+"""es_node_runtime.node_main: the executor choice (parameter, both executors, fallback) and the
 bounded teardown."""
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from support.ros import test_node as ros_node
 
-from es_msgs_py.node_main import (
+from es_node_runtime.node_main import (
     EXECUTOR_PARAMETER,
     EXECUTORS,
     executor_kind,
@@ -25,7 +25,7 @@ from es_msgs_py.node_main import (
     usage_text,
     wants_help,
 )
-from es_msgs_py.params import ParameterSpec, declare_parameters
+from es_node_runtime.params import ParameterSpec, declare_parameters
 
 pytestmark = pytest.mark.dds
 
@@ -88,7 +88,7 @@ def test_events_falls_back_to_single_threaded_without_the_events_executor(
 HANGING_TEARDOWN = r"""
 import sys, time
 from rclpy.node import Node
-from es_msgs_py.node_main import run_node
+from es_node_runtime.node_main import run_node
 
 class HangsInTeardown(Node):
     def __init__(self):
@@ -121,7 +121,7 @@ STOPPED_WHILE_BUILT = r"""
 import sys
 import rclpy
 from rclpy.node import Node
-from es_msgs_py.node_main import run_node
+from es_node_runtime.node_main import run_node
 
 class StoppedWhileBuilt(Node):
     def __init__(self):
@@ -147,7 +147,7 @@ def test_a_stop_while_the_node_is_built_is_a_clean_exit() -> None:
 STOPPED_BY_SIGNAL = r"""
 import sys
 from rclpy.node import Node
-from es_msgs_py.node_main import run_node
+from es_node_runtime.node_main import run_node
 
 class Reports(Node):
     def __init__(self):
@@ -197,7 +197,7 @@ REPORTS_FROZEN = r"""
 import gc
 import sys
 from rclpy.node import Node
-from es_msgs_py.node_main import run_node
+from es_node_runtime.node_main import run_node
 
 class Frozen(Node):
     def __init__(self):

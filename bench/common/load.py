@@ -2,7 +2,7 @@
 
 Usage (``scripts/stress-test`` starts it beside the suite)::
 
-    .venv/bin/python bench/load.py [--cpu N] [--memio N] [--seconds S]
+    .venv/bin/python bench/common/load.py [--cpu N] [--memio N] [--seconds S]
 
 Each CPU hog keeps one core busy; each memory/IO hog keeps 256 MiB resident, touches it and
 writes and fsyncs 64 MiB to a scratch file in a loop. stress-ng (Debian package

@@ -1,0 +1,22 @@
+from setuptools import find_packages, setup
+
+PACKAGE = "es_node_runtime"
+# A library: no executables (the table is read by tests/install).
+EXECUTABLES = {}
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    packages=find_packages(exclude=["test"]),
+    package_data={PACKAGE: ["py.typed"]},
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
+        (f"share/{PACKAGE}", ["package.xml"]),
+    ],
+    install_requires=["setuptools"],
+    zip_safe=False,
+    maintainer="es_dm developers",
+    maintainer_email="es-dm@example.com",
+    description="What every es_dm node runs on: run_node (start-up, signals, teardown), the Fast DDS profile, typed parameters and parameters YAML.",
+    license="Apache-2.0",
+)
