@@ -2,7 +2,7 @@
 
 Usage (from the repository root; ``scripts/bench`` bootstraps the venv and calls this)::
 
-    .venv/bin/python bench/run.py [-o OUT] [--quick] [--only SECTION ...] [--no-profile]
+    .venv/bin/python bench/run.py [-o OUT] [--quick | --full] [--only SECTION ...] [--no-profile]
 
 Sections (``--only``): ``kernels`` (bench_kernels.py), ``convert`` (bench_convert.py),
 ``feedforward`` (the feedforward node over DDS against a plain rclpy relay, relay.py),
@@ -86,6 +86,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("-o", "--output", type=Path, default=Path(f"out/bench-{stamp}"))
     parser.add_argument("--quick", action="store_true",
                         help="one run of each figure, shorter runs (about 1.5 minutes)")
+    parser.add_argument("--full", action="store_true",
+                        help="the long samples too: 50 Ctrl-C stops of each kind in the "
+                             "teardown section (default 5, --quick 2)")
     parser.add_argument("--only", nargs="+", choices=SECTIONS, default=list(DEFAULT_SECTIONS))
     parser.add_argument("--no-profile", action="store_true",
                         help="skip the cProfile runs of the nodes and the calibration")
@@ -98,7 +101,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     date = dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
     command = " ".join(["bench/run.py", *(argv if argv is not None else sys.argv[1:])])
     results = Results()
-    context = Context(settings, results, args.output, args.quick)
+    context = Context(settings, results, args.output, args.quick, full=args.full)
     for name in args.only:
         start = time.monotonic()
         print(f"[bench] {name} ...", file=sys.stderr, flush=True)

@@ -117,6 +117,8 @@ class Context:
     out: Path
     #: ``--quick``: shorter runs, one of each figure
     quick: bool
+    #: ``--full``: the long samples too (50 + 50 Ctrl-C stops in the teardown section)
+    full: bool = False
 
     @property
     def log_dir(self) -> Path:
