@@ -21,9 +21,13 @@ os.environ.setdefault("PYTHONUNBUFFERED", "1")
 import sys
 from pathlib import Path
 
+import pytest
 from hypothesis import settings
 
 sys.path.insert(0, str(Path(__file__).parent))  # makes tests/support importable as `support`
+# the test stand (testing/standgen) where it is not installed (a colcon workspace); an
+# installed copy (scripts/bootstrap) comes first
+sys.path.append(str(Path(__file__).parents[1] / "testing"))
 
 # No per-example deadline for any property test: on a loaded machine one example can take
 # longer than Hypothesis' 200 ms default, which it reports as a failure (DeadlineExceeded, or
@@ -32,10 +36,13 @@ settings.register_profile("es_dm", deadline=None)
 settings.load_profile("es_dm")
 
 
-def pytest_sessionstart(session: object) -> None:
+@pytest.fixture(scope="session", autouse=True)
+def _clean_fastdds_shm() -> None:
     """Clean Fast DDS shared-memory files left by dead processes (`fastdds shm clean`).
 
-    Tests SIGKILL nodes on purpose; the tool removes only files whose owner is gone.
+    Tests SIGKILL nodes on purpose; the tool removes only files whose owner is gone. A
+    fixture, not pytest_sessionstart: under ``colcon test`` this file is loaded during
+    collection (src/conftest.py), after the session started.
     """
     tool = Path(sys.prefix) / "bin" / "fastdds"
     if tool.exists():

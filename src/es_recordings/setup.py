@@ -22,6 +22,8 @@ setup(
         ],
     ],
     install_requires=["setuptools"],
+    # `colcon test` runs pytest when pytest is a test dependency (tests: src/conftest.py)
+    extras_require={"test": ["pytest"]},
     zip_safe=False,
     maintainer="es_dm developers",
     maintainer_email="es-dm@example.com",

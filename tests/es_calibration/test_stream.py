@@ -18,7 +18,7 @@ from es_calibration.data.align import AlignedData, align
 from es_calibration.data.bags import read_measured_bags
 from es_calibration.data.bagstream import BagRecording
 from es_calibration.data.recording import MemoryRecording, gather, gather_arrays
-from es_calibration.grid.tiles import TileJob, compact_grid
+from es_calibration.grid.tiles import DASK_INSTALL_HINT, TileJob, compact_grid
 from es_calibration.grid.tilestore import TileStore, layout, play_name
 from es_calibration.model.composite import LINEAR_LAW, play_operator
 from es_calibration.pipeline import calibrate
@@ -203,6 +203,22 @@ def test_no_dask_import_without_workers(bag: Path, tmp_path: Path) -> None:
                           check=False, timeout=900)
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.strip() == "[]"
+
+
+def test_workers_without_dask_say_what_to_install_in_one_line(bag: Path, tmp_path: Path) -> None:
+    """Dask is optional (package.xml: a conditional dependency): without it, one line that
+    names what to install, not the 'internal error' an unguarded import gave."""
+    code = (
+        "import sys\n"
+        "sys.modules['dask'] = None  # as if Dask were not installed\n"
+        "from es_calibration.calibrate import run\n"
+        f"sys.exit(run([{str(bag)!r}, '-o', {str(tmp_path / 'out')!r}, '-q', '--workers', '1']))\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          check=False, timeout=900)
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr.strip().splitlines() == [f"calibrate: {DASK_INSTALL_HINT} "
+                                                "(import of dask halted; None in sys.modules)"]
 
 
 def test_bad_tile_and_unreachable_scheduler_are_one_line(bag: Path, tmp_path: Path) -> None:

@@ -8,14 +8,17 @@ from __future__ import annotations
 
 import ast
 import os
+import re
 import signal
 import subprocess
 import sys
+import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import pytest
 from ament_index_python.packages import get_package_prefix, get_packages_with_prefixes
 from diagnostic_msgs.msg import DiagnosticArray
+from ros_wheels_bootstrapper import get_ros_paths
 from support.ros import NodeProcess, wait_matched, wait_until
 from support.ros import test_node as ros_node
 
@@ -52,6 +55,11 @@ def moved_executables(package: str) -> list[str]:
     return list(moved) if isinstance(moved, list) else []
 
 
+def console_script(package: str, exe: str) -> str:
+    """Return the console script (setup.py's entry points) behind ``lib/<package>/<exe>``."""
+    return f"{package}-{exe.replace('_', '-')}"
+
+
 def executables_of(package: str) -> list[str]:
     """Return the keys of ``EXECUTABLES = {...}`` in ``src/<package>/setup.py``."""
     return sorted(executable_modules(package))
@@ -83,7 +91,8 @@ def test_every_package_lists_executables_with_modules() -> None:
         module = executable_modules(package)[exe]
         script = ROOT / "src" / package / "scripts" / exe
         assert script.is_file(), f"{script} missing"
-        assert f"-m {module} " in script.read_text(), f"{script} runs another module"
+        console = f'"$prefix/bin/{console_script(package, exe)}" "$@"'
+        assert f"exec {console}" in script.read_text(), f"{script} runs another program"
         assert (ROOT / "src" / package / f"{module.replace('.', '/')}.py").is_file(), (
             f"module {module} does not exist yet"
         )
@@ -115,27 +124,99 @@ def test_colcon_build_installs_package(colcon_install: Path, package: str) -> No
     assert (site / "__init__.py").is_file()
 
 
-def test_colcon_launcher_runs_from_the_colcon_install(colcon_install: Path) -> None:
-    # What `source install/setup.bash && ros2 run es_recordings record --help` does: the
-    # launcher finds no python3 in its prefix and runs the one on PATH with the workspace's
-    # site-packages on PYTHONPATH.
-    site_dirs = [str(p / "lib" / PYTHON_DIR / "site-packages") for p in colcon_install.iterdir()]
-    env = {
-        **os.environ,
-        "PYTHONPATH": os.pathsep.join(site_dirs),
-        "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}",
-    }
-    launcher = colcon_install / "es_recordings" / "lib" / "es_recordings" / "record"
+def _clean_shell(
+    install: Path, line: str, tmp_path: Path, underlay: dict[str, str] | None = None
+) -> str:
+    """Run ``line`` in bash after ``source install/setup.bash``, as a fresh login would: no
+    virtual environment, PATH the system's with a decoy ``python3`` first (it fails), so a
+    launcher that ran the python3 on PATH fails. ``underlay``: variables of an underlay's
+    setup.bash (/opt/ros/jazzy on a ROS install). Returns stdout; fails on a non-zero exit."""
+    decoy = tmp_path / "decoy"
+    decoy.mkdir(exist_ok=True)
+    (decoy / "python3").write_text("#!/bin/sh\necho 'decoy python3 from PATH' >&2\nexit 97\n")
+    (decoy / "python3").chmod(0o755)
+    env = {"HOME": str(tmp_path), "PATH": f"{decoy}:/usr/bin:/bin", **(underlay or {})}
     proc = subprocess.run(
-        [str(launcher), "--help"], env=env, capture_output=True, text=True, timeout=60, check=False
+        ["bash", "-c", f"source {install}/setup.bash && {line}"], env=env, capture_output=True,
+        text=True, timeout=120, check=False,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return proc.stdout
+
+
+def _shebang(install: Path, package: str, exe: str) -> str:
+    script = install / package / "bin" / console_script(package, exe)
+    return script.read_text().splitlines()[0]
+
+
+def test_colcon_launcher_built_in_a_venv_runs_from_any_shell(
+    colcon_install: Path, tmp_path: Path
+) -> None:
+    """Built inside a virtual environment (this one), `ros2 run` works from a shell without
+    it: the launcher runs the console script, whose first line is the venv's Python."""
+    assert _shebang(colcon_install, "es_recordings", "record") == f"#!{sys.executable}"
+    launcher = colcon_install / "es_recordings" / "lib" / "es_recordings" / "record"
+    assert "usage: record" in _clean_shell(colcon_install, f"{launcher} --help", tmp_path)
+
+
+def test_colcon_launcher_built_on_the_system_python_runs_from_any_shell(tmp_path: Path) -> None:
+    """Built by the system Python (this venv's base interpreter, as on a ROS install), the
+    launchers run it, not a python3 on PATH; the ROS underlay (here: this venv's
+    site-packages on PYTHONPATH, what /opt/ros/jazzy/setup.bash does) provides rclpy."""
+    system = Path(sys.base_prefix) / "bin" / PYTHON_DIR
+    # the underlay, as /opt/ros/jazzy/setup.bash sets it for its packages: this venv's
+    # site-packages on PYTHONPATH, the ROS wheels' libraries on LD_LIBRARY_PATH (what their
+    # .pth file does for this venv's own interpreter only)
+    sites = [p for p in sys.path if p.startswith(sys.prefix) and p.endswith("site-packages")]
+    underlay = {"PYTHONPATH": os.pathsep.join(sites), "LD_LIBRARY_PATH": get_ros_paths()}
+    # the two packages record needs: a whole build costs CI time and shows nothing more
+    command = [
+        str(system), "-m", "colcon", "--log-base", str(tmp_path / "log"), "build",
+        "--base-paths", str(ROOT / "src" / "es_msgs_py"), str(ROOT / "src" / "es_recordings"),
+        "--build-base", str(tmp_path / "build"), "--install-base", str(tmp_path / "install"),
+    ]  # fmt: skip
+    proc = subprocess.run(command, cwd=tmp_path, env={**os.environ, **underlay},
+                          capture_output=True, text=True, timeout=300, check=False)  # fmt: skip
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    install = tmp_path / "install"
+    assert _shebang(install, "es_recordings", "record") == f"#!{system}"
+    launcher = install / "es_recordings" / "lib" / "es_recordings" / "record"
+    out = _clean_shell(install, f"{launcher} --help", tmp_path, underlay)
+    assert "usage: record" in out
+
+
+def test_colcon_test_runs_every_package_s_tests(colcon_install: Path, tmp_path: Path) -> None:
+    """`colcon test` runs each package's tests (tests/<package>, src/conftest.py) with pytest
+    and `colcon test-result` counts them: not 0 for any package. Bounded: the first test of
+    each file (support/colcon_sample.py), neither slow nor dds; the whole run is
+    docs/ros2-install.md's."""
+    base = colcon_install.parent
+    results = tmp_path / "test_results"
+    colcon = f"{sys.executable} -m colcon --log-base {tmp_path / 'log'}"
+    line = (
+        f"{colcon} test --base-paths {ROOT / 'src'} --build-base {base / 'build'} "
+        f"--install-base {colcon_install} --test-result-base {results} "
+        "--pytest-args -m 'not slow and not dds' -p support.colcon_sample"
     )
-    assert proc.returncode == 0, proc.stderr
-    assert "usage: record" in proc.stdout
-    probe = "import es_recordings.record as m; print(m.__file__)"
-    where = subprocess.run(
-        ["python3", "-c", probe], env=env, capture_output=True, text=True, timeout=60, check=True
-    )
-    assert where.stdout.startswith(str(colcon_install))
+    # support/ importable for -p (tests/conftest.py adds it only once loaded)
+    env = {**os.environ, "PYTHONPATH": str(ROOT / "tests")}
+    proc = subprocess.run(["bash", "-c", f"source {colcon_install}/setup.bash && {line}"],
+                          env=env, capture_output=True, text=True, timeout=1800, check=False)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    counts: dict[str, int] = {}
+    for package in PACKAGES:
+        suite = ET.parse(results / package / "pytest.xml").getroot().find("testsuite")
+        assert suite is not None, package
+        counts[package] = int(suite.get("tests", "0"))
+    assert all(counts.values()), counts
+    report = subprocess.run(
+        [sys.executable, "-m", "colcon", "test-result", "--test-result-base", str(results),
+         "--verbose"], capture_output=True, text=True, timeout=120, check=False,
+    )  # fmt: skip
+    assert report.returncode == 0, report.stdout[-3000:]
+    summary = re.search(r"Summary: (\d+) tests, 0 errors, 0 failures", report.stdout)
+    assert summary is not None, report.stdout[-3000:]
+    assert int(summary.group(1)) == sum(counts.values()) > 0
 
 
 # --- the README's pip set-up ------------------------------------------------------------------

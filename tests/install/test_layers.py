@@ -10,16 +10,30 @@ included), so a new import that breaks the rule fails here with its file and lin
 
 No import cycle either, between modules of any packages: every import counts, also one inside
 a function (a lazy import that closes a cycle still ties the two modules together).
+
+Below the layers, each package.xml against what its code and its tests import (one map of
+import to rosdep key: tests/support/workspace.py).
 """
 
 from __future__ import annotations
 
 import ast
-import xml.etree.ElementTree as ET
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[2]
-SRC = ROOT / "src"
+import pytest
+from support.workspace import (
+    OPTIONAL_KEYS,
+    ROOT,
+    SRC,
+    declared,
+    external_imports,
+    key_of,
+    package_tests,
+    packages,
+)
+from support.workspace import modules as _modules
+from support.workspace import packages as _packages
+
 #: Layer of each package; a module may import packages of a lower layer only.
 LAYER = {
     "es_msgs_py": 1,
@@ -32,19 +46,6 @@ LAYER = {
     "es_calibration": 3,
     "es_bringup": 3,
 }
-
-
-def _packages() -> list[str]:
-    return sorted(p.name for p in SRC.iterdir() if (p / "package.xml").is_file())
-
-
-def _modules(package: str) -> list[Path]:
-    root = SRC / package
-    return sorted(
-        path
-        for path in root.rglob("*.py")
-        if path.name != "setup.py" and "build" not in path.relative_to(root).parts
-    )
 
 
 def _imports_of_ours(path: Path) -> list[tuple[int, str]]:
@@ -181,8 +182,68 @@ def test_the_cycle_check_finds_a_cycle() -> None:
     assert _cycles(graph) == [["a", "b", "c"]]
 
 
-def test_package_xml_declares_every_package_it_imports() -> None:
-    for package, used in _uses().items():
-        tree = ET.parse(SRC / package / "package.xml")
-        declared = {e.text for tag in ("depend", "exec_depend") for e in tree.iter(tag)}
-        assert used <= declared, f"{package}/package.xml lacks {sorted(used - declared)}"
+RUN_TAGS = ("depend", "exec_depend")
+TEST_TAGS = ("depend", "exec_depend", "test_depend")
+
+
+def _needed(package: str, files: list[Path]) -> dict[str, tuple[str, Path]]:
+    """Return key -> (import, file) of everything ``files`` import, but ``package`` itself."""
+    needed: dict[str, tuple[str, Path]] = {}
+    for name, path in external_imports(files).items():
+        try:
+            key = key_of(name)
+        except KeyError:
+            raise AssertionError(
+                f"{path.relative_to(ROOT)} imports {name}: add its rosdep key to "
+                "IMPORT_KEY (tests/support/workspace.py)"
+            ) from None
+        if key is not None and key != package:
+            needed.setdefault(key, (name, path))
+    return needed
+
+
+@pytest.mark.parametrize("package", packages())
+def test_package_xml_declares_what_its_code_imports(package: str) -> None:
+    """Every import of the package's code has its rosdep key as a run dependency; optional
+    features' keys under their condition (REP 149), every other key unconditional."""
+    have = declared(package, RUN_TAGS)
+    wrong = []
+    for key, (name, path) in sorted(_needed(package, _modules(package)).items()):
+        want = f"${OPTIONAL_KEYS[key]} == 1" if key in OPTIONAL_KEYS else None
+        if key not in have:
+            wrong.append(f"lacks <exec_depend>{key}</exec_depend> ({name}, {path.name})")
+        elif have[key] != want:
+            wrong.append(f"{key}: condition {have[key]!r}, expected {want!r}")
+    assert not wrong, f"{package}/package.xml: " + "; ".join(wrong)
+
+
+@pytest.mark.parametrize("package", packages())
+def test_package_xml_declares_no_python_library_it_does_not_import(package: str) -> None:
+    """A Python library key no module imports is a stale declaration (ROS message packages
+    may be loaded by type name, es_msgs_py.topics.message_class, so only python3-* keys)."""
+    used = set(_needed(package, _modules(package)))
+    stale = sorted(
+        key for key in declared(package, RUN_TAGS) if key.startswith("python3-") and key not in used
+    )
+    assert not stale, f"{package}/package.xml declares {stale}, imported nowhere in its code"
+
+
+@pytest.mark.parametrize("package", packages())
+def test_package_xml_declares_what_its_tests_import(package: str) -> None:
+    """``colcon test`` runs tests/<package> (src/conftest.py) in the environment of the
+    package's dependencies: what those tests import (tests/conftest.py included) is declared.
+    A package of ours only when its layer is lower: a test_depend across a layer, or up, can
+    close a cycle (es_feedforward's tests use es_sim_plant and the other way round), which
+    colcon refuses; those tests run in the sourced workspace (docs/ros2-install.md)."""
+    assert (ROOT / "tests" / package).is_dir(), f"tests/{package} missing: colcon test runs it"
+    files = [ROOT / "tests" / "conftest.py", *package_tests(package)]
+    have = declared(package, TEST_TAGS)
+    cycles = {other for other in _packages() if LAYER[other] >= LAYER[package]}
+    missing = sorted(
+        f"{key} ({name}, {path.name})"
+        for key, (name, path) in _needed(package, files).items()
+        if key not in have and key not in cycles
+    )
+    assert not missing, f"{package}/package.xml lacks test dependencies: {missing}"
+    cyclic = sorted(set(declared(package, ("test_depend",))) & cycles)
+    assert not cyclic, f"{package}/package.xml: test_depend {cyclic} not below its layer"

@@ -69,7 +69,7 @@ from es_calibration.data.align import MIN_SAMPLES, CalibrationInputError
 from es_calibration.data.bagstream import BagRecording
 from es_calibration.data.gaps import GAP_FACTOR
 from es_calibration.data.searchspan import SEARCH_BUDGET
-from es_calibration.grid.tiles import DEFAULT_TILE, DaskSetupError
+from es_calibration.grid.tiles import DASK_INSTALL_HINT, DEFAULT_TILE, DaskSetupError
 from es_calibration.model.composite import CANDIDATES
 from es_calibration.pipeline import Calibration, calibrate
 from es_recordings.labimport import LabImportError, import_recording, load_map
@@ -180,12 +180,15 @@ def _calibrate(
 
     Raises:
         CalibrationInputError: bad data.
-        DaskSetupError: the Dask cluster cannot be started or reached.
+        DaskSetupError: the Dask cluster cannot be started or reached, or Dask is not installed.
 
     """
     if args.workers is None and args.scheduler is None:
         return calibrate(recording, candidates, tile=args.tile, search_budget=args.search_budget)
-    from es_calibration.grid.dask_tiles import dask_map  # Dask only when asked for
+    try:
+        from es_calibration.grid.dask_tiles import dask_map  # Dask only when asked for
+    except ImportError as err:  # the optional dependency is not installed
+        raise DaskSetupError(f"{DASK_INSTALL_HINT} ({err})") from None
 
     with dask_map(args.workers, args.scheduler) as run_tiles:
         return calibrate(recording, candidates, tile=args.tile, run=run_tiles,

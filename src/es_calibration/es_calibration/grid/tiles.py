@@ -48,6 +48,14 @@ class DaskSetupError(RuntimeError):
     """The Dask cluster for the tiles could not be started or reached (one-line message)."""
 
 
+#: What to install for ``--workers``/``--scheduler`` (Dask is an optional dependency: the
+#: package.xml declares it under a condition, docs/ros2-install.md "Optional: Dask").
+DASK_INSTALL_HINT = (
+    "--workers/--scheduler need Dask: pip install 'dask[distributed]' "
+    "(ROS: ES_DM_DASK=1 rosdep install --from-paths src --ignore-src)"
+)
+
+
 def serial_map(fn: Callable[[TileJob], TileFit], jobs: Sequence[TileJob]) -> list[TileFit]:
     """Run the tile jobs one after the other in this process."""
     return [fn(job) for job in jobs]
