@@ -19,9 +19,9 @@ from es_bringup.demo_calibration import (
     Calibrated,
     calibrate,
     characterisation_scenario,
-    health_lines,
     daq_clock_copy,
     hardware_signature,
+    health_lines,
     scenario_with_effects,
     without_compensation,
 )

@@ -48,10 +48,10 @@ from es_calibration.grid.tiles import (
     write_temperature,
 )
 from es_calibration.grid.tilestore import TileStore, layout
-from es_calibration.model.composite import CANDIDATES
 from es_calibration.health.actuators import check_actuators
 from es_calibration.health.findings import Finding
 from es_calibration.health.sensors import check_sensors
+from es_calibration.model.composite import CANDIDATES
 from es_calibration.search import unexplained
 from es_calibration.search.blockdelay import block_delays
 from es_calibration.search.halves import check_halves

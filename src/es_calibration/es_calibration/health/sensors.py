@@ -25,6 +25,7 @@ import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
+from itertools import pairwise
 from typing import Final
 
 import numpy as np
@@ -32,8 +33,6 @@ import numpy.typing as npt
 
 from es_calibration._typing import BoolArray, FloatArray
 from es_calibration.health.findings import Finding
-
-
 
 #: Shortest run of identical values that counts as frozen [samples] ...
 FROZEN_MIN_SAMPLES: Final = 20
@@ -49,6 +48,8 @@ JUMP_SIGMAS: Final = 10.0
 JUMP_MIN_DEGC: Final = 0.3
 #: Parts of the record whose noise levels are compared.
 NOISE_WINDOWS: Final = 8
+#: Fewest samples in a part whose noise level is compared.
+NOISE_WINDOW_SAMPLES: Final = 50
 #: Ratio of the noisiest to the quietest part that counts as a change of noise level.
 NOISE_CHANGE_RATIO: Final = 3.0
 #: Sensors checked together (memory: a few chunk-sized copies of the record).
@@ -105,12 +106,13 @@ class _Checker:
         self.bad = np.zeros(values.shape, dtype=bool)
         self.found: list[tuple[str, int, int, int, float, str, str]] = []
 
-    def _add(self, kind: str, column: int, start: int, end: int, value: float, unit: str,
-             sentence: str) -> None:
-        self.found.append((kind, self.first + column, start, end, value, unit, sentence))
+    def _add(self, kind: str, column: int, span: tuple[int, int], value: float,
+             words: tuple[str, str]) -> None:
+        """Record a finding: ``words`` are its unit and sentence."""
+        self.found.append((kind, self.first + column, *span, value, *words))
 
     def flat_and_frozen(self) -> None:
-        n, S = self.x.shape
+        n, _S = self.x.shape
         same = self.step == 0.0  # NaN steps are not "same"
         length, last = _longest_run(same)
         moving = np.isfinite(self.step) & ~same
@@ -119,16 +121,16 @@ class _Checker:
             start, end = int(last[column] - length[column] + 1), int(last[column] + 1)
             if length[column] >= n - 1:
                 self.bad[:, column] = True
-                self._add("sensor_flat", int(column), 0, n - 1, float(self.x[0, column]), "degC",
-                          f"reads {self.x[0, column]:.4g} degC over the whole record")
+                self._add("sensor_flat", int(column), (0, n - 1), float(self.x[0, column]),
+                          ("degC", f"reads {self.x[0, column]:.4g} degC over the whole record"))
                 continue
             others = np.delete(moving[start:end], column, axis=1)
             if others.size and others.any(axis=0).mean() < OTHERS_MOVING:
                 continue  # the temperature itself held still
             self.bad[start : end + 1, column] = True
-            self._add("sensor_frozen", int(column), start, end, float(self.x[start, column]),
-                      "degC", f"stops updating at {self.x[start, column]:.4g} degC for "
-                      f"{end - start + 1} samples while the other sensors move")
+            self._add("sensor_frozen", int(column), (start, end), float(self.x[start, column]),
+                      ("degC", f"stops updating at {self.x[start, column]:.4g} degC for "
+                       f"{end - start + 1} samples while the other sensors move"))
 
     def dropouts(self) -> None:
         reading = self.finite.mean(axis=1) >= OTHERS_MOVING
@@ -136,9 +138,10 @@ class _Checker:
         for column in np.flatnonzero(lost.any(axis=0)):
             where = np.flatnonzero(lost[:, column])
             self.bad[where, column] = True
-            self._add("sensor_dropout", int(column), int(where[0]), int(where[-1]),
-                      float(where.size), "samples",
-                      f"gives no reading in {where.size} samples while the others read")
+            self._add("sensor_dropout", int(column), (int(where[0]), int(where[-1])),
+                      float(where.size),
+                      ("samples",
+                       f"gives no reading in {where.size} samples while the others read"))
 
     def out_of_range(self) -> None:
         low, high = PLAUSIBLE_DEGC
@@ -148,9 +151,9 @@ class _Checker:
             where = np.flatnonzero(outside[:, column])
             worst = float(self.x[where[np.argmax(np.abs(self.x[where, column]))], column])
             self.bad[where, column] = True
-            self._add("sensor_out_of_range", int(column), int(where[0]), int(where[-1]), worst,
-                      "degC", f"reads {worst:.4g} degC in {where.size} samples, outside the "
-                      f"plausible {low:g} to {high:g} degC")
+            self._add("sensor_out_of_range", int(column), (int(where[0]), int(where[-1])), worst,
+                      ("degC", f"reads {worst:.4g} degC in {where.size} samples, outside the "
+                       f"plausible {low:g} to {high:g} degC"))
 
     def _noise(self, steps: FloatArray) -> FloatArray:
         """Return each column's robust sample-to-sample noise (MAD) of ``steps``."""
@@ -177,37 +180,37 @@ class _Checker:
             start = int(where[0]) + 1
             self.bad[start : end + 1, column] = True
             biggest = float(size[np.argmax(np.abs(size))])
-            self._add("sensor_jump", int(column), start, end, biggest, "degC",
-                      f"steps by {biggest:+.3g} degC against the other sensors in one sample "
-                      f"({where.size} step(s)), faster than a mount's temperature can change")
+            self._add("sensor_jump", int(column), (start, end), biggest,
+                      ("degC", f"steps by {biggest:+.3g} degC against the other sensors in one "
+                       f"sample ({where.size} step(s)), faster than a mount's temperature can "
+                       "change"))
 
     def noise_change(self) -> None:
         n = self.step.shape[0]
-        if n < NOISE_WINDOWS * FROZEN_MIN_SAMPLES:
+        windows = min(NOISE_WINDOWS, n // NOISE_WINDOW_SAMPLES)
+        if windows < 2:
             return
-        steps = np.where(self.bad[1:] | self.bad[:-1], np.nan, self.step)
-        nonzero = np.where(steps != 0.0, np.abs(steps), np.nan)
+        steps = self.step
+        if self.x.shape[1] >= 3:  # against the common temperature: a ramp is no noise
+            with _quiet():
+                usable = np.where(self.bad, np.nan, self.x)
+                steps = np.diff(usable - np.nanmedian(usable, axis=1, keepdims=True), axis=0)
+        steps = np.where(self.bad[1:] | self.bad[:-1], np.nan, steps)
+        edges = np.linspace(0, n, windows + 1).astype(int)
+        # standard deviation, not MAD: quantised readings make a MAD jump between 0 and a step
         with _quiet():
-            quantum = np.nanmin(nonzero, axis=0)
-        floor = np.where(np.isfinite(quantum), 0.5 * quantum, 1e-6)
-        edges = np.linspace(0, n, NOISE_WINDOWS + 1).astype(int)
-        with _quiet():
-            level = np.stack(
-                [self._noise(steps[a:b]) for a, b in zip(edges[:-1], edges[1:], strict=True)]
-            )
-        level = np.maximum(level, floor)
-        with np.errstate(invalid="ignore"):
+            level = np.stack([np.nanstd(steps[a:b], axis=0) for a, b in pairwise(edges)])
             ratio = np.nanmax(level, axis=0) / np.nanmin(level, axis=0)
         for column in np.flatnonzero(ratio > NOISE_CHANGE_RATIO):
-            noisy = level[:, column] > np.sqrt(np.nanmax(level[:, column])
-                                               * np.nanmin(level[:, column]))
-            parts = np.flatnonzero(noisy)
+            mid = np.sqrt(np.nanmax(level[:, column]) * np.nanmin(level[:, column]))
+            parts = np.flatnonzero(level[:, column] > mid)
             start, end = int(edges[parts[0]]), int(edges[parts[-1] + 1])
             self.bad[start : end + 1, column] = True
-            self._add("sensor_noise_change", int(column), start, end, float(ratio[column]),
-                      "x its quietest noise",
-                      f"its noise rises {ratio[column]:.3g}x (to "
-                      f"{np.nanmax(level[:, column]):.3g} degC per sample) in part of the record")
+            self._add("sensor_noise_change", int(column), (start, end), float(ratio[column]),
+                      ("x its quietest noise",
+                       f"its noise rises {ratio[column]:.3g}x (to "
+                       f"{np.nanmax(level[:, column]):.3g} degC per sample) in part of the "
+                       "record"))
 
 
 @contextmanager
@@ -223,7 +226,7 @@ def _repair(values: FloatArray, bad: BoolArray, grid: tuple[int, int]) -> tuple[
     """Return ``values`` with bad samples taken from good neighbours, and each sensor's action."""
     fixed = values.copy()
     S = values.shape[1]
-    on_grid = S == grid[0] * grid[1]
+    on_grid = grid[0] * grid[1] == S
     good = ~bad & np.isfinite(values)
     with _quiet():
         grid_median = np.nanmedian(np.where(good, values, np.nan), axis=1)

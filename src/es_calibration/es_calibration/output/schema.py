@@ -72,7 +72,6 @@ effect's per-actuator coefficients).
 from __future__ import annotations
 
 import json
-from dataclasses import replace
 from pathlib import Path
 from typing import Any, Final
 

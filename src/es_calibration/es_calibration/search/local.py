@@ -64,7 +64,8 @@ def per_actuator_round(ws: Workspace, state: ModelState) -> tuple[RoundRecord | 
         )
         params = effect_parameters(new, name, ws.aligned)
         delta = information_delta(current.heldout_sse, new.heldout_sse, n_eff, A - 1)
-        reason = _verdict(name, params, current, new, delta, record_span(ws))  # the search's rule
+        # the search's own rule
+        reason = _verdict(name, params, current, new, delta, span=record_span(ws))
         ok = reason == "passes"
         scores.append(
             CandidateScore(

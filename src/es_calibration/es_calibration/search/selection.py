@@ -124,6 +124,7 @@ def _verdict(
     before: ModelState,
     after: ModelState,
     delta: float,
+    *,
     span: RecordSpan,
 ) -> str:
     """Return "passes" or why adding ``name`` (``before`` -> ``after``) does not pay.
@@ -172,7 +173,7 @@ def _forward_round(
         delta = information_delta(
             state.heldout_sse, new.heldout_sse, n_new, _unknowns(new, name, A)
         )
-        reason = _verdict(name, params, state, new, delta, span)
+        reason = _verdict(name, params, state, new, delta, span=span)
         ok = reason == "passes"
         scores.append(
             CandidateScore(name, state.heldout_rms, new.heldout_rms, delta, ok, reason, params)
@@ -205,7 +206,7 @@ def _backward_round(ws: Workspace, state: ModelState) -> tuple[RoundRecord, Mode
         delta = information_delta(
             without.heldout_sse, state.heldout_sse, n_eff, _unknowns(state, name, A)
         )
-        reason = _verdict(name, params, without, state, delta, span)
+        reason = _verdict(name, params, without, state, delta, span=span)
         needed = reason == "passes"
         scores.append(
             CandidateScore(
