@@ -100,8 +100,9 @@ def test_verdict_provisional_in_json_yaml_and_exit_status(calibrated: Any) -> No
 
 def test_sensor_checks_name_flat_jump_range_and_dropout() -> None:
     rng = np.random.default_rng(0)
-    t = np.arange(2000) * 0.1
-    base = 40.0 + 12.0 * np.sin(t / 60.0)[:, None] + 0.02 * rng.standard_normal((2000, 16))
+    t = np.arange(2000, dtype=np.float64) * 0.1
+    noise = 0.02 * rng.standard_normal((2000, 16))
+    base = np.asarray(40.0 + 12.0 * np.sin(t / 60.0)[:, None] + noise, np.float64)
     base[:, 0] = 45.0  # flat
     base[1200:, 5] += 2.0  # jump
     base[300:320, 9] = 400.0  # out of range

@@ -496,10 +496,8 @@ class FeedforwardNode(Node):
             actuators = max(actuators, _WARN)
         setpoint = _ERROR if self._last_rejection[SETPOINT] else _OK
         ready = _WARN if self._waiting_for else _OK
-        levels = (ready, temperature, actuators, setpoint, _OK)
-        if self._calibration is not None:
-            levels += (int(self._calibration[0]),)
-        return levels
+        calibration = () if self._calibration is None else (int(self._calibration[0]),)
+        return (ready, temperature, actuators, setpoint, _OK, *calibration)
 
     def _publish_diagnostics_on_change(self, now: float | None = None) -> None:
         levels = self._current_levels(self._now() if now is None else now)

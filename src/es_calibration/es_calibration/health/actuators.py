@@ -106,9 +106,9 @@ def check_actuators(
                           f"median ({sigmas:.3g} robust sigmas)",
                           "compensated by its own law in the parameters file"))
     findings = []
-    for a, kind, value, unit, words, action in sorted(found):
-        row, col = divmod(a, cols)
-        subject = f"actuator {a} ({row}, {col})"
-        findings.append(Finding(kind, subject, a, row, col, 0.0, float(duration_s), value,
-                                unit, f"Actuator {a} ({row}, {col}) {words}.", action))
+    for index, kind, value, unit, words, action in sorted(found):
+        row, col = divmod(index, cols)
+        subject = f"actuator {index} ({row}, {col})"
+        findings.append(Finding(kind, subject, index, row, col, 0.0, float(duration_s), value,
+                                unit, f"Actuator {index} ({row}, {col}) {words}.", action))
     return findings

@@ -236,8 +236,9 @@ def _repair(values: FloatArray, bad: BoolArray, grid: tuple[int, int]) -> tuple[
         fill = np.full(rows.size, np.nan)
         if on_grid:
             r, c = divmod(int(sensor), grid[1])
-            near = [rr * grid[1] + cc for rr, cc in ((r - 1, c), (r + 1, c), (r, c - 1), (r, c + 1))
-                    if 0 <= rr < grid[0] and 0 <= cc < grid[1]]
+            around = ((r - 1, c), (r + 1, c), (r, c - 1), (r, c + 1))
+            near = np.array([rr * grid[1] + cc for rr, cc in around
+                             if 0 <= rr < grid[0] and 0 <= cc < grid[1]], np.intp)
             ok = good[np.ix_(rows, near)]
             count = ok.sum(axis=1)
             total = np.where(ok, values[np.ix_(rows, near)], 0.0).sum(axis=1)
