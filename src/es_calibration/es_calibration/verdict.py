@@ -23,6 +23,8 @@ from es_physics.params import THESIS_INTERVALS_95, ActuatorParams
 LEVELS: Final = ("trusted", "provisional", "unusable")
 #: Exit status of ``calibrate`` per level.
 EXIT_STATUS: Final = {"trusted": 0, "provisional": 3, "unusable": 4}
+#: Exit statuses of a calibration that wrote a usable parameters file.
+WRITTEN: Final = (EXIT_STATUS["trusted"], EXIT_STATUS["provisional"])
 #: Held-out RMS over the noise floor beyond which, with structure left, it is provisional.
 FAR_ABOVE_FLOOR: Final = 2.0
 #: The physical intervals: the thesis's 95 % intervals, each bound this many times wider.

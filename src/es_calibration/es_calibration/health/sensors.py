@@ -188,13 +188,11 @@ class _Checker:
     def noise_change(self) -> None:
         n = self.step.shape[0]
         windows = min(NOISE_WINDOWS, n // NOISE_WINDOW_SAMPLES)
-        if windows < 2:
-            return
-        steps = self.step
-        if self.x.shape[1] >= 3:  # against the common temperature: a ramp is no noise
-            with _quiet():
-                usable = np.where(self.bad, np.nan, self.x)
-                steps = np.diff(usable - np.nanmedian(usable, axis=1, keepdims=True), axis=0)
+        if windows < 2 or self.x.shape[1] < 3:
+            return  # without others to remove the common temperature, a ramp looks like noise
+        with _quiet():
+            usable = np.where(self.bad, np.nan, self.x)
+            steps = np.diff(usable - np.nanmedian(usable, axis=1, keepdims=True), axis=0)
         steps = np.where(self.bad[1:] | self.bad[:-1], np.nan, steps)
         edges = np.linspace(0, n, windows + 1).astype(int)
         # standard deviation, not MAD: quantised readings make a MAD jump between 0 and a step
