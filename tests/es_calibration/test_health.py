@@ -107,10 +107,11 @@ def test_sensor_checks_name_flat_jump_range_and_dropout() -> None:
     base[1200:, 5] += 2.0  # jump
     base[300:320, 9] = 400.0  # out of range
     base[700:760, 14] = np.nan  # dropout
+    base[1000:1400, 11] += 0.2 * rng.standard_normal(400)  # noise change
     health = check_sensors(t, base, (4, 4), 0.0)
     kinds = {(f.kind, f.index) for f in health.findings}
     assert kinds == {("sensor_flat", 0), ("sensor_jump", 5), ("sensor_out_of_range", 9),
-                     ("sensor_dropout", 14)}
+                     ("sensor_dropout", 14), ("sensor_noise_change", 11)}
     assert np.isfinite(health.temperature).all()
     jump = next(f for f in health.findings if f.kind == "sensor_jump")
     assert jump.start_s == pytest.approx(120.0, abs=0.2)

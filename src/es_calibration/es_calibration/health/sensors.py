@@ -48,10 +48,13 @@ JUMP_SIGMAS: Final = 10.0
 JUMP_MIN_DEGC: Final = 0.3
 #: Parts of the record whose noise levels are compared.
 NOISE_WINDOWS: Final = 8
+#: Noise levels below this count as this [degC]: a change among them does not matter to
+#: the calibration (and a noise-free reading has none to compare).
+NOISE_FLOOR_DEGC: Final = 0.005
 #: Fewest samples in a part whose noise level is compared.
-NOISE_WINDOW_SAMPLES: Final = 50
+NOISE_WINDOW_SAMPLES: Final = 100
 #: Ratio of the noisiest to the quietest part that counts as a change of noise level.
-NOISE_CHANGE_RATIO: Final = 3.0
+NOISE_CHANGE_RATIO: Final = 5.0
 #: Sensors checked together (memory: a few chunk-sized copies of the record).
 CHUNK: Final = 256
 #: MAD to standard deviation of a normal distribution.
@@ -192,12 +195,21 @@ class _Checker:
             return  # without others to remove the common temperature, a ramp looks like noise
         with _quiet():
             usable = np.where(self.bad, np.nan, self.x)
-            steps = np.diff(usable - np.nanmedian(usable, axis=1, keepdims=True), axis=0)
-        steps = np.where(self.bad[1:] | self.bad[:-1], np.nan, steps)
+            # second differences: a smooth difference between sensors (their own lags, a
+            # gradient across the mirror) is no noise
+            steps = np.diff(usable - np.nanmedian(usable, axis=1, keepdims=True), 2, axis=0)
+        bad = self.bad[2:] | self.bad[1:-1] | self.bad[:-2]
+        steps = np.where(bad, np.nan, steps)
+        n = steps.shape[0]
         edges = np.linspace(0, n, windows + 1).astype(int)
-        # standard deviation, not MAD: quantised readings make a MAD jump between 0 and a step
+        # half the 16-84 % spread: a sigma that one jump does not move, and wide enough that
+        # quantised readings do not make it jump between 0 and a step (as a MAD does)
         with _quiet():
-            level = np.stack([np.nanstd(steps[a:b], axis=0) for a, b in pairwise(edges)])
+            level = np.stack([
+                0.5 * np.diff(np.nanpercentile(steps[a:b], [16.0, 84.0], axis=0), axis=0)[0]
+                for a, b in pairwise(edges)
+            ])
+            level = np.maximum(level, NOISE_FLOOR_DEGC)
             ratio = np.nanmax(level, axis=0) / np.nanmin(level, axis=0)
         for column in np.flatnonzero(ratio > NOISE_CHANGE_RATIO):
             mid = np.sqrt(np.nanmax(level[:, column]) * np.nanmin(level[:, column]))
@@ -206,9 +218,8 @@ class _Checker:
             self.bad[start : end + 1, column] = True
             self._add("sensor_noise_change", int(column), (start, end), float(ratio[column]),
                       ("x its quietest noise",
-                       f"its noise rises {ratio[column]:.3g}x (to "
-                       f"{np.nanmax(level[:, column]):.3g} degC per sample) in part of the "
-                       "record"))
+                       f"its noise rises {ratio[column]:.3g}x (second differences "
+                       f"{np.nanmax(level[:, column]):.3g} degC rms) in part of the record"))
 
 
 @contextmanager
@@ -283,8 +294,8 @@ def check_sensors(
             checker.flat_and_frozen()
             checker.dropouts()
             checker.out_of_range()
+            checker.noise_change()  # first: a noisy spell is no jump
             checker.jumps()
-            checker.noise_change()
             bad[:, first : first + CHUNK] = checker.bad
             found += checker.found
     if not found:

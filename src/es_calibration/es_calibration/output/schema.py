@@ -38,6 +38,10 @@ residual's autocorrelation)::
       # (rms_before_m without it, rms_after_m with it, accepted = it stays);
       # "per_actuator": an accepted effect's parameter as one value per actuator
       # (rms_before_m with one grid value, rms_after_m with one per actuator)
+      # "halves": the final model refitted on the first / second half of the record
+      # (rms_before_m / rms_after_m: each half's held-out RMS; accepted = the effect's
+      # parameters agree between the halves, else reason "stand-in: ..." and the effect
+      # is written with "enabled": false)
       "heldout_rms_before_m", "heldout_rms_after_m",         # whole grid, held-out rows
       "heldout_max_before_m", "heldout_max_after_m",         # analysed actuators, full rate
       "noise_floor_m": white measurement noise estimated from the final residual,
