@@ -81,7 +81,7 @@ UNLISTED_RMS_GOAL: Final = 1.3
 #: The product's data-driven effect (discovered terms written into the parameters file): not
 #: a registry stand-in when accepted.
 DISCOVERED_EFFECT: Final = "discovered"
-#: Health finding kinds that find each fault family (contract: CALIBRATION_CONTRACT.md).
+#: Health finding kinds that find each fault family (contract: es_calibration.output.schema).
 FAULT_KINDS: Final = {
     "clock_rate": ("clock_rate",),
     "sensor_frozen": ("sensor_frozen",),

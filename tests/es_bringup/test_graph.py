@@ -203,3 +203,15 @@ def test_bringup_refuses_a_mismatched_parameters_file_in_one_line(tmp_path: Path
     assert result.returncode == 2
     assert result.stderr.count("\n") == 1
     assert "2 x 2 grid, the scenario's is 1 x 1" in result.stderr
+
+
+def test_a_parameters_file_judged_unusable_is_refused_in_one_line(tmp_path: Path) -> None:
+    path = tmp_path / "ff.yaml"
+    write_params_file(path, FeedforwardConfig(shape=(1, 1)),
+                      verdict=("unusable", ["law m1 -8e-18 outside the physical interval"]))
+    with pytest.raises(GraphError) as err:
+        build_graph(GraphConfig(scenario="thesis_ac", feedforward_params=path))
+    assert "unusable" in str(err.value) and "law m1" in str(err.value)
+    assert "\n" not in str(err.value)
+    write_params_file(path, FeedforwardConfig(shape=(1, 1)), verdict=("provisional", ["x"]))
+    build_graph(GraphConfig(scenario="thesis_ac", feedforward_params=path))  # taken, warned

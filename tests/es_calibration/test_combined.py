@@ -49,7 +49,9 @@ def test_two_effects_are_found_together_with_shares_that_add_up() -> None:
     assert doc["schema_version"] == 3
     assert [e["share"] for e in doc["effects"]] == [e.share for e in cal.effects]
     steps = {c["step"] for r in doc["candidates"] for c in r}
-    assert steps == {"forward", "backward"}  # two effects: the backward check ran
+    # two effects: the backward check ran; then both were refitted on each half of the record
+    assert steps == {"forward", "backward", "halves"}
+    assert all(c["accepted"] for r in doc["candidates"] for c in r if c["step"] == "halves")
     backward = [r for r in cal.rounds if r.step == "backward"]
     assert backward[-1].removed is None
     assert all(s.accepted for s in backward[-1].scores)

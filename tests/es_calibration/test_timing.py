@@ -92,9 +92,9 @@ def test_a_fast_displacement_clock_is_estimated_and_corrected() -> None:
     recording = _case(60.0, 120.0)
     cal = calibrate(measured(recording))
     assert cal.clock_rate_ppm == pytest.approx(60.0, abs=3.0)
-    found = [f for f in cal.findings if f["kind"] == "clock_rate"]
-    assert len(found) == 1 and found[0]["action"] == "time base corrected"
-    assert found[0]["value"] == pytest.approx(cal.clock_rate_ppm)
+    found = [f for f in cal.findings if f.kind == "clock_rate"]
+    assert len(found) == 1 and found[0].action == "time base corrected"
+    assert found[0].value == pytest.approx(cal.clock_rate_ppm)
     assert [e.name for e in cal.effects] == []  # no stand-in effect
     assert _law_error(cal, recording) < 0.05
     assert cal.final.heldout_rms < 1.2 * recording.config.noise_rms_m

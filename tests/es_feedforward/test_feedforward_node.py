@@ -348,3 +348,22 @@ def test_node_rejects_an_unknown_executor_with_one_line() -> None:
     assert proc.process.wait(READY_TIMEOUT) == 2
     lines = [line for line in proc.output().splitlines() if line.strip()]
     assert lines[-1].startswith("error: ") and "executor" in lines[-1], proc.output()
+
+
+def test_node_reports_a_provisional_calibration_on_diagnostics(tmp_path: Path) -> None:
+    path = tmp_path / "provisional.yaml"
+    reasons = ["held-out error 3.6x the noise floor with structure left"]
+    write_params_file(path, FeedforwardConfig(shape=SHAPE, params=PARAMS),
+                      verdict=("provisional", reasons))
+    args = ["--ros-args", "--params-file", str(path), "-p", "diagnostics_period:=0.2"]
+    with (
+        node_process("es_feedforward", "feedforward_node", args) as proc,
+        ros_node("ff_verdict_test") as node,
+    ):
+        h = Harness(node)
+        h.wait_connected(proc)
+        status = h.diagnostic("calibration")
+        assert level_of(status) == Level.WARN
+        assert "provisional" in status.message and reasons[0] in status.message
+        assert values_of(status)["verdict"] == "provisional"
+        h.diagnostic("configuration")  # the other statuses are still there

@@ -14,7 +14,7 @@ import subprocess
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Final
 
 import numpy as np
 import yaml
@@ -108,6 +108,25 @@ def daq_clock_copy(bag: Path, out: Path, scenario: str) -> Path:
     return out
 
 
+#: calibrate's exit status for a trusted and a provisional result (both written files) ...
+ACCEPTED_EXIT: Final = (0, 3)
+#: ... and for an unusable one (the demo refuses it).
+EXIT_UNUSABLE: Final = 4
+
+
+def health_lines(summary: dict[str, Any]) -> list[str]:
+    """Return the verdict and the health findings of a calibration.json, one line each."""
+    verdict = summary.get("verdict") or {}
+    reasons = "; ".join(map(str, verdict.get("reasons") or []))
+    lines = [f"verdict: {verdict.get('level', 'none given')}" + (f" ({reasons})" if reasons
+                                                                  else "")]
+    findings = (summary.get("health") or {}).get("findings") or []
+    lines += [f"health: {f.get('sentence', '?')} ({f.get('action', '?')})" for f in findings]
+    if not findings:
+        lines.append("health: no finding")
+    return lines
+
+
 @dataclass
 class Calibrated:
     """Output of one calibration: parameters YAML and calibration.json content."""
@@ -128,8 +147,10 @@ def calibrate(bag: Path, out_dir: Path, log: Path) -> Calibrated:
             stderr=subprocess.STDOUT,
             check=False,
         )
-    if result.returncode != 0:
+    if result.returncode not in ACCEPTED_EXIT:
         tail = log.read_text(errors="replace").strip().splitlines()[-1:] or ["no output"]
+        if result.returncode == EXIT_UNUSABLE:
+            raise DemoError(f"calibrate judged {bag} unusable: {tail[0]} (log: {log})")
         raise DemoError(f"calibrate failed on {bag}: {tail[0]} (log: {log})")
     params = sorted(out_dir.glob("*.yaml"))
     summary_file = out_dir / "calibration.json"

@@ -21,6 +21,7 @@ from es_bringup.demo_calibration import (
     characterisation_scenario,
     daq_clock_copy,
     hardware_signature,
+    health_lines,
     scenario_with_effects,
     without_compensation,
 )
@@ -124,6 +125,8 @@ class Demo:
                 f"{nm(summary.get('heldout_rms_after_m'))}, effects: {', '.join(effects)} "
                 f"({calibrated.wall_s:.1f} s)"
             )
+            for line in health_lines(summary):
+                self.progress(f"    {line}")
         by_bag = {job.bag: calibrated for job, calibrated in done.items()}
         return {scenario: by_bag[job.bag] for scenario, job in stands.items()}
 

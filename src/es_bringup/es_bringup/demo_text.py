@@ -9,7 +9,13 @@ from __future__ import annotations
 from collections.abc import Sequence
 from pathlib import Path
 
-from es_bringup.demo_calibration import CHARACTERISATION, LOOP_EFFECT, LOOP_SCENARIO, Calibrated
+from es_bringup.demo_calibration import (
+    CHARACTERISATION,
+    LOOP_EFFECT,
+    LOOP_SCENARIO,
+    Calibrated,
+    health_lines,
+)
 from es_bringup.demo_options import DEFAULT_CONTROL_RATE, LONG_FACTOR, Options
 from es_bringup.demo_runs import Job
 from es_bringup.report import RunResult
@@ -158,15 +164,17 @@ def story_markdown(stands: dict[str, Job], calibrated: dict[str, Calibrated]) ->
         "The tool is told nothing about how the data were made. Its parameters YAML is what "
         "every closed-loop run below loads into the feedforward node.",
         "",
-        "| scenario | held-out RMS before [nm] | after [nm] | effects accepted | parameters "
-        "| tool report |",
-        "|---|---|---|---|---|---|",
+        "| scenario | held-out RMS before [nm] | after [nm] | effects accepted | verdict "
+        "| health findings | parameters | tool report |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for scenario, cal in calibrated.items():
         effects = ", ".join(e.get("name", "?") for e in cal.summary.get("effects", [])) or "none"
         lines.append(
             f"| {scenario} | {nm(cal.summary.get('heldout_rms_before_m'))} | "
-            f"{nm(cal.summary.get('heldout_rms_after_m'))} | {effects} | `{cal.params}` | "
+            f"{nm(cal.summary.get('heldout_rms_after_m'))} | {effects} | "
+            f"{(cal.summary.get('verdict') or {}).get('level', '-')} | "
+            f"{len((cal.summary.get('health') or {}).get('findings') or [])} | `{cal.params}` | "
             f"`{cal.report}` |"
         )
     return "\n".join(lines)
@@ -194,6 +202,7 @@ def loop_markdown(calibrated: Calibrated, runs: Sequence[RunResult], bag: Path) 
     lines.append(f"- held-out RMS error after the loop: {nm(summary.get('heldout_rms_after_m'))}")
     unexplained = summary.get("unexplained") or []
     lines.append(f"- left unexplained: {'; '.join(map(str, unexplained)) or 'nothing'}")
+    lines += [f"- {line}" for line in health_lines(summary)]
     lines += [
         "",
         f"Closed loop on {LOOP_SCENARIO} with `{LOOP_EFFECT}` on, mode inverse_hyperbolic, "

@@ -298,18 +298,26 @@ def _controller_specs(
 
 
 def check_params_grid(path: Path, grid: tuple[int, int]) -> None:
-    """Check that a feedforward parameters file is valid and made for ``grid`` (rows, cols).
+    """Check that a feedforward parameters file is valid, usable and made for ``grid``.
 
     Raises:
-        GraphError: unreadable or invalid file, or a grid other than ``grid``.
+        GraphError: unreadable or invalid file, a calibration verdict "unusable", or a grid
+            other than ``grid`` (rows, cols).
 
     """
-    from es_feedforward.param_file import read_params_file
+    from es_feedforward.param_file import read_params_file, read_params_verdict
 
     try:
         shape = read_params_file(path).shape
+        verdict, reasons = read_params_verdict(path)
     except ValueError as err:
         raise GraphError(f"feedforward parameters: {err}") from None
+    if verdict == "unusable":
+        because = "; ".join(reasons) or "no reason given"
+        raise GraphError(
+            f"feedforward parameters {path}: the calibration judged them unusable "
+            f"({because}): recalibrate"
+        )
     if shape != grid:
         raise GraphError(
             f"feedforward parameters {path} are for a {shape[0]} x {shape[1]} grid, the "

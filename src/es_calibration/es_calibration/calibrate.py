@@ -52,8 +52,16 @@ scoring (a temperature gap: those inside it and within the half-window of dT/dt;
 hole: from the next command's due time to 1 s after the hole, for delays and the hysteresis
 state); each gap is listed with its start, length, missing messages and excluded samples
 (``data.gaps`` in calibration.json, a table in the report). What no candidate explains is
-stated in numbers (lines in Hz and nm, correlations with their slopes); the tool still exits
-0. Needs no rclpy.
+stated in numbers (lines in Hz and nm, correlations with their slopes).
+
+Recording health comes before the physics: faulty temperature sensors (frozen, flat, out of
+range, jumping, dropping out, changing noise) are named and their samples taken from their
+neighbours; after the fit, dead, weak, saturating and outlying actuators are named
+(``health`` in calibration.json). An effect whose parameters lie outside what the record
+can show, or that moves between the record's halves, is a stand-in: refused, or written
+switched off. The verdict (``verdict`` in calibration.json, ``calibration.verdict`` in the
+YAML) sets the exit status: 0 trusted, 3 provisional, 4 unusable (2 bad input, 1 internal
+error). Needs no rclpy.
 """
 
 from __future__ import annotations
@@ -72,6 +80,7 @@ from es_calibration.data.searchspan import SEARCH_BUDGET
 from es_calibration.grid.tiles import DASK_INSTALL_HINT, DEFAULT_TILE, DaskSetupError
 from es_calibration.model.composite import CANDIDATES
 from es_calibration.pipeline import Calibration, calibrate
+from es_calibration.verdict import EXIT_STATUS
 from es_recordings.labimport import LabImportError, import_recording, load_map
 
 EXIT_BAD_INPUT = 2
@@ -89,8 +98,10 @@ def _parser() -> argparse.ArgumentParser:
             "otherwise ambiguous displacement samples are dropped and counted (exit 2 if "
             f"fewer than {MIN_SAMPLES} usable samples remain). Gaps (> {GAP_FACTOR:g} median "
             "periods between messages of a topic) are never interpolated across: the samples "
-            "needing their data are left out, counted and listed. Bad input: one line on "
-            "stderr, exit 2."
+            "needing their data are left out, counted and listed. Exit status: 0 trusted, "
+            "3 provisional (usable with care: the reasons are in calibration.json's verdict), "
+            "4 unusable (do not load the parameters file), 2 bad input (one line on stderr), "
+            "1 internal error."
         ),
     )
     parser.add_argument(
@@ -244,13 +255,17 @@ def run(argv: Sequence[str] | None = None) -> int:
         print(f"{message.splitlines()[0]}); please report it with the bag", file=sys.stderr)
         return EXIT_INTERNAL_ERROR
     if not args.quiet:
-        found = ", ".join(f"{e.name}" for e in cal.effects) or "none"
+        found = ", ".join(
+            e.name + ("" if e.enabled else " (not confirmed, off)") for e in cal.effects
+        ) or "none"
         print(
             f"held-out RMS {cal.base.heldout_rms * 1e9:.4g} nm -> "
             f"{cal.final.heldout_rms * 1e9:.4g} nm (noise floor "
             f"{cal.noise_floor_m * 1e9:.4g} nm); effects added: {found}; report: {report}"
         )
-    return 0
+        reasons = "; ".join(cal.verdict.reasons)
+        print(f"verdict: {cal.verdict.level}" + (f" ({reasons})" if reasons else ""))
+    return EXIT_STATUS[cal.verdict.level]
 
 
 def main() -> None:

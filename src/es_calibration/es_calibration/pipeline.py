@@ -9,13 +9,14 @@ from __future__ import annotations
 
 import tempfile
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Final
+from typing import Final
 
 import numpy as np
 
-from es_calibration._typing import FloatArray
+from es_calibration._typing import FloatArray, IndexArray
 from es_calibration.data.align import (
     MIN_SAMPLES,
     AlignedData,
@@ -47,10 +48,13 @@ from es_calibration.grid.tiles import (
     write_temperature,
 )
 from es_calibration.grid.tilestore import TileStore, layout
+from es_calibration.health.actuators import check_actuators
 from es_calibration.health.findings import Finding
+from es_calibration.health.sensors import check_sensors
 from es_calibration.model.composite import CANDIDATES
 from es_calibration.search import unexplained
 from es_calibration.search.blockdelay import block_delays
+from es_calibration.search.halves import check_halves
 from es_calibration.search.local import per_actuator_round
 from es_calibration.search.residual import ResidualStructure, analyse
 from es_calibration.search.selection import (
@@ -72,7 +76,9 @@ from es_calibration.search.state import (
     screen_block,
 )
 from es_calibration.search.unexplained import NOISE_RATIO_LIMIT
+from es_calibration.verdict import Verdict, judge, law_problems
 from es_physics.effects import get
+from es_physics.params import ActuatorParams
 
 #: Actuators whose full-rate held-out residual is analysed (spectra, correlations).
 ANALYSIS_ACTUATORS: Final = 16
@@ -99,6 +105,8 @@ class AcceptedEffect:
     share: float = 0.0
     per_actuator: dict[str, list[float]] = field(default_factory=dict)
     per_actuator_uncertainties: dict[str, list[float]] = field(default_factory=dict)
+    #: False: found but it did not hold on the record's halves (written switched off).
+    enabled: bool = True
 
 
 @dataclass
@@ -125,12 +133,13 @@ class Calibration:
     search_span: str = ""
     #: The discovery step's outcome (terms beyond the registry), None when it did not run.
     discovery: Discovery | None = None
-    #: Health findings (health/findings.py, as calibration.json writes them).
-    findings: list[dict[str, Any]] = field(default_factory=list)
+    #: Faults of the recording and of the actuators, found and named (health/).
+    findings: list[Finding] = field(default_factory=list)
     #: The displacement clock's rate against the command's [ppm] (None: not estimated).
     clock_rate_ppm: float | None = None
     #: Share of the screening block's (sample, actuator) pairs kept for the fit.
     kept_fraction: float = 1.0
+    verdict: Verdict = field(default_factory=lambda: Verdict("trusted"))
 
     @property
     def noise_floor_m(self) -> float:
@@ -184,6 +193,56 @@ class _Analysis:
         z = self.ws.aligned.displacement[np.ix_(self.rows, self.ws.actuators[self.keep])].T
         structure.drive_gain_m_per_v = unexplained.drive_gain(voltage, z)
         return structure, resid
+
+
+class _RepairedTemperature:
+    """A :class:`Recording` whose temperature readings were repaired (health/sensors.py)."""
+
+    def __init__(self, recording: Recording, temperature: FloatArray) -> None:
+        self._recording = recording
+        self._temperature = temperature
+
+    @property
+    def grid(self) -> tuple[int, int]:
+        """Return the actuator grid (rows, cols)."""
+        return self._recording.grid
+
+    def block(self, columns: IndexArray, shape: tuple[int, int]) -> MeasuredData:
+        """Return the block with its repaired temperature."""
+        data = self._recording.block(columns, shape)
+        return replace(data, temperature=self._temperature[:, columns].reshape(-1, *shape))
+
+    def temperature(self) -> tuple[FloatArray, FloatArray]:
+        """Return the temperature stamps and the repaired values (Nt, A)."""
+        return self._recording.temperature()[0], self._temperature
+
+    def batches(self) -> Iterator[tuple[str, IndexArray, FloatArray]]:
+        """Yield the recording's command and displacement batches."""
+        return self._recording.batches()
+
+
+def _checked_sensors(recording: Recording) -> tuple[Recording, list[Finding], float]:
+    """Check the temperature sensors; return the recording (repaired), findings, first stamp."""
+    times, values = recording.temperature()
+    if times.size == 0 or values.ndim != 2:
+        return recording, [], 0.0
+    start = float(times[0])
+    health = check_sensors(times, values, recording.grid, start)
+    if not health.findings:
+        return recording, [], start
+    return _RepairedTemperature(recording, health.temperature), health.findings, start
+
+
+def fitted_law(state: ModelState, grid: tuple[int, int]) -> ActuatorParams:
+    """Return the law of ``state``'s fit as per-actuator maps (R, C)."""
+    local = state.fit.local
+    model = state.model
+    values = {
+        n: local[:, i].reshape(grid)
+        for i, n in enumerate(model.local_names)
+        if n not in model.per_actuator  # effects' parameters, not the law's
+    }
+    return replace(ActuatorParams().as_arrays(grid), **values)
 
 
 def _unexplained(after: ResidualStructure, final_rms: float) -> list[str]:
@@ -397,6 +456,9 @@ def calibrate(
     recording = MemoryRecording(measured) if isinstance(measured, MeasuredData) else measured
     timings: dict[str, float] = {}
     clock = time.perf_counter()
+    recording, sensor_findings, temperature_start = _checked_sensors(recording)
+    timings["sensor health"] = time.perf_counter() - clock
+    clock = time.perf_counter()
     grid = recording.grid
     idx, block_grid = screen_block(grid)
     full_grid = block_grid == grid
@@ -424,9 +486,12 @@ def calibrate(
     elif searched.include_same_stamp != aligned.include_same_stamp:
         aligned = replace(aligned, include_same_stamp=searched.include_same_stamp)
     record, refined = per_actuator_round(screen, final_screen)
+    halves, unconfirmed = check_halves(screen, refined)
     del screen, searched  # their caches (filtered drives, play operators) are done with
     if record is not None:
         rounds.append(record)
+    if halves is not None:
+        rounds.append(halves)
     if refined is not final_screen:
         name, before_state, _ = added[-1]
         added[-1] = (name, before_state, refined)
@@ -491,6 +556,7 @@ def calibrate(
                 state.heldout_rms,
                 per_actuator={p: fitted.local[p].tolist() for p in local},
                 per_actuator_uncertainties={p: fitted.local_sigma[p].tolist() for p in local},
+                enabled=name not in unconfirmed,
             )
         )
     removed = base_full.heldout_rms**2 - final.heldout_rms**2
@@ -498,6 +564,26 @@ def calibrate(
         cut = e.rms_before_m**2 - e.rms_after_m**2
         e.share = float(cut / removed) if removed > 0 else 0.0
     inputs = {k: v for k, (_, v) in analysis.regressors().items()}
+    shift = temperature_start - aligned.start_time  # spans from the displacement's start
+    findings += [
+        replace(f, start_s=f.start_s + shift, end_s=f.end_s + shift) for f in sensor_findings
+    ]
+    law = fitted_law(final, grid)
+    findings += check_actuators(law, aligned.mean_temperature, float(aligned.t[-1]))
+    described = _unexplained(after, final.heldout_rms) + (
+        [discovery.note] if discovery.searched and discovery.note else []
+    )
+    finite = aligned.temperature[np.isfinite(aligned.temperature)]
+    recorded = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 0.0)
+    verdict = judge(
+        law=law_problems(law, recorded),
+        kept_fraction=kept,
+        heldout_rms_m=final.heldout_rms,
+        noise_floor_m=after.noise_floor,
+        unexplained=described,
+        findings=findings,
+        unconfirmed=sorted(unconfirmed),
+    )
     return Calibration(
         aligned=aligned,
         base=base_full,
@@ -509,15 +595,15 @@ def calibrate(
         analysis_before=(aligned.t[analysis.rows], resid_before),
         analysis_after=(aligned.t[analysis.rows], resid_after),
         analysis_inputs=inputs,
-        unexplained=_unexplained(after, final.heldout_rms)
-        + ([discovery.note] if discovery.searched and discovery.note else []),
+        unexplained=described,
         timings_s=timings,
         search_span=span_note,
         discovery=discovery,
-        findings=[f.as_dict() for f in findings],
+        findings=findings,
         clock_rate_ppm=ppm,
         kept_fraction=kept,
+        verdict=verdict,
     )
 
 
-__all__ = ["AcceptedEffect", "Calibration", "calibrate"]
+__all__ = ["AcceptedEffect", "Calibration", "calibrate", "fitted_law"]

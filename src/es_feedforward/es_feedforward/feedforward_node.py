@@ -42,6 +42,8 @@ from es_feedforward.feedforward import (
 )
 from es_feedforward.node_params import parameter_specs
 from es_feedforward.param_file import (
+    CALIBRATION_REASONS,
+    CALIBRATION_VERDICT,
     config_from_parameters,
 )
 from es_msgs_py.arrays import LayoutError, msg_to_grid
@@ -85,6 +87,22 @@ _ERROR: Final = int(Level.ERROR)
 _STATUS_LEVELS: Final = tuple(int(_LEVEL_OF_STATUS[s]) for s in Status)
 #: Period [s, wall] of the readiness check until the node is ready.
 READY_CHECK_PERIOD: Final = 0.05
+
+
+def calibration_status(
+    verdict: str, reasons: list[str]
+) -> tuple[Level, DiagnosticStatus] | None:
+    """Return the level and status ``feedforward: calibration`` for a verdict, None if trusted.
+
+    A file without a verdict ("") says nothing either: no calibration judged it.
+    """
+    if verdict in ("", "trusted"):
+        return None
+    level = Level.ERROR if verdict == "unusable" else Level.WARN
+    because = "; ".join(reasons) or "no reason given"
+    message = f"calibration verdict {verdict}: {because}"
+    values = {"verdict": verdict, **{f"reason_{i}": r for i, r in enumerate(reasons, 1)}}
+    return level, make_status(f"{NODE_NAME}: calibration", level, message, values)
 
 
 class FeedforwardNode(Node):
@@ -166,6 +184,14 @@ class FeedforwardNode(Node):
         )
         rows, cols = config.shape
         self.get_logger().info(f"feedforward {rows} x {cols}, mode {config.mode.value}")
+        self._calibration = calibration_status(
+            self._values.get_str(CALIBRATION_VERDICT),
+            [r for r in self._values.get_strs(CALIBRATION_REASONS) if r],
+        )
+        if self._calibration is not None:
+            level, status = self._calibration
+            log = self.get_logger().error if level is Level.ERROR else self.get_logger().warning
+            log(f"parameters file: {status.message}")
 
     # --- data path -------------------------------------------------------------------------
 
@@ -386,6 +412,8 @@ class FeedforwardNode(Node):
                 },
             )
         )
+        if self._calibration is not None:
+            out.append(self._calibration[1])
         return out
 
     def _sync_values(self) -> dict[str, object]:
@@ -457,7 +485,8 @@ class FeedforwardNode(Node):
             actuators = max(actuators, _WARN)
         setpoint = _ERROR if self._last_rejection[SETPOINT] else _OK
         ready = _WARN if self._readiness.waiting else _OK
-        return (ready, temperature, actuators, setpoint, _OK)
+        calibration = () if self._calibration is None else (int(self._calibration[0]),)
+        return (ready, temperature, actuators, setpoint, _OK, *calibration)
 
     def _publish_diagnostics_on_change(self, now: float | None = None) -> None:
         levels = self._current_levels(self._now() if now is None else now)

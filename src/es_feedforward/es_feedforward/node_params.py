@@ -21,7 +21,14 @@ from es_feedforward.feedforward import (
     ObserverGains,
 )
 from es_feedforward.feedforward_config import OBSERVER_ITERATIONS_RANGE, OBSERVER_TOLERANCE_RANGE
-from es_feedforward.param_file import LAW_FIELDS, LAW_PREFIX, OBSERVER_PREFIX
+from es_feedforward.param_file import (
+    CALIBRATION_REASONS,
+    CALIBRATION_VERDICT,
+    LAW_FIELDS,
+    LAW_PREFIX,
+    OBSERVER_PREFIX,
+    VERDICTS,
+)
 from es_node_runtime.node_main import executor_spec
 from es_node_runtime.params import Check, ParameterSpec
 from es_physics.laws import DEFAULT_V_LIMIT
@@ -161,6 +168,23 @@ def parameter_specs() -> list[ParameterSpec]:
             "Observer stops after an update that moved no actuator by more than this, V "
             "(0: every iteration runs; mode 'observer' only).",
             *OBSERVER_TOLERANCE_RANGE,
+        ),
+    ]
+    specs += [
+        ParameterSpec(
+            CALIBRATION_VERDICT,
+            "",
+            "The calibration's verdict on this parameters file (informational; '' when no "
+            "calibration wrote it): anything but 'trusted' is logged and reported on "
+            "/diagnostics as 'feedforward: calibration'.",
+            choices=list(VERDICTS),
+            read_only=True,
+        ),
+        ParameterSpec(
+            CALIBRATION_REASONS,
+            [""],
+            "The calibration's reasons for its verdict (informational).",
+            read_only=True,
         ),
     ]
     specs += [

@@ -35,6 +35,11 @@ OBSERVER_PREFIX: Final = "observer."
 #: Node name the calibration tool writes files for.
 DEFAULT_NODE_NAME: Final = "feedforward"
 LAW_FIELDS: Final = tuple(f.name for f in fields(ActuatorParams))
+#: The calibration's verdict on the file (informational node parameters, read-only).
+CALIBRATION_VERDICT: Final = "calibration.verdict"
+CALIBRATION_REASONS: Final = "calibration.reasons"
+#: The verdicts a calibration gives ("": no calibration said anything).
+VERDICTS: Final = ("", "trusted", "provisional", "unusable")
 OBSERVER_FIELDS: Final = tuple(f.name for f in fields(ObserverGains))
 
 
@@ -144,10 +149,21 @@ def config_to_parameters(config: FeedforwardConfig) -> dict[str, object]:
 
 
 def write_params_file(
-    path: str | Path, config: FeedforwardConfig, node_name: str = DEFAULT_NODE_NAME
+    path: str | Path,
+    config: FeedforwardConfig,
+    node_name: str = DEFAULT_NODE_NAME,
+    verdict: tuple[str, list[str]] | None = None,
 ) -> None:
-    """Write ``config`` as a ROS 2 parameters YAML for the node ``node_name``."""
-    document = {node_name: {"ros__parameters": config_to_parameters(config)}}
+    """Write ``config`` as a ROS 2 parameters YAML for the node ``node_name``.
+
+    ``verdict`` (level, reasons) is written as ``calibration.verdict`` and
+    ``calibration.reasons`` (a calibration's judgement of the file; None: not written).
+    """
+    parameters = config_to_parameters(config)
+    if verdict is not None:
+        parameters[CALIBRATION_VERDICT] = verdict[0]
+        parameters[CALIBRATION_REASONS] = list(verdict[1]) or [""]
+    document = {node_name: {"ros__parameters": parameters}}
     Path(path).write_text(dump_parameters(document), encoding="utf-8")
 
 
@@ -163,6 +179,26 @@ def _flatten(tree: Mapping[str, object], prefix: str = "") -> dict[str, object]:
     return flat
 
 
+def read_params_verdict(
+    path: str | Path, node_name: str = DEFAULT_NODE_NAME
+) -> tuple[str, list[str]]:
+    """Return the file's calibration verdict and reasons (("", []) when it has none).
+
+    Raises:
+        es_feedforward.errors.ParamsFileError: as :func:`read_params_file`, or a verdict not
+            in :data:`VERDICTS`.
+
+    """
+    values = _node_values(path, node_name)
+    level = str(values.get(CALIBRATION_VERDICT, ""))
+    if level not in VERDICTS:
+        raise ParamsFileError(f"{path}: {CALIBRATION_VERDICT} {level!r} is not one of "
+                              f"{', '.join(v for v in VERDICTS if v)}")
+    reasons = values.get(CALIBRATION_REASONS, [])
+    reasons = [str(r) for r in reasons if str(r)] if isinstance(reasons, list) else [str(reasons)]
+    return level, reasons
+
+
 def read_params_file(path: str | Path, node_name: str = DEFAULT_NODE_NAME) -> FeedforwardConfig:
     """Read the feedforward configuration from a ROS 2 parameters YAML.
 
@@ -173,6 +209,20 @@ def read_params_file(path: str | Path, node_name: str = DEFAULT_NODE_NAME) -> Fe
     Raises:
         es_feedforward.errors.ParamsFileError: unreadable file, no parameters for the node,
             or an invalid value (a ``ValueError``; one readable line).
+
+    """
+    values = _node_values(path, node_name)
+    try:
+        return config_from_parameters(values)
+    except ValueError as err:
+        raise ParamsFileError(f"{path}: {err}") from None
+
+
+def _node_values(path: str | Path, node_name: str) -> dict[str, object]:
+    """Return the flat parameters of ``node_name`` (and ``/**``) in the file at ``path``.
+
+    Raises:
+        es_feedforward.errors.ParamsFileError: unreadable file or no parameters for the node.
 
     """
     try:
@@ -192,7 +242,4 @@ def read_params_file(path: str | Path, node_name: str = DEFAULT_NODE_NAME) -> Fe
             found = True
     if not found:
         raise ParamsFileError(f"{path}: no ros__parameters for node {node_name!r} or '/**'")
-    try:
-        return config_from_parameters(values)
-    except ValueError as err:
-        raise ParamsFileError(f"{path}: {err}") from None
+    return values

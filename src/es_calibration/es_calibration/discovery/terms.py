@@ -67,7 +67,7 @@ class DiscoveredTerm:
         return self.term.compensable
 
     def as_dict(self) -> dict[str, object]:
-        """Return the calibration.json form (CALIBRATION_CONTRACT.md)."""
+        """Return the calibration.json form (es_calibration.output.schema)."""
         return {
             "name": self.name,
             "expression": self.expression,
@@ -113,7 +113,7 @@ class Discovery:
         return [t for t in self.terms if t.stable and t.compensable] if self.added else []
 
     def as_dict(self) -> dict[str, object]:
-        """Return calibration.json's ``discovered`` (CALIBRATION_CONTRACT.md)."""
+        """Return calibration.json's ``discovered`` (es_calibration.output.schema)."""
         return {
             "searched": self.searched,
             "terms": [t.as_dict() for t in self.terms],

@@ -1,6 +1,6 @@
 """One finding about the recording's health, in the shape calibration.json writes (``health``).
 
-The shape is agreed in CALIBRATION_CONTRACT.md; every health check (timing, sensors,
+The shape is calibration.json's (es_calibration.output.schema); every health check (timing, sensors,
 actuators) returns :class:`Finding` values.
 """
 

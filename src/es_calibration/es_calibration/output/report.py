@@ -211,6 +211,26 @@ def _law_table(cal: Calibration) -> list[str]:
     return rows
 
 
+def _health_lines(cal: Calibration) -> list[str]:
+    """Return the verdict and the recording health section (before the physics)."""
+    v = cal.verdict
+    lines = [f"**Verdict: {v.level}**" + (": " + "; ".join(v.reasons) if v.reasons else ""),
+             "", "## Recording health", "",
+             f"Kept for the fit: {100 * cal.kept_fraction:.1f} % of the (sample, actuator) "
+             "pairs; displacement clock against the command's: "
+             + ("not estimated" if cal.clock_rate_ppm is None
+                else f"{cal.clock_rate_ppm:+.3g} ppm") + ".", ""]
+    if not cal.findings:
+        return [*lines, "No fault of the recording or of an actuator found.", ""]
+    lines += ["| kind | subject | time [s] | value | what it is | action |",
+              "|---|---|---|---|---|---|"]
+    for f in cal.findings:
+        value = "-" if f.value is None else f"{_fmt(f.value)} {f.unit}"
+        lines.append(f"| {f.kind} | {f.subject} | {f.start_s:.1f}-{f.end_s:.1f} | {value} "
+                     f"| {f.sentence} | {f.action} |")
+    return [*lines, ""]
+
+
 def write_report(cal: Calibration, out: Path, notes: list[str]) -> Path:
     """Write report.md and its figures into ``out``; return the report's path."""
     a = cal.aligned
@@ -231,6 +251,7 @@ def write_report(cal: Calibration, out: Path, notes: list[str]) -> Path:
         + f"; measurement noise floor {_fmt(floor * NM)} nm (ratio {ratio:.2f}, goal <= "
         f"{NOISE_RATIO_LIMIT}).",
         "",
+        *_health_lines(cal),
         "## a. Data and alignment",
         "",
         f"- grid {a.grid[0]} x {a.grid[1]}, {a.t.size} displacement samples over "
@@ -326,8 +347,9 @@ def write_report(cal: Calibration, out: Path, notes: list[str]) -> Path:
                 )
                 for k, v in e.parameters.items()
             )
+            off = "" if e.enabled else " (not confirmed on the record's halves: written off)"
             text.append(
-                f"| {e.name} | {params} | {_fmt(e.rms_before_m * NM)} -> "
+                f"| {e.name}{off} | {params} | {_fmt(e.rms_before_m * NM)} -> "
                 f"{_fmt(e.rms_after_m * NM)} | {100 * e.share:.0f} % | "
                 f"{e.rms_after_m / floor:.2f} |"
             )

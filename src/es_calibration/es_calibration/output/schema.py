@@ -38,6 +38,10 @@ residual's autocorrelation)::
       # (rms_before_m without it, rms_after_m with it, accepted = it stays);
       # "per_actuator": an accepted effect's parameter as one value per actuator
       # (rms_before_m with one grid value, rms_after_m with one per actuator)
+      # "halves": the final model refitted on the first / second half of the record
+      # (rms_before_m / rms_after_m: each half's held-out RMS; accepted = the effect's
+      # parameters agree between the halves, else reason "stand-in: ..." and the effect
+      # is written with "enabled": false)
       "heldout_rms_before_m", "heldout_rms_after_m",         # whole grid, held-out rows
       "heldout_max_before_m", "heldout_max_after_m",         # analysed actuators, full rate
       "noise_floor_m": white measurement noise estimated from the final residual,
@@ -49,15 +53,20 @@ residual's autocorrelation)::
                      "share", "stable", "halves", "mechanism", "side", "compensable"}],
                      "added", "heldout_rms_before_m", "heldout_rms_after_m" (screening
                      block, held-out rows: registry model, + discovered terms), "note",
-                     "library_size", "seconds"} (CALIBRATION_CONTRACT.md),
+                     "library_size", "seconds"},
       "health": {"findings": [{"kind", "subject", "index", "row", "col", "start_s",
                                "end_s", "value", "unit", "sentence", "action"}]
-                              (health/findings.py, CALIBRATION_CONTRACT.md),
+                              (health/findings.py),
                  "clock_rate_ppm": the displacement logger's clock against the command's
                                    (data/timing.py; null: not estimated),
                  "kept_fraction": share of the screening block's (displacement sample x
                                   actuator) pairs kept for the fit}
+      "verdict": {"level": "trusted" | "provisional" | "unusable", "reasons": [...]}
     }
+
+Effects carry ``"enabled"``: false for one that did not hold on the record's halves (its
+compensation is left out of the YAML); a refused stand-in's candidate reason starts with
+``"stand-in: "``.
 
 Effect parameters use the names the effects declare (:mod:`es_physics.effects`); the YAML
 carries them as each effect's ``compensation.*`` parameters (and law.m3/k3 for the ``LAW``
@@ -67,13 +76,12 @@ effect's per-actuator coefficients).
 from __future__ import annotations
 
 import json
-from dataclasses import replace
 from pathlib import Path
 from typing import Any, Final
 
 import numpy as np
 
-from es_calibration.pipeline import Calibration
+from es_calibration.pipeline import Calibration, fitted_law
 from es_feedforward.compensation import RANGES, CompensationParams
 from es_feedforward.feedforward import FeedforwardConfig
 from es_feedforward.param_file import write_params_file
@@ -86,16 +94,7 @@ SCHEMA_VERSION: Final = 3
 
 def fitted_params(cal: Calibration) -> ActuatorParams:
     """Return the fitted law as per-actuator maps (R, C)."""
-    local = cal.final.fit.local
-    shape = cal.aligned.grid
-    base = ActuatorParams()
-    model = cal.final.model
-    values = {
-        n: local[:, i].reshape(shape)
-        for i, n in enumerate(model.local_names)
-        if n not in model.per_actuator  # effects' parameters, not the law's
-    }
-    return replace(base.as_arrays(shape), **values)
+    return fitted_law(cal.final, cal.aligned.grid)
 
 
 def law_uncertainty(cal: Calibration) -> dict[str, list[float]]:
@@ -111,9 +110,12 @@ def law_uncertainty(cal: Calibration) -> dict[str, list[float]]:
 
 
 def compensation(cal: Calibration) -> tuple[CompensationParams, list[str]]:
-    """Return the compensation of the accepted effects and notes on values clipped to range."""
+    """Return the compensation of the accepted effects and notes on values clipped to range.
+
+    An effect not confirmed (``enabled`` false) is left switched off.
+    """
     values: dict[str, float] = {}
-    for effect in cal.effects:
+    for effect in (e for e in cal.effects if e.enabled):
         values.update(
             get(effect.name).compensation_values(effect.parameters, cal.aligned.start_time)
         )
@@ -132,7 +134,9 @@ def write_parameters_yaml(cal: Calibration, path: Path) -> list[str]:
     """Write the feedforward parameters YAML; return notes on clipped values."""
     comp, notes = compensation(cal)
     config = FeedforwardConfig(shape=cal.aligned.grid, params=fitted_params(cal), compensation=comp)
-    write_params_file(path, config)
+    write_params_file(
+        path, config, verdict=(cal.verdict.level, list(cal.verdict.reasons))
+    )
     return notes
 
 
@@ -186,6 +190,7 @@ def calibration_document(cal: Calibration) -> dict[str, Any]:
                 "share": e.share,
                 "per_actuator": e.per_actuator,
                 "per_actuator_uncertainties": e.per_actuator_uncertainties,
+                "enabled": e.enabled,
             }
             for e in cal.effects
         ],
@@ -219,10 +224,11 @@ def calibration_document(cal: Calibration) -> dict[str, Any]:
             "heldout_rms_after_m": cal.final.heldout_rms,
         },
         "health": {
-            "findings": cal.findings,
+            "findings": [f.as_dict() for f in cal.findings],
             "clock_rate_ppm": cal.clock_rate_ppm,
             "kept_fraction": cal.kept_fraction,
         },
+        "verdict": cal.verdict.as_dict(),
     }
     return dict(_float(doc))
 

@@ -12,7 +12,7 @@ keeps one value.
 from __future__ import annotations
 
 from es_calibration.model.composite import CompositeModel
-from es_calibration.search.selection import CandidateScore, RoundRecord, _verdict
+from es_calibration.search.selection import CandidateScore, RoundRecord, _verdict, record_span
 from es_calibration.search.state import (
     ModelState,
     Workspace,
@@ -64,7 +64,8 @@ def per_actuator_round(ws: Workspace, state: ModelState) -> tuple[RoundRecord | 
         )
         params = effect_parameters(new, name, ws.aligned)
         delta = information_delta(current.heldout_sse, new.heldout_sse, n_eff, A - 1)
-        reason = _verdict(name, params, current, new, delta)  # the search's own rule
+        # the search's own rule
+        reason = _verdict(name, params, current, new, delta, span=record_span(ws))
         ok = reason == "passes"
         scores.append(
             CandidateScore(

@@ -25,6 +25,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Final
 
+import numpy as np
+
 from es_calibration.model.composite import CANDIDATES, CompositeModel
 from es_calibration.search.playfit import without_weakest_operator
 from es_calibration.search.scans import candidate_states, refine_shift
@@ -40,9 +42,13 @@ from es_calibration.search.state import (
     undetermined,
 )
 from es_physics.effects import Role, get
+from es_physics.effects.identifiable import RecordSpan, identification_problem
 
 #: Held-out RMS below which nothing is worth explaining [m] (far below interferometer noise).
 RESOLUTION_FLOOR_M: Final = 1e-12
+
+#: How a refused stand-in's reason starts (calibration.json ``candidates``).
+STAND_IN: Final = "stand-in: "
 
 #: One accepted effect: (name, state before it, state with it).
 Step = tuple[str, ModelState, ModelState]
@@ -103,14 +109,37 @@ def _unknowns(state: ModelState, name: str, n_actuators: int) -> int:
     return effect.added_parameters(n_actuators, order)
 
 
+def record_span(ws: Workspace) -> RecordSpan:
+    """Return what the workspace's record spans: temperatures, sample period, length."""
+    a = ws.aligned
+    temperature = a.temperature[:, ws.actuators]
+    finite = temperature[np.isfinite(temperature)]
+    low, high = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 0.0)
+    return RecordSpan(low, high, 1.0 / a.sample_rate, float(a.t[-1] - a.t[0]))
+
+
 def _verdict(
-    name: str, params: dict[str, float], before: ModelState, after: ModelState, delta: float
+    name: str,
+    params: dict[str, float],
+    before: ModelState,
+    after: ModelState,
+    delta: float,
+    *,
+    span: RecordSpan,
 ) -> str:
-    """Return "passes" or why adding ``name`` (``before`` -> ``after``) does not pay."""
+    """Return "passes" or why adding ``name`` (``before`` -> ``after``) does not pay.
+
+    A parameter outside what the record can show (``span``, the effect's
+    :attr:`~es_physics.effects.Effect.identifiable` rules) makes the effect a stand-in.
+    """
     gain = 1.0 - after.heldout_rms / max(before.heldout_rms, 1e-300)
-    problem = get(name).problem(params) or undetermined(after, name)
+    effect = get(name)
+    problem = effect.problem(params) or undetermined(after, name)
     if problem:
         return f"unphysical: {problem}"
+    outside = identification_problem(effect.identifiable, params, span)
+    if outside:
+        return f"{STAND_IN}{outside}"
     if before.heldout_rms < RESOLUTION_FLOOR_M:
         return "residual already below resolution"
     if delta >= 0:
@@ -128,6 +157,7 @@ def _forward_round(
     A = len(ws.actuators)
     _, held = ws.input_pair(state.delay_s, state.play_thresholds)
     n_eff = effective_count(ws, state, held)
+    span = record_span(ws)
     scores: list[CandidateScore] = []
     passing: list[tuple[str, ModelState]] = []
     for name in (c for c in candidates if not state.model.has(c)):
@@ -143,7 +173,7 @@ def _forward_round(
         delta = information_delta(
             state.heldout_sse, new.heldout_sse, n_new, _unknowns(new, name, A)
         )
-        reason = _verdict(name, params, state, new, delta)
+        reason = _verdict(name, params, state, new, delta, span=span)
         ok = reason == "passes"
         scores.append(
             CandidateScore(name, state.heldout_rms, new.heldout_rms, delta, ok, reason, params)
@@ -166,6 +196,7 @@ def _backward_round(ws: Workspace, state: ModelState) -> tuple[RoundRecord, Mode
     A = len(ws.actuators)
     _, held = ws.input_pair(state.delay_s, state.play_thresholds)
     n_eff = effective_count(ws, state, held)
+    span = record_span(ws)
     scores: list[CandidateScore] = []
     drop: tuple[float, str, ModelState] | None = None
     for name in state.model.effects:
@@ -175,7 +206,7 @@ def _backward_round(ws: Workspace, state: ModelState) -> tuple[RoundRecord, Mode
         delta = information_delta(
             without.heldout_sse, state.heldout_sse, n_eff, _unknowns(state, name, A)
         )
-        reason = _verdict(name, params, without, state, delta)
+        reason = _verdict(name, params, without, state, delta, span=span)
         needed = reason == "passes"
         scores.append(
             CandidateScore(

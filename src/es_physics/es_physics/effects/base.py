@@ -11,6 +11,7 @@ calibration and the feedforward never name an effect: they read these declaratio
   :attr:`Effect.searched` those found by a scan instead of Gauss-Newton;
 - :meth:`Effect.reported`, :meth:`Effect.uncertainties`, :meth:`Effect.problem`: the
   physical parameters calibration.json and the report give, and when they are unphysical;
+  :attr:`Effect.identifiable`: the range a record can identify each one in;
 - :attr:`Effect.compensation` and :meth:`Effect.compensation_values`: the feedforward's
   ``compensation.<param>`` parameters and how a calibration sets them;
 - :meth:`Effect.plant_stage` and :meth:`Effect.compensator`: the stages the simulator and
@@ -29,6 +30,7 @@ from typing import ClassVar
 import numpy as np
 import numpy.typing as npt
 
+from es_physics.effects.identifiable import Identifiable
 from es_physics.effects.stages import Compensator, PlantContext, PlantStage
 from es_physics.errors import EffectError
 
@@ -200,6 +202,9 @@ class Effect(ABC):
     searched: ClassVar[tuple[str, ...]] = ()
     #: The feedforward's ``compensation.<name>`` parameters the effect owns.
     compensation: ClassVar[tuple[Parameter, ...]] = ()
+    #: Reported parameters (:meth:`reported`'s names) and the range a record can identify
+    #: each in (:mod:`es_physics.effects.identifiable`): a fit outside it is a stand-in.
+    identifiable: ClassVar[Mapping[str, Identifiable]] = {}
 
     @property
     def candidate(self) -> bool:

@@ -40,6 +40,7 @@ from es_physics.effects.base import (
     Role,
     filter_undetermined,
 )
+from es_physics.effects.identifiable import Identifiable
 from es_physics.effects.stages import Compensator, PlantContext, PlantStage, StepState
 from es_physics.errors import EffectParameterError
 
@@ -207,6 +208,9 @@ class FrequencyDispersion(Effect):
         Parameter("fraction", "", 0.0, 1.0, 0.1, "relaxing fraction r of the gain", high_open=True),
         Parameter("corner_hz", "Hz", 0.0, 1e6, 20.0, "relaxation corner f_c", low_open=True),
     )
+    identifiable: ClassVar[Mapping[str, Identifiable]] = {
+        "corner_hz": Identifiable.CORNER_FREQUENCY
+    }
     compensation: ClassVar[tuple[Parameter, ...]] = (
         Parameter(
             "dispersion_fraction", "", 0.0, MAX_FRACTION, 0.0, "relaxing fraction r (0 = off)"

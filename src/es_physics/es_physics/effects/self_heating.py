@@ -39,6 +39,7 @@ from es_physics.effects.base import (
     Role,
     filter_undetermined,
 )
+from es_physics.effects.identifiable import Identifiable
 from es_physics.effects.stages import Compensator, Drive, PlantContext, PlantStage
 from es_physics.errors import EffectParameterError
 
@@ -186,6 +187,7 @@ class SelfHeating(Effect):
         Parameter("loss_w_per_hz_v2", "W/(Hz V^2)", 0.0, 1e-3, 4.7e-9, "loss coefficient p_d"),
         Parameter("mean_window_s", "s", 0.0, 1e6, 1.0, "running-mean window", low_open=True),
     )
+    identifiable: ClassVar[Mapping[str, Identifiable]] = {"tau_s": Identifiable.TIME_CONSTANT}
     compensation: ClassVar[tuple[Parameter, ...]] = (
         Parameter(
             "self_heating_gain", "degC s/V^2", 0.0, 1.0, 0.0, "excess degC per V^2/s (0 = off)"

@@ -26,6 +26,7 @@ from typing import ClassVar, Final
 import numpy as np
 
 from es_physics.effects.base import Effect, FittedEffect, FloatArray, Parameter, Role
+from es_physics.effects.identifiable import Identifiable
 from es_physics.effects.stages import Compensator, PlantContext, PlantStage
 
 #: The filter's smoothing time where nothing jumps, as a multiple of the calibrated lag.
@@ -207,6 +208,7 @@ class SensorLag(Effect):
     )
     fit_parameters: ClassVar[tuple[str, ...]] = ("tau_s",)
     local_options: ClassVar[tuple[str, ...]] = ("tau_s",)
+    identifiable: ClassVar[Mapping[str, Identifiable]] = {"tau_s": Identifiable.TIME_CONSTANT}
     compensation: ClassVar[tuple[Parameter, ...]] = (
         Parameter("temperature_lead_s", "s", 0.0, 3600.0, 0.0, "sensor lag to undo (0 = off)"),
         Parameter(

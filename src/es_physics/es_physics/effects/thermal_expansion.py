@@ -13,6 +13,7 @@ from typing import ClassVar
 import numpy as np
 
 from es_physics.effects.base import Additive, Effect, FittedEffect, FloatArray, Parameter, Role
+from es_physics.effects.identifiable import Identifiable
 from es_physics.effects.stages import Compensator, PlantContext, PlantStage, StepState
 
 
@@ -50,6 +51,9 @@ class ThermalExpansion(Effect):
         Parameter("alpha_m_per_degc", "m/degC", -1e-6, 1e-6, 0.4e-9, "expansion coefficient"),
     )
     fit_parameters: ClassVar[tuple[str, ...]] = ("alpha_m_per_degc", "offset_m")
+    identifiable: ClassVar[Mapping[str, Identifiable]] = {
+        "reference_temperature": Identifiable.INSIDE_TEMPERATURE_RANGE
+    }
     compensation: ClassVar[tuple[Parameter, ...]] = (
         Parameter("thermal_expansion", "m/degC", -1e-8, 1e-8, 0.0, "expansion alpha (0 = off)"),
         Parameter(
