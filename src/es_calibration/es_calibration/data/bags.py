@@ -112,8 +112,13 @@ def read_measured_bag(path: str | Path) -> MeasuredData:
     )
 
 
-def read_measured_bags(paths: Sequence[str | Path]) -> MeasuredData:
-    """Read and concatenate bags of one mirror (in start-time order)."""
+def check_bag_list(paths: Sequence[str | Path]) -> None:
+    """Refuse an empty list of bags and a bag given twice (under any spelling of its path).
+
+    Raises:
+        CalibrationInputError: no bag, or one bag given twice (one readable line).
+
+    """
     if not paths:
         raise CalibrationInputError("no bag given")
     seen: dict[Path, str] = {}
@@ -122,6 +127,11 @@ def read_measured_bags(paths: Sequence[str | Path]) -> MeasuredData:
         if key in seen:
             raise CalibrationInputError(f"bag {p} given twice (also as {seen[key]})")
         seen[key] = str(p)
+
+
+def read_measured_bags(paths: Sequence[str | Path]) -> MeasuredData:
+    """Read and concatenate bags of one mirror (in start-time order)."""
+    check_bag_list(paths)
     named = sorted(
         ((read_measured_bag(p), str(p)) for p in paths), key=lambda m: m[0].displacement_times[0]
     )

@@ -30,7 +30,7 @@ from es_calibration.data.align import (
     CalibrationInputError,
     MeasuredData,
 )
-from es_calibration.data.bags import listed_topics, on_grid
+from es_calibration.data.bags import check_bag_list, listed_topics, on_grid
 from es_calibration.data.recording import COMMAND_ROLE, DISPLACEMENT_ROLE, RecordingError
 from es_calibration.search.state import screen_block
 from es_msgs_py.bag import FLOAT64_MULTI_ARRAY, BagError, decode_float64_multi_arrays
@@ -150,14 +150,7 @@ class BagRecording:
             CalibrationInputError: as :func:`.bags.read_measured_bags` (one readable line).
 
         """
-        if not paths:
-            raise CalibrationInputError("no bag given")
-        seen: dict[Path, str] = {}
-        for p in paths:
-            key = Path(p).resolve()
-            if key in seen:
-                raise CalibrationInputError(f"bag {p} given twice (also as {seen[key]})")
-            seen[key] = str(p)
+        check_bag_list(paths)
         self.batch_bytes = batch_bytes
         bags = sorted((_Bag(Path(p), batch_bytes) for p in paths),
                       key=lambda b: b.topics[DISPLACEMENT].times[0])
