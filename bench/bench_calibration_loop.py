@@ -49,6 +49,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from es_bringup.calibration_files import FEEDFORWARD_FILE_NAME
 from es_bringup.demo_calibration import (
     LOOP_SCENARIO,
     characterisation_scenario,
@@ -199,7 +200,7 @@ def calibration_loop(effect: str, work: Path) -> LoopResult:
     if status != 0:
         raise RuntimeError(f"calibrate exited {status} on the {effect} test stand")
     doc = json.loads((out / "calibration.json").read_text())
-    (params,) = sorted(out.glob("*.yaml"))
+    params = out / FEEDFORWARD_FILE_NAME
     runs = {sp: closed_loop(_loop_scenario(effect, sp, case), params) for sp in SETPOINTS}
     return LoopResult(
         effect=effect,
