@@ -11,9 +11,14 @@ calibration loop (the demo's step 4) runs on the plant core, offline:
 2. calibrate: ``es_calibration calibrate`` on that bag (in this process), told nothing;
 3. closed loop: ``LOOP_SCENARIO`` with the same effect at the demo's control rate, the
    feedforward core (inverse_hyperbolic) configured from the calibrated parameters YAML and
-   fed each actuator's raw sensor temperature when a sample arrives (no thermal estimator:
-   the temperature-lead compensation acts on the sensor), RMS tracking error from the
-   second set-point period on. It runs with each set point of ``SETPOINTS``: the main
+   fed, when a sensor sample arrives, the thermal estimator's estimate (the thermal node's
+   core, ``es_thermal.estimator``, configured as the graph configures the node: the
+   scenario's design values with the calibration's thermal_params.yaml winning, and the heat
+   load as the node gets it on /dm/heat_load); the feedforward's temperature lead as the
+   bring-up sets it (``es_bringup.calibration_files.temperature_lead_s``: off, the thermal
+   model undoes the lag). ``--raw-temperature`` feeds the raw sensor readings instead (no
+   thermal estimator; the feedforward's calibrated lead undoes the lag). RMS tracking error
+   from the second set-point period on. It runs with each set point of ``SETPOINTS``: the main
    job's 0-100 nm, whose troughs at 0 nm no feedforward can hold against an expansion
    (electrostriction only expands), and 100 nm DC + 25 nm, clear of that limit.
 
@@ -49,12 +54,19 @@ from typing import Any
 import numpy as np
 import yaml
 
+from es_bringup.calibration_files import (
+    FEEDFORWARD_FILE_NAME,
+    THERMAL_FILE_NAME,
+    node_parameters,
+    temperature_lead_s,
+)
 from es_bringup.demo_calibration import (
     LOOP_SCENARIO,
     characterisation_scenario,
     scenario_with_effects,
 )
 from es_bringup.demo_options import DEFAULT_CONTROL_RATE
+from es_bringup.graph import FEEDFORWARD, THERMAL, scenario_parameters
 from es_bringup.metrics import AlignedRun, run_metrics
 from es_calibration.calibrate import run as calibrate_run
 from es_calibration.model.composite import CANDIDATES
@@ -64,6 +76,8 @@ from es_msgs_py.bag import write_array_bag
 from es_physics.laws import CODE_CLIPPED_LOW
 from es_sim_plant.plant import Observation, Plant, simulate
 from es_sim_plant.scenario import Scenario, load_scenario, resolve_scenario
+from es_thermal.estimator import TemperatureEstimator
+from es_thermal.node_params import SPECS, config_from_parameters
 
 #: Grid of every run (3 x 3: coupling needs neighbours; the thesis hardware is 1 x 1).
 GRID = (3, 3)
@@ -100,14 +114,14 @@ def _stand(effect: str, work: Path) -> Scenario:
     return load_scenario(str(path)).with_overrides(rows=GRID[0], cols=GRID[1])
 
 
-def _loop_scenario(effect: str, setpoint: str, work: Path) -> Scenario:
+def _loop_scenario(effect: str, setpoint: str, work: Path) -> tuple[Path, Scenario]:
     """Return ``LOOP_SCENARIO`` with ``effect`` and the set point of scenario ``setpoint``."""
     path = scenario_with_effects(LOOP_SCENARIO, work, _effects(effect), suffix=f"_{effect}")
     data = yaml.safe_load(path.read_text())
     data["setpoint"] = yaml.safe_load(resolve_scenario(setpoint).read_text())["setpoint"]
     path = path.with_name(f"{path.stem}_setpoint_{setpoint}.yaml")
     path.write_text(yaml.safe_dump(data, sort_keys=False))
-    return load_scenario(str(path)).with_overrides(
+    return path, load_scenario(str(path)).with_overrides(
         rows=GRID[0], cols=GRID[1], control_rate=DEFAULT_CONTROL_RATE
     )
 
@@ -136,18 +150,44 @@ class LoopRun:
     floor_rms_m: float
 
 
-def closed_loop(scenario: Scenario, params: Path) -> LoopRun:
-    """Run ``scenario`` with the feedforward configured from ``params``; return its errors."""
-    config = replace(read_params_file(params), mode=Mode.INVERSE_HYPERBOLIC)
+def _estimator(path: Path, thermal_file: Path) -> tuple[TemperatureEstimator, dict[str, object]]:
+    """Return the thermal node's estimator for the scenario at ``path`` and its parameters.
+
+    As the graph configures the node: its defaults, the scenario's design values, the
+    calibration's file winning.
+    """
+    values: dict[str, object] = {spec.name: spec.default for spec in SPECS}
+    values.update(scenario_parameters(str(path), {"rows": GRID[0], "cols": GRID[1]})[0])
+    values.update(node_parameters(thermal_file, THERMAL))
+    return TemperatureEstimator(config_from_parameters(values)), values
+
+
+def closed_loop(path: Path, scenario: Scenario, params: Path, thermal_file: Path | None
+                ) -> LoopRun:
+    """Run ``scenario`` (from ``path``) with the feedforward configured from ``params``.
+
+    With ``thermal_file`` the feedforward gets the thermal estimator's estimate, else the
+    raw sensor readings; its lead is what the bring-up gives it. Return the errors.
+    """
+    estimator, thermal = (None, None) if thermal_file is None else _estimator(path, thermal_file)
+    loaded = read_params_file(params)
+    lead = temperature_lead_s(node_parameters(params, FEEDFORWARD), thermal)
+    compensation = replace(loaded.compensation, temperature_lead_s=lead)
+    config = replace(loaded, mode=Mode.INVERSE_HYPERBOLIC, compensation=compensation)
     plant = Plant(scenario)
     core = Feedforward(config)
     reachable: list[bool] = []
 
     def controller(observation: Observation) -> np.ndarray:
         if observation.temperature_raw is not None:
-            core.update_temperature(
-                observation.temperature_raw.reshape(scenario.shape), observation.time
-            )
+            temperature: np.ndarray | None = observation.temperature_raw.reshape(scenario.shape)
+            if estimator is not None:
+                if observation.heat_load is not None:
+                    estimator.set_heat_load(observation.heat_load)
+                estimate = estimator.update(observation.time, observation.temperature_raw)
+                temperature = estimate.temperatures
+            if temperature is not None:
+                core.update_temperature(temperature, observation.time)
         result = core.command(observation.setpoint, observation.time)
         reachable.append(not result.held and bool(np.all(result.status < CODE_CLIPPED_LOW)))
         return result.voltage
@@ -186,21 +226,26 @@ def floor_rms(scenario: Scenario, v_limit: float, skip: int) -> float:
     return float(np.sqrt(np.mean(outside**2)))
 
 
-def calibration_loop(effect: str, work: Path) -> LoopResult:
+def calibration_loop(effect: str, work: Path, raw_temperature: bool = False) -> LoopResult:
     """Characterise with ``effect`` on, calibrate, run the closed loop; return the figures."""
     started = time.perf_counter()
     case = work / effect
     case.mkdir(parents=True)
     bag = case / "stand"
-    characterise(_stand(effect, case), bag)
+    stand = _stand(effect, case)
+    characterise(stand, bag)
     out = case / "calibration"
     with contextlib.redirect_stdout(io.StringIO()):
-        status = calibrate_run([str(bag), "-o", str(out), "-q"])
+        status = calibrate_run([str(bag), "-o", str(out), "-q",
+                                "--time-scale", repr(stand.time_scale)])
     if status != 0:
         raise RuntimeError(f"calibrate exited {status} on the {effect} test stand")
     doc = json.loads((out / "calibration.json").read_text())
-    (params,) = sorted(out.glob("*.yaml"))
-    runs = {sp: closed_loop(_loop_scenario(effect, sp, case), params) for sp in SETPOINTS}
+    params = out / FEEDFORWARD_FILE_NAME
+    thermal = None if raw_temperature else out / THERMAL_FILE_NAME
+    runs = {
+        sp: closed_loop(*_loop_scenario(effect, sp, case), params, thermal) for sp in SETPOINTS
+    }
     return LoopResult(
         effect=effect,
         found=[e["name"] for e in doc["effects"]],
@@ -215,12 +260,14 @@ def calibration_loop(effect: str, work: Path) -> LoopResult:
     )
 
 
-def loop_table(work: Path, effects: Sequence[str] = CANDIDATES) -> list[LoopResult]:
+def loop_table(
+    work: Path, effects: Sequence[str] = CANDIDATES, raw_temperature: bool = False
+) -> list[LoopResult]:
     """Return the reference loop and one loop per effect, each with its ratio."""
-    reference = calibration_loop(REFERENCE, work)
+    reference = calibration_loop(REFERENCE, work, raw_temperature)
     results = [reference]
     for effect in effects:
-        result = calibration_loop(effect, work)
+        result = calibration_loop(effect, work, raw_temperature)
         result.ratio = {sp: result.rms_error_m[sp] / reference.rms_error_m[sp] for sp in SETPOINTS}
         results.append(result)
     reference.ratio = dict.fromkeys(SETPOINTS, 1.0)
@@ -304,9 +351,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("-o", "--output", type=Path, default=Path("out/calibration_loop"))
     parser.add_argument("--effects", nargs="+", choices=CANDIDATES, default=list(CANDIDATES))
+    parser.add_argument(
+        "--raw-temperature",
+        action="store_true",
+        help="feed the feedforward the raw sensor readings (no thermal estimator)",
+    )
     args = parser.parse_args(argv)
     with tempfile.TemporaryDirectory(prefix="bench_calibration_loop_") as tmp:
-        results = loop_table(Path(tmp), args.effects)
+        results = loop_table(Path(tmp), args.effects, args.raw_temperature)
     path = write_outputs(results, args.output)
     print("\n".join(markdown(results)))
     print(f"wrote {path}")

@@ -75,7 +75,11 @@ def test_thermal_node_undoes_the_known_sensor_lag_once() -> None:
     assert feedforward["compensation.temperature_lead_s"] == 0.0  # not a second time
     thermal, feedforward = scenario_parameters("thesis_ac", {"effects.sensor_lag": False})
     assert "sensor_lag_tau" not in thermal
-    assert "compensation.temperature_lead_s" not in feedforward
+    assert feedforward["compensation.temperature_lead_s"] == 0.0  # no calibrated lead given
+    _, feedforward = scenario_parameters(
+        "thesis_ac", {"effects.sensor_lag": False}, {"compensation.temperature_lead_s": 2.0}
+    )
+    assert feedforward["compensation.temperature_lead_s"] == 2.0  # the calibrated one
     thermal, _ = scenario_parameters("dm_exposure", {})
     assert "sensor_lag_tau" not in thermal  # its scenario has no lag
 

@@ -149,6 +149,30 @@ def test_stage_step_behind_a_lagging_sensor(lags: str) -> None:
     assert new_rms == pytest.approx(lag_rms) and new_rms < 1.5 * unaware_rms
 
 
+def test_the_step_gain_follows_a_step_once_and_noise_does_not_bring_it_back() -> None:
+    # Issue 38: behind a lagging sensor the step gain re-triggered on its own noise and
+    # stayed on for three lags each time (errors above 0.2 degC up to 103 s after a 2 degC
+    # step behind a 15 s lag). Now: one run of the step gain from the step on, about one
+    # lag plus three samples long, and none before the step or after that run.
+    tau = 0.8
+    run = stage_step_run(tau)
+    config = EstimatorConfig(
+        ROWS, COLS, POSITIONS, sample_period=DT, sensor_tau=tau, network=TRUE,
+        tuning=KalmanTuning(step_gate=4.0).time_scaled(0.05),
+    )  # fmt: skip
+    est = TemperatureEstimator(config)
+    following = []
+    for t, heat, readings in zip(run.times, run.heat, run.readings, strict=True):
+        est.set_heat_load(heat)
+        est.update(t, readings)
+        assert est.model is not None
+        following.append(est.model.following_step)
+    on = np.flatnonzero(following)
+    assert on.size > 0 and np.all(np.diff(on) == 1), "one run of the step gain"
+    assert run.times[on[0]] >= STEP_AT and run.times[on[0]] < STEP_AT + tau
+    assert on.size * DT <= tau + 6 * DT  # one lag and three samples (and a late trigger)
+
+
 def test_per_sensor_lags_keep_one_lag_bit_identical() -> None:
     # A list of equal lags is the scalar lag: the same filter, the same numbers.
     run = stage_step_run(0.5)

@@ -165,7 +165,7 @@ def test_the_roles_and_the_bottom_use_what_the_doc_says() -> None:
     assert uses["es_feedforward"] <= bottom
     assert uses["es_thermal"] <= bottom
     assert uses["es_recordings"] <= {"es_msgs_py", "es_node_runtime"}
-    assert uses["es_calibration"] <= bottom | {"es_feedforward", "es_recordings"}
+    assert uses["es_calibration"] <= bottom | {"es_feedforward", "es_recordings", "es_thermal"}
     assert not any({"es_bringup", "es_calibration"} & used for used in uses.values())
 
 

@@ -1,7 +1,8 @@
 """Bring-up and evaluation of the es_dm graph: launch, supervisor, demo and its report.
 
 The top layer: it imports every other package and nothing of ours imports it (tests and
-bench do). Pure, without rclpy: the graph description (:mod:`.graph`), the supervisor
+bench do). Pure, without rclpy: the graph description (:mod:`.graph`), the calibration's files and
+which node undoes the sensor lag (:mod:`.calibration_files`), the supervisor
 (:mod:`.supervisor`), the evaluation of recorded runs (:mod:`.metrics`, :mod:`.invariants`,
 :mod:`.analysis`, :mod:`.goal`, :mod:`.report`, :mod:`.selfsensing_study`) and
 :mod:`.errors`. Executables: :mod:`.bringup`, :mod:`.demo` (with its ``demo_*`` parts),
@@ -19,6 +20,7 @@ if TYPE_CHECKING:  # type checkers see the modules; at run time they load on fir
     from es_bringup import (
         analysis,
         bringup,
+        calibration_files,
         demo,
         errors,
         goal,
@@ -36,6 +38,7 @@ if TYPE_CHECKING:  # type checkers see the modules; at run time they load on fir
 __all__ = [
     "analysis",
     "bringup",
+    "calibration_files",
     "demo",
     "errors",
     "goal",

@@ -21,7 +21,12 @@ the environment.
 Example::
 
     ros2 run es_bringup bringup --scenario thesis_ac --mode inverse_hyperbolic \
-        --feedforward-params calibrated.yaml --bag out/thesis_ac
+        --calibration out/calibration --bag out/thesis_ac
+
+``--calibration DIR`` takes both files ``calibrate -o DIR`` wrote (the feedforward's and the
+thermal node's); ``--feedforward-params`` / ``--thermal-params`` give them one by one. With
+the thermal file the thermal node undoes the sensor's lag and the feedforward's lead is off
+(:func:`es_bringup.calibration_files.temperature_lead_s`).
 """
 
 from __future__ import annotations
@@ -36,6 +41,8 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import NoReturn
 
+from es_bringup.calibration_files import CalibrationFiles
+from es_bringup.errors import CalibrationFilesError
 from es_bringup.graph import (
     FEEDFORWARD,
     PLANT,
@@ -346,6 +353,17 @@ def parse_args(argv: Sequence[str]) -> tuple[GraphConfig, bool]:
         "--mode", default="inverse_hyperbolic", help="feedforward mode (see its --help)"
     )
     parser.add_argument("--feedforward-params", type=Path, help="parameters YAML for feedforward")
+    parser.add_argument(
+        "--thermal-params",
+        type=Path,
+        help="parameters YAML for the thermal node (a calibration's thermal_params.yaml)",
+    )
+    parser.add_argument(
+        "--calibration",
+        type=Path,
+        metavar="DIR",
+        help="a calibration's output directory: both parameters files are taken from it",
+    )
     parser.add_argument("--bag", type=Path, help="record every /dm topic and /diagnostics here")
     parser.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap")
     parser.add_argument("--log-dir", type=Path, default=Path("log/bringup"))
@@ -379,8 +397,10 @@ def parse_args(argv: Sequence[str]) -> tuple[GraphConfig, bool]:
             help=f"extra parameter of the {node} node (repeatable)",
         )
     ns = parser.parse_args(list(argv))
-    if ns.feedforward_params is not None and not ns.feedforward_params.is_file():
-        parser.error(f"--feedforward-params: no such file {ns.feedforward_params}")
+    try:
+        files = CalibrationFiles.given(ns.calibration, ns.feedforward_params, ns.thermal_params)
+    except CalibrationFilesError as err:
+        parser.error(str(err))
     if ns.bag is not None and ns.bag.exists():
         parser.error(f"--bag: {ns.bag} exists already; a bag is never overwritten")
     config = GraphConfig(
@@ -388,7 +408,8 @@ def parse_args(argv: Sequence[str]) -> tuple[GraphConfig, bool]:
         mode=ns.mode,
         bag=ns.bag,
         log_dir=ns.log_dir,
-        feedforward_params=ns.feedforward_params,
+        feedforward_params=files.feedforward,
+        thermal_params=files.thermal,
         plant=dict(ns.plant_param),
         thermal=dict(ns.thermal_param),
         feedforward=dict(ns.feedforward_param),

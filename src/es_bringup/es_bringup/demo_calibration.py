@@ -20,7 +20,9 @@ import numpy as np
 import yaml
 
 from es_bringup.bringup import executable
+from es_bringup.calibration_files import CalibrationFiles
 from es_bringup.demo_runs import DemoError
+from es_bringup.errors import CalibrationFilesError
 from es_sim_plant.plant import sensor_every
 from es_sim_plant.scenario import load_scenario, resolve_scenario
 
@@ -129,20 +131,30 @@ def health_lines(summary: dict[str, Any]) -> list[str]:
 
 @dataclass
 class Calibrated:
-    """Output of one calibration: parameters YAML and calibration.json content."""
+    """Output of one calibration: parameters YAMLs and calibration.json content.
+
+    ``params`` is the feedforward's file, ``thermal_params`` the thermal node's (None: the
+    tool wrote none).
+    """
 
     params: Path
     summary: dict[str, Any]
     report: Path
     wall_s: float
+    thermal_params: Path | None = None
 
 
-def calibrate(bag: Path, out_dir: Path, log: Path) -> Calibrated:
-    """Run ``es_calibration calibrate BAG -o OUT_DIR`` and return what it wrote."""
+def calibrate(bag: Path, out_dir: Path, log: Path, time_scale: float = 1.0) -> Calibrated:
+    """Run ``es_calibration calibrate BAG -o OUT_DIR`` and return what it wrote.
+
+    ``time_scale``: the recording's (the stand scenario's), so that the thermal node's file
+    holds physical lags.
+    """
     started = time.monotonic()
     with log.open("w") as handle:
         result = subprocess.run(
-            [str(executable("es_calibration", "calibrate")), str(bag), "-o", str(out_dir)],
+            [str(executable("es_calibration", "calibrate")), str(bag), "-o", str(out_dir),
+             "--time-scale", repr(float(time_scale))],
             stdout=handle,
             stderr=subprocess.STDOUT,
             check=False,
@@ -152,16 +164,20 @@ def calibrate(bag: Path, out_dir: Path, log: Path) -> Calibrated:
         if result.returncode == EXIT_UNUSABLE:
             raise DemoError(f"calibrate judged {bag} unusable: {tail[0]} (log: {log})")
         raise DemoError(f"calibrate failed on {bag}: {tail[0]} (log: {log})")
-    params = sorted(out_dir.glob("*.yaml"))
     summary_file = out_dir / "calibration.json"
-    if not params or not summary_file.is_file():
+    try:
+        files = CalibrationFiles.from_directory(out_dir)
+    except CalibrationFilesError:
+        files = None
+    if files is None or files.feedforward is None or not summary_file.is_file():
         raise DemoError(f"calibrate wrote no parameters YAML or calibration.json in {out_dir}")
     reports = sorted(out_dir.glob("*.md"))
     return Calibrated(
-        params=params[0],
+        params=files.feedforward,
         summary=json.loads(summary_file.read_text()),
         report=reports[0] if reports else out_dir,
         wall_s=time.monotonic() - started,
+        thermal_params=files.thermal,
     )
 
 

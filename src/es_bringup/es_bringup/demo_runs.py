@@ -52,6 +52,7 @@ class Job:
     v_limit: float
     with_controllers: bool = True
     feedforward_params: Path | None = None
+    thermal_params: Path | None = None
     plant: dict[str, ParamValue] = field(default_factory=dict)
     thermal: dict[str, ParamValue] = field(default_factory=dict)
     feedforward: dict[str, ParamValue] = field(default_factory=dict)
@@ -90,6 +91,7 @@ class Runner:
             bag=job.bag,
             log_dir=job.log_dir,
             feedforward_params=job.feedforward_params,
+            thermal_params=job.thermal_params,
             plant=job.plant,
             thermal=job.thermal,
             feedforward=job.feedforward,

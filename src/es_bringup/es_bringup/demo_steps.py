@@ -64,7 +64,14 @@ class Demo:
         return params
 
     def _job(
-        self, key: str, scenario: str, mode: str, params: Path | None, controllers: bool = True
+        self,
+        key: str,
+        scenario: str,
+        mode: str,
+        params: Path | None,
+        controllers: bool = True,
+        *,
+        thermal_params: Path | None = None,
     ) -> Job:
         return Job(
             key=key,
@@ -75,6 +82,7 @@ class Demo:
             v_limit=load_scenario(scenario).actuators.v_limit,
             with_controllers=controllers,
             feedforward_params=params,
+            thermal_params=thermal_params,
             plant=self._plant_params(scenario, controllers),
         )
 
@@ -134,12 +142,17 @@ class Demo:
         """Run the calibration tool on a test-stand bag (its sample-clock copy)."""
         daq = daq_clock_copy(job.bag, self.dirs["bags"] / f"{job.key}-daq", job.scenario)
         out = self.dirs["calibration"] / job.key
-        return calibrate(daq, out, self.dirs["logs"] / f"{job.key}-calibrate.log")
+        scale = job.plant.get("time_scale", load_scenario(job.scenario).time_scale)
+        time_scale = float(scale) if isinstance(scale, int | float) else 1.0
+        return calibrate(daq, out, self.dirs["logs"] / f"{job.key}-calibrate.log", time_scale)
 
     def closed_loop(self, calibrated: dict[str, Calibrated]) -> list[RunResult]:
         """Step 3: every scenario with every mode, calibrated parameters, recorded."""
         jobs = [
-            self._job(f"{scenario}-{mode}", scenario, mode, calibrated[scenario].params)
+            self._job(
+                f"{scenario}-{mode}", scenario, mode, calibrated[scenario].params,
+                thermal_params=calibrated[scenario].thermal_params,
+            )
             for scenario in self.options.scenarios
             for mode in self.options.modes
         ]
@@ -204,9 +217,14 @@ class Demo:
         scenario_path = scenario_with_effects(
             LOOP_SCENARIO, self.dirs["scenarios"], effects, suffix=f"_{LOOP_EFFECT}"
         )
+        # before: the law alone (no compensation, no sensor calibration); after: both files
         jobs = [
-            self._job(f"loop-{label}", str(scenario_path), "inverse_hyperbolic", params)
-            for label, params in (("before", before_params), ("after", calibrated.params))
+            self._job(f"loop-{label}", str(scenario_path), "inverse_hyperbolic", params,
+                      thermal_params=thermal)
+            for label, params, thermal in (
+                ("before", before_params, None),
+                ("after", calibrated.params, calibrated.thermal_params),
+            )
         ]
         done = self._run_all(jobs, "loop run")
         runs = [self._analyse(job) for job in done]

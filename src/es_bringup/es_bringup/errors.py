@@ -7,11 +7,13 @@ Every class subclasses ``ValueError``, so a generic handler still catches them.
   :mod:`es_bringup.analysis`).
 - :class:`SupervisorError`: a process set the supervisor cannot run (a name used twice, no
   primary process) (:mod:`es_bringup.supervisor`).
+- :class:`CalibrationFilesError`: a calibration directory or parameters file that cannot be
+  used (:mod:`es_bringup.calibration_files`).
 """
 
 from __future__ import annotations
 
-__all__ = ["RunDataError", "SupervisorError"]
+__all__ = ["CalibrationFilesError", "RunDataError", "SupervisorError"]
 
 
 class RunDataError(ValueError):
@@ -20,3 +22,7 @@ class RunDataError(ValueError):
 
 class SupervisorError(ValueError):
     """A set of processes the supervisor cannot start or watch."""
+
+
+class CalibrationFilesError(ValueError):
+    """A calibration directory or parameters file that cannot be used (one readable line)."""

@@ -11,7 +11,9 @@ The plant starts its scenario only when the recorder, thermal and feedforward no
 ``"<node>: ready"`` on /diagnostics (plant parameter ``wait_ready``), not after a fixed
 settle time: the controllers have matched their inputs, the recorder every /dm topic. A
 calibrated feedforward parameters file is checked at build time: its grid (``rows``/``cols``)
-must be the scenario's, else :class:`GraphError` says so in one line.
+must be the scenario's, else :class:`GraphError` says so in one line. A calibration's thermal
+parameters file goes to the thermal node; which of the two undoes the sensor's lag is
+decided once (:func:`es_bringup.calibration_files.temperature_lead_s`).
 """
 
 from __future__ import annotations
@@ -21,6 +23,8 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Final
 
+from es_bringup.calibration_files import LEAD_PARAMETER, node_parameters, temperature_lead_s
+from es_bringup.errors import CalibrationFilesError
 from es_msgs_py import topics
 from es_node_runtime.param_yaml import dump_parameters, floats_from_strings
 
@@ -73,6 +77,9 @@ class GraphConfig:
         bag: bag directory to record into (must not exist), or ``None`` for no recorder.
         log_dir: directory for the node logs (and a namespaced copy of a parameters file).
         feedforward_params: ROS parameters YAML for the feedforward node (e.g. calibrated).
+        thermal_params: ROS parameters YAML for the thermal node (a calibration's
+            ``thermal_params.yaml``: the sensors' lag and offsets); its values win over the
+            scenario's design values of the same names.
         plant / thermal / feedforward: extra parameters per node (override the defaults).
         storage: bag storage, ``mcap`` or ``sqlite3``.
         with_controllers: start the thermal and feedforward nodes; ``False`` runs the plant
@@ -94,6 +101,7 @@ class GraphConfig:
     bag: Path | None = None
     log_dir: Path = Path("log/bringup")
     feedforward_params: Path | None = None
+    thermal_params: Path | None = None
     plant: dict[str, ParamValue] = field(default_factory=dict)
     thermal: dict[str, ParamValue] = field(default_factory=dict)
     feedforward: dict[str, ParamValue] = field(default_factory=dict)
@@ -254,11 +262,32 @@ def _synchronised(plant_values: Mapping[str, ParamValue]) -> bool:
     )
 
 
+def _file_values(path: Path | None, node: str) -> dict[str, object]:
+    """Return the parameters ``path`` gives ``node`` (empty without a file).
+
+    Raises:
+        GraphError: the file cannot be read.
+
+    """
+    if path is None:
+        return {}
+    try:
+        return node_parameters(path, node)
+    except CalibrationFilesError as err:
+        raise GraphError(f"{node} parameters: {err}") from None
+
+
 def _controller_specs(
     config: GraphConfig, plant_values: Mapping[str, ParamValue]
 ) -> list[NodeSpec]:
     sim_time: dict[str, ParamValue] = {"use_sim_time": True}
-    thermal, feedforward = scenario_parameters(config.scenario, plant_values)
+    thermal_file = _file_values(config.thermal_params, THERMAL)
+    thermal, feedforward = scenario_parameters(
+        config.scenario, plant_values, _file_values(config.feedforward_params, FEEDFORWARD),
+        {**thermal_file, **config.thermal},
+    )
+    # the thermal file's values win over the scenario's design (-p would win over a file)
+    thermal = {k: v for k, v in thermal.items() if k not in thermal_file}
     files: tuple[Path, ...] = ()
     if config.feedforward_params is not None:
         rows, cols = thermal["rows"], thermal["cols"]
@@ -268,6 +297,12 @@ def _controller_specs(
         if config.namespace:
             path = namespaced_params_file(path, FEEDFORWARD, config)
         files = (path,)
+    thermal_files: tuple[Path, ...] = ()
+    if config.thermal_params is not None:
+        path = config.thermal_params
+        if config.namespace:
+            path = namespaced_params_file(path, THERMAL, config)
+        thermal_files = (path,)
     # Readiness includes the first message reaching every subscriber of the graph (DDS
     # matching is one-sided: the recorder's match alone does not say the publisher's side has
     # matched it): estimates go to the feedforward, the lockstep plant and the recorder,
@@ -285,7 +320,7 @@ def _controller_specs(
     return [
         NodeSpec(
             "es_thermal", "thermal_node", THERMAL,
-            {**sim_time, **thermal, **executor, **config.thermal},
+            {**sim_time, **thermal, **executor, **config.thermal}, thermal_files,
         ),
         NodeSpec(
             "es_feedforward",
@@ -327,7 +362,10 @@ def check_params_grid(path: Path, grid: tuple[int, int]) -> None:
 
 
 def scenario_parameters(
-    scenario: str, plant: Mapping[str, ParamValue]
+    scenario: str,
+    plant: Mapping[str, ParamValue],
+    feedforward_file: Mapping[str, object] | None = None,
+    thermal_given: Mapping[str, object] | None = None,
 ) -> tuple[dict[str, ParamValue], dict[str, ParamValue]]:
     """Return the thermal and feedforward parameters that describe the plant's mirror.
 
@@ -336,13 +374,18 @@ def scenario_parameters(
     on the grid, the sensors and the time scale. The thermal node gets what the mirror's
     design tells: the thermal network (physical values; it applies ``time_scale`` itself as
     the plant does), the sensor positions, rate, noise level and lag (``sensor_lag_tau``,
-    physical: a property of the sensor as mounted). Its estimate is then of the actuator,
-    not of the lagging sensor, so the feedforward gets ``compensation.temperature_lead_s``
-    0: the lag is undone once, whatever lead a calibration on raw sensor data wrote.
-    Nothing else the calibration is meant to find (the actuator laws, effects) is passed.
+    physical: a property of the sensor as mounted). The feedforward gets
+    ``compensation.temperature_lead_s`` from
+    :func:`es_bringup.calibration_files.temperature_lead_s`, given the feedforward's file
+    (``feedforward_file``, its parameters) and the thermal node's parameters (these and
+    ``thermal_given``: a calibration's thermal file and explicit overrides): 0 when the
+    thermal node is told the lag (its estimate is then of the actuator, the lag is undone
+    once), else the file's calibrated lead. Nothing else the calibration is meant to find
+    (the actuator laws, effects) is passed.
 
     Raises:
-        GraphError: the scenario cannot be loaded.
+        GraphError: the scenario cannot be loaded, or the feedforward file's lead is not a
+            number.
 
     """
     from es_sim_plant.scenario import load_scenario
@@ -367,12 +410,15 @@ def scenario_parameters(
         "model.sensor_noise": max(scaled.sensors.noise_sd, 1e-6),
         **{f"thermal.{k}": float(v) for k, v in asdict(physical.thermal).items()},
     }
-    feedforward: dict[str, ParamValue] = dict(grid)
     if plant.get("effects.sensor_lag", physical.effects.sensor_lag.enabled) is True:
         thermal["sensor_lag_tau"] = physical.effects.sensor_lag.tau_s
-        feedforward["compensation.temperature_lead_s"] = 0.0
     if scaled.sensors.positions is not None:
         thermal["sensor_positions"] = [float(v) for p in scaled.sensors.positions for v in p]
+    try:
+        lead = temperature_lead_s(feedforward_file or {}, {**thermal, **(thermal_given or {})})
+    except CalibrationFilesError as err:
+        raise GraphError(str(err)) from None
+    feedforward: dict[str, ParamValue] = {**grid, LEAD_PARAMETER: lead}
     return thermal, feedforward
 
 

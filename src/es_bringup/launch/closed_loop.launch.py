@@ -1,7 +1,7 @@
 """Closed-loop graph for ``ros2 launch``: the same graph as ``ros2 run es_bringup bringup``.
 
     ros2 launch es_bringup closed_loop.launch.py scenario:=thesis_ac \
-        mode:=inverse_hyperbolic feedforward_params:=/path/calibrated.yaml bag:=/tmp/run1
+        mode:=inverse_hyperbolic calibration:=/path/calibration bag:=/tmp/run1
 
 Both take their nodes from :func:`es_bringup.graph.build_graph`: the recorder (every /dm
 topic and /diagnostics, sim time) when ``bag`` is given, the thermal node and the
@@ -25,6 +25,7 @@ from launch.actions import DeclareLaunchArgument, OpaqueFunction, RegisterEventH
 from launch.event_handlers import OnProcessExit
 from launch_ros.actions import Node
 
+from es_bringup.calibration_files import CalibrationFiles
 from es_bringup.graph import GraphConfig, build_graph, topic_remaps
 
 #: Every argument: name, default, description.
@@ -47,6 +48,19 @@ ARGUMENTS: list[tuple[str, str, str]] = [
         "",
         "ROS 2 parameters YAML for the feedforward node (e.g. the calibration tool's "
         "feedforward_params.yaml); its rows/cols must be the scenario's grid. Empty: defaults.",
+    ),
+    (
+        "thermal_params",
+        "",
+        "ROS 2 parameters YAML for the thermal node (the calibration tool's "
+        "thermal_params.yaml: sensor lags, offsets); with it the thermal node undoes the "
+        "sensor lag and the feedforward's temperature lead is off. Empty: none.",
+    ),
+    (
+        "calibration",
+        "",
+        "A calibration's output directory (calibrate -o DIR): both parameters files are "
+        "taken from it (instead of feedforward_params / thermal_params). Empty: none.",
     ),
     ("bag", "", "Bag directory to create (must not exist); empty: no recorder."),
     ("storage", "mcap", "Bag storage: mcap or sqlite3."),
@@ -81,12 +95,21 @@ def _nodes(context: LaunchContext) -> list[Action]:
         return value if value > 0 else None
 
     namespace = arg["namespace"].strip("/") or None
+
+    def path(name: str) -> Path | None:
+        return Path(arg[name]) if arg[name] else None
+
+    # CalibrationFilesError: one line, launch exits non-zero
+    files = CalibrationFiles.given(
+        path("calibration"), path("feedforward_params"), path("thermal_params")
+    )
     config = GraphConfig(
         scenario=arg["scenario"],
         mode=arg["mode"],
         bag=Path(arg["bag"]) if arg["bag"] else None,
         storage=arg["storage"],
-        feedforward_params=Path(arg["feedforward_params"]) if arg["feedforward_params"] else None,
+        feedforward_params=files.feedforward,
+        thermal_params=files.thermal,
         with_controllers=arg["test_stand"].lower() not in ("true", "1"),
         namespace=namespace,
         duration=positive("duration"),

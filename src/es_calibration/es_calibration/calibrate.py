@@ -13,7 +13,13 @@ sqlite3), then writes into OUTDIR:
   held-out RMS before and after each, the noise floor and the unexplained structure (schema in
   :mod:`es_calibration.output.schema`);
 - ``feedforward_params.yaml``: the ROS 2 parameters of the ``feedforward`` node (per-actuator
-  ``law.*`` maps and the ``compensation.*`` of the accepted effects).
+  ``law.*`` maps and the ``compensation.*`` of the accepted effects);
+- ``thermal_params.yaml``: the ROS 2 parameters of the ``thermal`` node the calibration
+  learned about the sensors (``sensor_lag_tau`` per sensor or for all, ``sensor_offsets``,
+  ``sensor_offsets_sd``; :mod:`es_calibration.output.thermal_file`), named in
+  calibration.json's ``thermal_params``. Lags are written physical: a recording of a
+  simulator's shortened scenario gives its ``--time-scale``. A bring-up given both files
+  lets the thermal node undo the sensor's lag and switches the feedforward's lead off.
 
 Bags are streamed (:mod:`es_calibration.data.bagstream`): two passes in batches of
 messages, the whole grid only at the samples the fit uses: what grows with the recording's
@@ -67,6 +73,7 @@ error). Needs no rclpy.
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import tempfile
 import time
@@ -117,6 +124,13 @@ def _parser() -> argparse.ArgumentParser:
         "see `ros2 run es_recordings import --inspect REC`",
     )
     parser.add_argument("-o", "--output", required=True, type=Path, help="output directory")
+    parser.add_argument(
+        "--time-scale",
+        type=float,
+        default=1.0,
+        help="time scale of the recording (a simulator's shortened scenario; default 1: "
+        "physical): the thermal node's file holds the sensor lag divided by it",
+    )
     parser.add_argument(
         "--candidates",
         default=",".join(CANDIDATES),
@@ -221,6 +235,10 @@ def run(argv: Sequence[str] | None = None) -> int:
         print("calibrate: --tile, --search-budget and --workers must be at least 1",
               file=sys.stderr)
         return EXIT_BAD_INPUT
+    if not math.isfinite(args.time_scale) or args.time_scale <= 0.0:
+        print(f"calibrate: --time-scale must be finite and > 0, got {args.time_scale}",
+              file=sys.stderr)
+        return EXIT_BAD_INPUT
     try:
         args.output.mkdir(parents=True, exist_ok=True)  # fail before a long calibration
     except OSError as err:
@@ -240,9 +258,14 @@ def run(argv: Sequence[str] | None = None) -> int:
         # matplotlib and the feedforward configuration are only needed once there is a result
         from es_calibration.output.report import write_report
         from es_calibration.output.schema import write_calibration_json, write_parameters_yaml
+        from es_calibration.output.thermal_file import thermal_section, write_thermal_params
+        from es_feedforward.param_file import CALIBRATION_FILE_NAME as FEEDFORWARD_FILE
+        from es_thermal.sensor_params import CALIBRATION_FILE_NAME as THERMAL_FILE
 
-        notes = write_parameters_yaml(cal, args.output / "feedforward_params.yaml")
-        write_calibration_json(cal, args.output / "calibration.json")
+        notes = write_parameters_yaml(cal, args.output / FEEDFORWARD_FILE)
+        write_thermal_params(cal, args.output / THERMAL_FILE, args.time_scale)
+        thermal = thermal_section(cal, args.time_scale)
+        write_calibration_json(cal, args.output / "calibration.json", thermal)
         report = write_report(cal, args.output, notes)
     except (CalibrationInputError, LabImportError, DaskSetupError, OSError) as err:
         print(f"calibrate: {err}".splitlines()[0], file=sys.stderr)

@@ -34,6 +34,8 @@ LAW_PREFIX: Final = "law."
 OBSERVER_PREFIX: Final = "observer."
 #: Node name the calibration tool writes files for.
 DEFAULT_NODE_NAME: Final = "feedforward"
+#: Name of the file the calibration tool writes into its output directory.
+CALIBRATION_FILE_NAME: Final = "feedforward_params.yaml"
 LAW_FIELDS: Final = tuple(f.name for f in fields(ActuatorParams))
 #: The calibration's verdict on the file (informational node parameters, read-only).
 CALIBRATION_VERDICT: Final = "calibration.verdict"

@@ -15,8 +15,8 @@ stepped to a new set point, which the steady-state filter then follows only afte
 With the gate on, the filter keeps a second steady-state gain, solved for a base plate that
 moves fast (``step_drift``), and uses it after the mean innovation of the sensors (a stage
 step moves every sensor alike) stands out of its noise: from a sample whose mean
-innovation exceeds ``step_gate`` standard deviations for the step's settling time (three
-sensor lags plus three sample periods), then the quiet gain again. The model-error fit
+innovation exceeds ``step_gate`` standard deviations (of the gain in use) for one sensor lag
+plus three sample periods, then the quiet gain again. The model-error fit
 pauses meanwhile: a stage step is no model error.
 
 Everything that does not depend on the data is computed once: the zero-order-hold
@@ -56,6 +56,13 @@ from es_thermal.network import (
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
 
+#: How long the step gain is used after the mean innovation passed the gate, in sensor lags
+#: (plus STEP_SETTLING_PERIODS samples). With the lag in the model the estimate needs no
+#: wait for the sensor to catch up; a longer window kept the noisier step gain on (three
+#: lags: errors above 0.2 degC up to 103 s after a step behind a 15 s lag; one lag: 25 s).
+STEP_SETTLING_LAGS: Final = 1.0
+#: Samples added to the step gain's window (a lag-free sensor still settles over a few).
+STEP_SETTLING_PERIODS: Final = 3
 #: Sensor-transform columns formed at a time for the innovation weights (bounds memory).
 _WEIGHT_CHUNK: Final = 256
 #: Innovations and sensitivities enter the model-error fit clipped to +- this [degC, degC per
@@ -201,17 +208,26 @@ class ModelEstimator:
             )
 
         modal = solve(q)
-        self._step_gain: sparse.csr_matrix | None = None
-        if tuning.step_gate > 0.0:
-            q[layout.base] = tuning.step_drift**2
-            self._step_gain = solve(q).gain
         # The sensors' mean innovation: its weights in sensor modes and its standard deviation.
         self._mean_weights = self._sensors.forward(np.full(positions.shape[0], 1.0))
         self._mean_weights /= positions.shape[0]
-        spread = self._mean_weights @ (modal.innovation_cov @ self._mean_weights)
-        self._mean_sd = float(np.sqrt(spread))
-        #: Samples a stage step takes to settle: three sensor lags and three periods.
-        self._step_settling = 3 + int(np.ceil(3.0 * float(np.max(taus)) / sample_period))
+
+        def mean_sd(solution: ModalSolution) -> float:
+            spread = self._mean_weights @ (solution.innovation_cov @ self._mean_weights)
+            return float(np.sqrt(spread))
+
+        self._mean_sd = mean_sd(modal)
+        self._step_gain: sparse.csr_matrix | None = None
+        self._step_mean_sd = self._mean_sd
+        if tuning.step_gate > 0.0:
+            q[layout.base] = tuning.step_drift**2
+            stepping = solve(q)
+            self._step_gain = stepping.gain
+            self._step_mean_sd = mean_sd(stepping)
+        #: Samples the step gain is used for after the gate: a sensor lag and three periods.
+        self._step_settling = STEP_SETTLING_PERIODS + int(
+            np.ceil(STEP_SETTLING_LAGS * float(np.max(taus)) / sample_period)
+        )
         self._quiet_samples = self._step_settling  # since the mean innovation passed the gate
         self.layout: StateLayout = layout
         self.sampling: sparse.csr_matrix = sparse_sampling(rows, cols, positions)
@@ -355,14 +371,17 @@ class ModelEstimator:
         """Start or end following a stage step from the sensors' mean innovation.
 
         ``modal_innovation`` is the innovation in sensor modes (invalid sensors at 0); the
-        mean over fewer valid sensors has a proportionally larger spread.
+        mean over fewer valid sensors has a proportionally larger spread. It is measured in
+        the standard deviation of the gain in use: the step gain's innovations are wider,
+        and measured against the quiet gain's they re-triggered the step gain on noise.
         """
         count = int(np.count_nonzero(valid))
         if count == 0:
             return
         share = count / valid.size
         z = abs(float(self._mean_weights @ modal_innovation)) / share
-        z /= self._mean_sd / np.sqrt(share)
+        sd = self._step_mean_sd if self.following_step else self._mean_sd
+        z /= sd / np.sqrt(share)
         if z > self.tuning.step_gate:
             self._quiet_samples = 0
         else:

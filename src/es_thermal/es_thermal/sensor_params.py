@@ -24,10 +24,19 @@ from es_thermal.errors import ThermalConfigError
 from es_thermal.network import per_sensor
 from es_thermal.node_params import LAG_RANGE, OFFSET_RANGE, OFFSET_SD_RANGE
 
-__all__ = ["NODE_NAME", "SensorCalibration", "sensor_parameters", "write_sensor_params"]
+__all__ = [
+    "CALIBRATION_FILE_NAME",
+    "NODE_NAME",
+    "SensorCalibration",
+    "sensor_parameters",
+    "write_sensor_params",
+]
 
 #: The thermal node's name (es_thermal.thermal_node.NODE_NAME, which imports rclpy).
 NODE_NAME = "thermal"
+#: Name of the file the calibration tool writes into its output directory (beside the
+#: feedforward's, es_feedforward.param_file.CALIBRATION_FILE_NAME).
+CALIBRATION_FILE_NAME = "thermal_params.yaml"
 
 
 @dataclass(frozen=True)

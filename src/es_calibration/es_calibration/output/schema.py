@@ -61,7 +61,13 @@ residual's autocorrelation)::
                                    (data/timing.py; null: not estimated),
                  "kept_fraction": share of the screening block's (displacement sample x
                                   actuator) pairs kept for the fit}
-      "verdict": {"level": "trusted" | "provisional" | "unusable", "reasons": [...]}
+      "verdict": {"level": "trusted" | "provisional" | "unusable", "reasons": [...]},
+      "thermal_params": {"file" (the thermal node's parameters file beside this one),
+                         "time_scale" (the recording's, given to the tool), "temperature_topic",
+                         "sensor_lag_tau", "sensor_offsets", "sensor_offsets_sd" (as written
+                         in the file: physical s / degC, one value or one per sensor),
+                         "sensor_lag_tau_sd" (the lag's 1-sigma, physical s)}
+                        (output/thermal_file.py; absent when the tool wrote no such file)
     }
 
 Effects carry ``"enabled"``: false for one that did not hold on the record's halves (its
@@ -150,8 +156,13 @@ def _float(value: Any) -> Any:
     return value
 
 
-def calibration_document(cal: Calibration) -> dict[str, Any]:
-    """Return the calibration.json document (see the module docstring)."""
+def calibration_document(
+    cal: Calibration, thermal: dict[str, Any] | None = None
+) -> dict[str, Any]:
+    """Return the calibration.json document (see the module docstring).
+
+    ``thermal``: the ``thermal_params`` section (the thermal node's file and its values).
+    """
     a = cal.aligned
     params = fitted_params(cal)
     law: dict[str, Any] = {
@@ -230,10 +241,14 @@ def calibration_document(cal: Calibration) -> dict[str, Any]:
         },
         "verdict": cal.verdict.as_dict(),
     }
+    if thermal is not None:
+        doc["thermal_params"] = thermal
     return dict(_float(doc))
 
 
-def write_calibration_json(cal: Calibration, path: Path) -> None:
-    """Write calibration.json."""
-    text = json.dumps(calibration_document(cal), indent=1, allow_nan=True)
+def write_calibration_json(
+    cal: Calibration, path: Path, thermal: dict[str, Any] | None = None
+) -> None:
+    """Write calibration.json (with its ``thermal_params`` section when given)."""
+    text = json.dumps(calibration_document(cal, thermal), indent=1, allow_nan=True)
     path.write_text(text + "\n", encoding="utf-8")
