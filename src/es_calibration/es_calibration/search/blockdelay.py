@@ -23,6 +23,7 @@ import numpy as np
 from es_calibration._typing import FloatArray, IndexArray
 from es_calibration.data.align import AlignedData
 from es_calibration.data.delayrange import longest_whole_shift
+from es_calibration.model.cache import BoundedCache, rows_key
 from es_calibration.model.composite import CompositeModel, FitInputs
 from es_calibration.model.fit import levenberg_marquardt
 from es_calibration.search.scans import lowest_shift
@@ -49,6 +50,10 @@ class _Scan:
         self.model = CompositeModel(())
         self.period = aligned.command_period
         self.law: FloatArray | None = None
+        # candidate-independent: the actuators' command and the unshifted inputs per row set
+        # (every scan step used to copy the whole command: 0.04 s a step, 6000 steps)
+        self.command = np.ascontiguousarray(aligned.command[:, self.ws.actuators])
+        self._base: BoundedCache[FitInputs] = BoundedCache(max_entries=2 * BLOCKS)
 
     def inputs(self, rows: IndexArray, shift: float) -> FitInputs:
         """Return the inputs at ``rows`` with the command at the instants ``shift`` earlier.
@@ -56,7 +61,9 @@ class _Scan:
         The cubic convolution kernel (Keys, a = -1/2) over the four commands around each
         instant t - shift periods; samples whose taps are missing or span a gap are left out.
         """
-        base = self.ws.inputs(rows, 0.0, None)
+        base = self._base.get(rows_key(rows))
+        if base is None:
+            base = self._base.put(rows_key(rows), self.ws.inputs(rows, 0.0, None))
         a = self.ws.aligned
         times = a.command_times
         when = a.t[rows] - shift * self.period
@@ -71,8 +78,7 @@ class _Scan:
             (-3 * f**3 + 4 * f**2 + f) / 2,
             (f**3 - f**2) / 2,
         )
-        command = a.command[:, self.ws.actuators]
-        voltage = sum(w[:, None] * command[j + k - 1] for k, w in enumerate(weights))
+        voltage = sum(w[:, None] * self.command[j + k - 1] for k, w in enumerate(weights))
         usable = base.valid & (inside & regular)[None, :]
         return replace(base, voltage=np.asarray(voltage, np.float64).T, valid=usable,
                        displacement=np.where(usable, base.displacement, 0.0))

@@ -153,7 +153,7 @@ def normal_equations(
     K = len(thresholds)
     rows = ws.sub_rows(max(1, -(-ws.fit_rows.size * A * K // SCREEN_BUDGET)))
     command_rows = ws.aligned.command_index(rows, state.delay_s)
-    now = ws.play(list(state.thresholds), command_rows) if state.model.play else None
+    now = ws.cached_play(list(state.thresholds), command_rows) if state.model.play else None
     inputs = ws.inputs(rows, state.delay_s, now)
     model, local, glob = state.model, state.fit.local, state.fit.glob
     ev = model.evaluate(local, glob, inputs, jacobian=True)
@@ -161,7 +161,7 @@ def normal_equations(
     step = 1e-3 * span
     up = model.evaluate(local, glob, replace(inputs, voltage=inputs.voltage + step), False)
     down = model.evaluate(local, glob, replace(inputs, voltage=inputs.voltage - step), False)
-    play = ws.play(thresholds.tolist(), command_rows)  # (n, K, A)
+    play = ws.cached_play(thresholds.tolist(), command_rows)  # (n, K, A)
     gaps = np.transpose(play, (2, 0, 1)) - inputs.voltage[..., None]  # (A, n, K)
     valid = inputs.valid & np.isfinite(gaps).all(axis=2)
     gaps = np.where(valid[..., None], gaps, 0.0)

@@ -8,6 +8,7 @@ candidate is fitted: :mod:`.scans`; which are kept: :mod:`.selection`.
 
 from __future__ import annotations
 
+import weakref
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from typing import Any, Final
@@ -17,6 +18,7 @@ import numpy.typing as npt
 
 from es_calibration._typing import BoolArray, FloatArray, IndexArray
 from es_calibration.data.align import AlignedData, select_rows
+from es_calibration.model.cache import BoundedCache, cache_bypassed, rows_key
 from es_calibration.model.composite import CompositeModel, FitInputs, play_operator
 from es_calibration.model.fit import FitResult, levenberg_marquardt
 from es_calibration.model.history import DriveHistory, DriveSamples
@@ -57,6 +59,31 @@ class ModelState:
         return self.thresholds if self.model.play else None
 
 
+#: Drive histories by recording (id of its command array, dropped with it) and actuators:
+#: every workspace on the same record (the search's, the halves', the other stamp
+#: convention's, the discovery's) filters it once.
+_HISTORIES: dict[int, dict[tuple[bytes, float], DriveHistory]] = {}
+
+
+def shared_history(aligned: AlignedData, actuators: IndexArray) -> DriveHistory:
+    """Return the drive history of ``actuators`` of ``aligned``'s command, one per recording.
+
+    Kept while the command array lives; a new one each time inside
+    :func:`es_calibration.model.cache.bypassed`.
+    """
+    command = aligned.command
+    if cache_bypassed():
+        return DriveHistory(command[:, actuators], aligned.command_period)
+    key = (np.ascontiguousarray(actuators, np.intp).tobytes(), float(aligned.command_period))
+    if id(command) not in _HISTORIES:
+        _HISTORIES[id(command)] = {}
+        weakref.finalize(command, _HISTORIES.pop, id(command), None)
+    per_record = _HISTORIES[id(command)]
+    if key not in per_record:
+        per_record[key] = DriveHistory(command[:, actuators], aligned.command_period)
+    return per_record[key]
+
+
 class Workspace:
     """Rows, actuators and cached inputs of one calibration run."""
 
@@ -70,7 +97,10 @@ class Workspace:
         n_score = int(min(SCORE_SAMPLES, max(1000, SCORE_BUDGET // A)))
         self.fit_rows = select_rows(aligned.train, n_fit)
         self.score_rows = select_rows(~aligned.train, n_score)
-        self._play: dict[tuple[float, float], FloatArray] = {}
+        #: play operators by (threshold, delay) at the fit and score rows, and by
+        #: (threshold, command rows) at any other rows (the NNLS screening's)
+        self._play: BoundedCache[FloatArray] = BoundedCache()
+        self._play_rows: BoundedCache[FloatArray] = BoundedCache()
         self._static_cache: dict[tuple[int, int], dict[str, npt.NDArray[Any]]] = {}
         self._history: DriveHistory | None = None
         self._sub_rows: dict[int, IndexArray] = {}
@@ -80,8 +110,7 @@ class Workspace:
     def history(self) -> DriveHistory:
         """The actuators' command history (built on first use: only drive filters need it)."""
         if self._history is None:
-            a = self.aligned
-            self._history = DriveHistory(a.command[:, self.actuators], a.command_period)
+            self._history = shared_history(self.aligned, self.actuators)
         return self._history
 
     def sub_rows(self, stride: int) -> IndexArray:
@@ -115,6 +144,25 @@ class Workspace:
         values[keep[:, None, None] < settle[None]] = np.nan
         return values[np.searchsorted(keep, np.maximum(command_rows, 0))]
 
+    def cached_play(self, thresholds: Sequence[float], command_rows: IndexArray) -> FloatArray:
+        """Return :meth:`play` (len(rows), len(thresholds), A), cached by threshold and rows.
+
+        The NNLS screening reads the play of many thresholds at the same subsampled rows in
+        every round, zoom and refit: one pass over the command for all thresholds not
+        computed before at these rows.
+        """
+        rows = rows_key(command_rows)
+        found: dict[float, FloatArray] = {}
+        for r in dict.fromkeys(float(v) for v in thresholds):
+            if (value := self._play_rows.get((r, rows))) is not None:
+                found[r] = value
+        todo = [r for r in dict.fromkeys(float(v) for v in thresholds) if r not in found]
+        if todo:
+            values = self.play(todo, command_rows)
+            for i, r in enumerate(todo):
+                found[r] = self._play_rows.put((r, rows), values[:, i, :].copy())
+        return np.stack([found[float(r)] for r in thresholds], axis=1)
+
     def play_pair(
         self, thresholds: Sequence[float], delay_s: float
     ) -> tuple[FloatArray, FloatArray]:
@@ -124,12 +172,16 @@ class Workspace:
         and delay: the play loop over time is the slowest step of the search).
         """
         fit_ci, score_ci = self._command_rows(delay_s)
-        todo = [r for r in thresholds if (r, delay_s) not in self._play]
+        found: dict[float, FloatArray] = {}
+        for r in dict.fromkeys(float(v) for v in thresholds):
+            if (value := self._play.get((r, delay_s))) is not None:
+                found[r] = value
+        todo = [r for r in dict.fromkeys(float(v) for v in thresholds) if r not in found]
         if todo:
             both = self.play(todo, np.concatenate([fit_ci, score_ci]))
             for i, r in enumerate(todo):
-                self._play[(r, delay_s)] = both[:, i, :]
-        stacked = np.stack([self._play[(r, delay_s)] for r in thresholds], axis=1)
+                found[r] = self._play.put((r, delay_s), both[:, i, :].copy())
+        stacked = np.stack([found[float(r)] for r in thresholds], axis=1)
         return stacked[: fit_ci.size], stacked[fit_ci.size :]
 
     def _static(self, rows: IndexArray) -> dict[str, npt.NDArray[Any]]:

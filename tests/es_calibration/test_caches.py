@@ -1,0 +1,117 @@
+"""The search's caches and compiled low-pass change no result (issue 39).
+
+Candidate-independent work (play passes of the NNLS screening, drive signals and their
+low-passes per time constant and rows) is cached per recording (model/cache.py), and the
+low-pass runs in a compiled loop (model/lowpass_loop.py). Here the whole effect search runs
+on a small independent stand record (testing/standgen) once as the calibration runs it and
+once with every cache bypassed and the numpy low-pass: the accepted effects, their
+parameters and the fit's numbers must be the same.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+import pytest
+from standgen import StandConfig, simulate
+from standgen.effects import Effects, Hysteresis, SelfHeating
+
+from es_calibration.data.align import align
+from es_calibration.model import cache
+from es_calibration.model.cache import BoundedCache
+from es_calibration.model.history import first_order_lowpass, lowpass_at
+from es_calibration.search.selection import search_effects
+from es_calibration.search.state import Workspace, base_state, choose_stamp_convention
+from es_feedforward.kernels import KERNELS_ENV
+
+from .stand_data import measured
+
+CANDIDATES = ("hysteresis", "self_heating", "frequency_dispersion")
+
+
+def _search(monkeypatch: pytest.MonkeyPatch, backend: str):
+    monkeypatch.setenv(KERNELS_ENV, backend)
+    config = StandConfig(
+        rows=2,
+        cols=2,
+        rate_hz=250.0,
+        duration_s=24.0,
+        temperature_kind="grid",
+        noise_m=0.4e-9,
+        effects=Effects(
+            hysteresis=Hysteresis((30.0,), (0.04,)),
+            self_heating=SelfHeating(gain=2.5e-5, tau_s=0.76),
+        ),
+        seed=11,
+    )
+    aligned = choose_stamp_convention(align(measured(simulate(config))))
+    ws = Workspace(aligned, np.arange(aligned.n_actuators, dtype=np.intp), (2, 2))
+    final, added, _ = search_effects(ws, base_state(ws), CANDIDATES)
+    return final, [name for name, _, _ in added]
+
+
+def test_the_search_finds_the_same_effects_and_numbers_with_and_without_the_caches(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    hits = []
+    original = BoundedCache.get
+
+    def counted(self: BoundedCache, key: object) -> object:
+        found = original(self, key)
+        hits.append(found is not None)
+        return found
+
+    monkeypatch.setattr(BoundedCache, "get", counted)
+    cached, cached_added = _search(monkeypatch, "fused")
+    assert "es_calibration.model.lowpass_loop" in sys.modules  # the compiled low-pass ran
+    assert sum(hits) > 0  # the caches served something
+    hits.clear()
+    with cache.bypassed():
+        plain, plain_added = _search(monkeypatch, "numpy")
+    assert not any(hits)
+    assert "self_heating" in cached.model.effects  # a low-pass effect was fitted and kept
+    assert cached_added == plain_added
+    assert cached.model.effects == plain.model.effects
+    assert cached.thresholds == plain.thresholds
+    assert cached.delay_s == plain.delay_s
+    # deterministic: the same numbers, not only within their 1-sigma
+    np.testing.assert_array_equal(cached.fit.glob, plain.fit.glob)
+    np.testing.assert_array_equal(cached.fit.local, plain.fit.local)
+    assert cached.heldout_sse == plain.heldout_sse
+
+
+@pytest.mark.parametrize("tau", [1e-4, 0.05, 3.0, 1e30])
+def test_the_compiled_lowpass_gives_numpys_numbers(
+    monkeypatch: pytest.MonkeyPatch, tau: float
+) -> None:
+    rng = np.random.default_rng(4)
+    x = np.cumsum(rng.normal(0.0, 3.0, (900, 5)), axis=0)
+    rows = np.array([0, 1, 2, 17, 450, 899])
+    period = 0.002
+    y, slope = first_order_lowpass(x, period, tau)
+    for backend in ("numpy", "fused"):
+        monkeypatch.setenv(KERNELS_ENV, backend)
+        got_y, got_slope = lowpass_at(x, period, tau, rows)
+        np.testing.assert_array_equal(got_y, y[rows])
+        np.testing.assert_array_equal(got_slope, slope[rows])
+        got_y, got_slope = lowpass_at(x, period, tau, rows, with_slope=False)
+        np.testing.assert_array_equal(got_y, y[rows])
+        assert not got_slope.any()
+    assert "es_calibration.model.lowpass_loop" in sys.modules
+
+
+def test_a_bounded_cache_keeps_its_budget_and_evicts_the_least_recently_used() -> None:
+    store: BoundedCache[np.ndarray] = BoundedCache(budget_bytes=3 * 800)
+    for i in range(3):
+        store.put(i, np.zeros(100))
+    assert store.get(0) is not None  # 0 is now the most recently used
+    store.put(3, np.zeros(100))
+    assert store.get(1) is None and store.get(0) is not None and store.get(3) is not None
+    assert store.nbytes == 3 * 800
+    store.put(4, np.zeros(1000))  # larger than the whole budget: returned, not kept
+    assert store.get(4) is None and store.nbytes == 3 * 800
+    with cache.bypassed():
+        assert store.get(0) is None
+        store.put(5, np.zeros(1))
+    assert store.get(5) is None and store.get(0) is not None
