@@ -13,7 +13,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from es_calibration._typing import FloatArray, IndexArray
 from es_calibration.data.align import AlignedData, align
 from es_calibration.data.bags import read_measured_bags
 from es_calibration.data.bagstream import BagRecording
@@ -32,6 +31,7 @@ from es_calibration.search.state import (
     local_start,
     screen_block,
 )
+from es_common.arrays import FloatArray, IndexArray
 from es_msgs_py.bag import read_bag
 from es_msgs_py.bag.stream import iter_bag
 from tests.es_calibration import law_bags as lb

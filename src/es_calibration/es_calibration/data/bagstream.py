@@ -21,7 +21,6 @@ from pathlib import Path
 
 import numpy as np
 
-from es_calibration._typing import FloatArray, IndexArray
 from es_calibration.data.align import (
     COMMAND,
     DISPLACEMENT,
@@ -33,6 +32,7 @@ from es_calibration.data.align import (
 from es_calibration.data.bags import check_bag_list, listed_topics, on_grid
 from es_calibration.data.recording import COMMAND_ROLE, DISPLACEMENT_ROLE, RecordingError
 from es_calibration.search.state import screen_block
+from es_common.arrays import FloatArray, IndexArray
 from es_msgs_py.bag import FLOAT64_MULTI_ARRAY, BagError, decode_float64_multi_arrays
 from es_msgs_py.bag.stream import BATCH_BYTES, iter_bag
 

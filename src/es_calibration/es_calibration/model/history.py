@@ -26,8 +26,8 @@ from typing import Final
 import numpy as np
 from scipy.signal import lfilter
 
-from es_calibration._typing import FloatArray, IndexArray
 from es_calibration.errors import CalibrationFitError
+from es_common.arrays import FloatArray, IndexArray
 from es_physics.effects import Effect
 
 #: Filtered series kept per history (each is the command's size).
