@@ -57,3 +57,13 @@ def test_a_dunder_name_of_all_is_not_taken_for_a_module() -> None:
         get("__version__")
     with pytest.raises(ModuleNotFoundError):  # a listed module is imported, not invented
         get("mod")
+
+
+@pytest.mark.parametrize(
+    "name",
+    ["es_common", "es_msgs_py", "es_node_runtime", "es_physics", "es_feedforward",
+     "es_sim_plant", "es_thermal", "es_bringup"],
+)  # fmt: skip
+def test_every_lazy_package_uses_the_one_helper(name: str) -> None:
+    package = importlib.import_module(name)
+    assert package.__getattr__.__qualname__ == "lazy_modules.<locals>.public_module"
