@@ -14,7 +14,6 @@ import numpy as np
 import pytest
 
 from es_calibration.data.align import AlignedData, align
-from es_calibration.data.bags import read_measured_bags
 from es_calibration.data.bagstream import BagRecording
 from es_calibration.data.recording import MemoryRecording, gather, gather_arrays
 from es_calibration.grid.tiles import DASK_INSTALL_HINT, TileJob, compact_grid
@@ -35,6 +34,8 @@ from es_common.arrays import FloatArray, IndexArray
 from es_msgs_py.bag import read_bag
 from es_msgs_py.bag.stream import iter_bag
 from tests.es_calibration import law_bags as lb
+
+from .measured_bags import read_measured_bags
 
 GRID = (10, 10)  # larger than the 8 x 8 screening block: the grid-wide refit runs
 EXPANSION_M_PER_DEGC = 0.4e-9

@@ -7,8 +7,8 @@ never holding a whole grid topic:
    full-rate command and displacement of the screening block (search/state.py) only;
 2. :meth:`BagRecording.batches`: command and displacement batches for one gathering pass.
 
-Bags are checked as :func:`.bags.read_measured_bags` checks them (the same one-line
-:class:`CalibrationInputError`). Messages are numbered in stamp order (equal stamps in file
+Every problem with a bag is one :class:`CalibrationInputError` with one readable line
+(the checks shared with :mod:`.bags`). Messages are numbered in stamp order (equal stamps in file
 order), several bags one after the other in start-time order.
 """
 
@@ -147,7 +147,9 @@ class BagRecording:
         """Read every bag's stamps, temperature and screening block (the first pass).
 
         Raises:
-            CalibrationInputError: as :func:`.bags.read_measured_bags` (one readable line).
+            CalibrationInputError: no bag, a bag given twice, unreadable, without the needed
+                topics, bags overlapping in time or disagreeing on grid or temperature topic
+                (one readable line).
 
         """
         check_bag_list(paths)
