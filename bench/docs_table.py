@@ -3,13 +3,17 @@
 Usage (from the repository root)::
 
     .venv/bin/python bench/docs_table.py out/bench-<time>/bench.json docs/benchmarks.md
+    .venv/bin/python bench/docs_table.py docs/bench/teardown.json docs/reliability.md \
+        --figures teardown
 
 The page marks the table with the lines ``<!-- bench-table:begin -->`` and
 ``<!-- bench-table:end -->``; what lies between is replaced by the run's summary (the table
-of ``summary.md``: :func:`common.reporting.summary_lines`) and the command that measured it,
-so the figures in the docs are the benchmark's own output, never copied by hand. A missing or
-unreadable file, or a page without the two markers, ends with one line on stderr and exit
-status 2; the page is then left as it was.
+of ``summary.md``: :func:`common.reporting.summary_lines`) or, with ``--figures``, every
+figure, note and failure whose name starts with one of the given prefixes; then the command
+that measured it and the command that regenerates the block. So the figures in the docs are
+the benchmark's own output, never copied by hand (tests/install/test_docs_tables.py reruns
+that command). A missing or unreadable file, or a page without the two markers, ends with
+one line on stderr and exit status 2; the page is then left as it was.
 """
 
 from __future__ import annotations
@@ -17,26 +21,48 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 
 from common.benchlib import Record, Results
-from common.reporting import summary_lines
+from common.reporting import summary_header, summary_lines, summary_row
 
 BEGIN = "<!-- bench-table:begin -->"
 END = "<!-- bench-table:end -->"
 
 
-def table_block(bench: dict) -> list[str]:
+def table_block(bench: dict, figures: Sequence[str] = (), regenerate: str = "") -> list[str]:
     """Return the lines that go between the markers for one run's bench.json contents.
+
+    Args:
+        bench: the run's bench.json contents.
+        figures: prefixes of the figures the block shows (``teardown``, ``lockstep_``), with
+            the notes and failures that start with them (less a trailing ``_``); none: the
+            run's summary with the issue 9 targets.
+        regenerate: the command that rewrites the block, shown under it.
 
     Raises:
         KeyError: a field of bench.json is missing.
         TypeError: a record has other fields than a :class:`Record`.
 
     """
-    results = Results(records=[Record(**r) for r in bench["records"]])
-    lines = summary_lines(results, bench["machine"], bench["date"])
-    return [*lines, f"Command: `{bench['command']}`.", ""]
+    records = [Record(**r) for r in bench["records"]]
+    if not figures:
+        lines = summary_lines(Results(records=records), bench["machine"], bench["date"])
+    else:
+        mine = tuple(p.rstrip("_") for p in figures)
+        lines = [
+            *summary_header(bench["machine"], bench["date"]),
+            *[summary_row(r) for r in records if r.name.startswith(tuple(figures))],
+            "",
+            *[f"- {note}" for note in bench["notes"] if note.startswith(mine)],
+            *[f"- not measured: {why}" for why in bench["failures"] if why.startswith(mine)],
+            "",
+        ]
+    lines.append(f"Command: `{bench['command']}`.")
+    if regenerate:
+        lines.append(f"Regenerate: `{regenerate}`.")
+    return [*lines, ""]
 
 
 def rewrite(page: str, block: list[str]) -> str:
@@ -58,9 +84,16 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="docs_table", description=__doc__.splitlines()[0])
     parser.add_argument("bench_json", type=Path, help="bench.json of a ./scripts/bench run")
     parser.add_argument("page", type=Path, help="the docs page with the two markers")
+    parser.add_argument("--figures", nargs="+", default=[], metavar="PREFIX",
+                        help="show the figures, notes and failures starting with these prefixes "
+                        "instead of the run's summary")
     args = parser.parse_args(argv)
+    options = ["--figures", *args.figures] if args.figures else []
+    regenerate = " ".join(
+        [".venv/bin/python bench/docs_table.py", str(args.bench_json), str(args.page), *options]
+    )
     try:
-        block = table_block(json.loads(args.bench_json.read_text()))
+        block = table_block(json.loads(args.bench_json.read_text()), args.figures, regenerate)
         args.page.write_text(rewrite(args.page.read_text(), block))
     except (OSError, ValueError, KeyError, TypeError) as err:
         print(f"docs_table: {err}", file=sys.stderr)

@@ -116,21 +116,30 @@ SUMMARY_ROWS: tuple[tuple[str, tuple[int, ...]], ...] = (
 )
 
 
-def summary_lines(results: Results, machine: dict[str, Any], date: str) -> list[str]:
-    """Return summary.md's lines: the compact table of the main figures and the targets."""
-    lines = [
+def summary_header(machine: dict[str, Any], date: str) -> list[str]:
+    """Return the lines above a summary table: when and where, then the table's head."""
+    return [
         f"Measured {date} on {machine['cores']} cores, {machine['cpu_model']} (load average "
         f"{machine['load_average_at_start'][0]} at the start: a shared machine); median "
         "(min-max) of repeated runs.", "",
         "| figure | n | median (min-max) | unit | ratio |", "|---|---:|---|---|---:|",
     ]
+
+
+def summary_row(r: Record) -> str:
+    """Return one figure's row of a summary table (sub-10 ms times in us)."""
+    scale, unit = (1e6, "us") if r.unit == "s" and r.median < 0.01 else (1.0, r.unit)
+    spread = f"{_fmt(r.median * scale)} ({_fmt(r.min * scale)}-{_fmt(r.max * scale)})"
+    return f"| {r.name} | {r.n} | {spread} | {unit} | {_fmt(r.ratio)} |"
+
+
+def summary_lines(results: Results, machine: dict[str, Any], date: str) -> list[str]:
+    """Return summary.md's lines: the compact table of the main figures and the targets."""
+    lines = summary_header(machine, date)
     for prefix, sizes in SUMMARY_ROWS:
         for r in results.records:
             if r.name.startswith(prefix) and (not sizes or r.n in sizes):
-                scale, unit = (1e6, "us") if r.unit == "s" and r.median < 0.01 else (1.0, r.unit)
-                spread = (f"{_fmt(r.median * scale)} ({_fmt(r.min * scale)}-"
-                          f"{_fmt(r.max * scale)})")
-                lines.append(f"| {r.name} | {r.n} | {spread} | {unit} | {_fmt(r.ratio)} |")
+                lines.append(summary_row(r))
     lines += ["", "Targets (issue 9):", "", *[f"- {t}" for t in check_targets(results)], ""]
     return lines
 

@@ -15,10 +15,10 @@ from pathlib import Path
 from typing import Final
 
 import numpy as np
-import numpy.typing as npt
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 
+from standgen._typing import FloatArray
 from standgen.stand import Recording
 
 FLOAT64_MULTI_ARRAY: Final = "std_msgs/msg/Float64MultiArray"
@@ -41,7 +41,7 @@ class _ArrayEncoder:
         template = self.serialize(np.zeros(count))
         self.header = template[: len(template) - 8 * count]
 
-    def serialize(self, values: npt.NDArray[np.float64]) -> bytes:
+    def serialize(self, values: FloatArray) -> bytes:
         """Serialise one message with rosbags (the reference encoding)."""
         types = self.store.types
         layout = types["std_msgs/msg/MultiArrayLayout"](
@@ -52,12 +52,12 @@ class _ArrayEncoder:
         msg = types[FLOAT64_MULTI_ARRAY](layout=layout, data=np.ascontiguousarray(values))
         return bytes(self.store.serialize_cdr(msg, FLOAT64_MULTI_ARRAY))
 
-    def encode(self, values: npt.NDArray[np.float64]) -> bytes:
+    def encode(self, values: FloatArray) -> bytes:
         """Header + data; equal to :meth:`serialize` (checked on a topic's first message)."""
         return self.header + np.ascontiguousarray(values, "<f8").tobytes()
 
 
-def _encoder(values: npt.NDArray[np.float64]) -> _ArrayEncoder:
+def _encoder(values: FloatArray) -> _ArrayEncoder:
     if values.ndim == 3:
         rows, cols = values.shape[1:]
         return _ArrayEncoder([("row", rows, rows * cols), ("col", cols, cols)], rows * cols)

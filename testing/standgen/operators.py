@@ -13,7 +13,7 @@ import numpy as np
 import numpy.typing as npt
 from scipy.signal import lfilter
 
-FloatArray = npt.NDArray[np.float64]
+from standgen._typing import FloatArray
 
 
 def play(x: npt.ArrayLike, thresholds: npt.ArrayLike) -> FloatArray:

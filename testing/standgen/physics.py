@@ -21,7 +21,7 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
-FloatArray = npt.NDArray[np.float64]
+from standgen._typing import FloatArray
 
 #: Temperature of maximum permittivity [degC].
 TM_DEGC: Final = 38.0

@@ -16,9 +16,8 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
+from standgen._typing import FloatArray
 from standgen.operators import first_order_lag
-
-FloatArray = npt.NDArray[np.float64]
 
 #: Amplifier limit [V].
 V_LIMIT: Final = 350.0

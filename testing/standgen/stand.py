@@ -35,6 +35,7 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
+from standgen._typing import FloatArray
 from standgen.effects import Effects
 from standgen.faults import BURST_SPACING_S, Faults, ReceiveJitter
 from standgen.operators import (
@@ -61,8 +62,6 @@ from standgen.unlisted import (
     periodic_error,
     slew_limited,
 )
-
-FloatArray = npt.NDArray[np.float64]
 
 #: Temperature topic layouts: per-actuator sensors, one sensor for the grid, a grid estimate.
 TEMPERATURE_KINDS: Final = ("raw", "raw_single", "grid")

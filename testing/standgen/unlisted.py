@@ -26,10 +26,9 @@ from typing import Any, Final
 import numpy as np
 import numpy.typing as npt
 
+from standgen._typing import FloatArray
 from standgen.operators import first_order_lag
 from standgen.ranges import UNLISTED_FAMILIES, range_of
-
-FloatArray = npt.NDArray[np.float64]
 
 #: Helium-neon wavelength [m]: one fringe per lambda / 2 of mirror motion.
 WAVELENGTH_M: Final = 633e-9

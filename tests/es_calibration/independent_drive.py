@@ -18,9 +18,8 @@ import numpy as np
 import numpy.typing as npt
 import standgen.stand
 from standgen import Recording, StandConfig, simulate
+from standgen._typing import FloatArray
 from standgen.program import VoltageProgram, make_program
-
-FloatArray = npt.NDArray[np.float64]
 
 
 class IndependentProgram:

@@ -16,12 +16,12 @@ from es_calibration.data.align import (
     CalibrationInputError,
     MeasuredData,
 )
-from es_calibration.data.bags import read_measured_bags
 from es_calibration.pipeline import calibrate
 from es_calibration.verdict import WRITTEN
 from es_msgs_py.bag import write_array_bag
 
 from . import calibration_bags
+from .measured_bags import read_measured_bags
 
 RATE = 100.0
 

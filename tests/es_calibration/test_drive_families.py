@@ -15,9 +15,10 @@ import pytest
 from standgen import StandConfig, simulate, write_bag
 from standgen.effects import Effects, FrequencyDispersion, SelfHeating
 
-from es_calibration.data.bags import read_measured_bag
 from es_calibration.output.schema import compensation
 from es_calibration.pipeline import Calibration, calibrate
+
+from .measured_bags import read_measured_bags
 
 #: Sigmas within which a fitted parameter must lie of the truth.
 SIGMAS = 5.0
@@ -37,7 +38,7 @@ def _calibrate(tmp_path: Path, effects: Effects, **conditions: object) -> Calibr
         }  # type: ignore[arg-type]
     )
     write_bag(simulate(config), tmp_path / "bag", "mcap")
-    return calibrate(read_measured_bag(tmp_path / "bag"))
+    return calibrate(read_measured_bags([tmp_path / "bag"]))
 
 
 def _near(cal: Calibration, name: str, truth: dict[str, float]) -> None:

@@ -16,13 +16,13 @@ import pytest
 
 from es_calibration.calibrate import EXIT_BAD_INPUT, run
 from es_calibration.data.align import GAP_DROPS, SPAN_DROPS, align
-from es_calibration.data.bags import read_measured_bags
 from es_calibration.data.gaps import COMMAND_SETTLING_S, find_gaps
 from es_calibration.data.stamps import repeated
 from es_calibration.search.residual import spectrum
 from es_calibration.verdict import WRITTEN
 
 from . import law_bags as lb
+from .measured_bags import read_measured_bags
 
 TEMP_CUT = (30.0, 60.0)  # [start, end) of the removed temperature messages [s]
 COMMAND_CUT = (20.0, 22.0)

@@ -11,7 +11,6 @@ import pytest
 from standgen.sweep import build_cases
 
 from es_calibration.data.align import AlignedData, MeasuredData, align
-from es_calibration.data.bags import read_measured_bags
 from es_calibration.data.gaps import COMMAND_SETTLING_S
 from es_calibration.data.searchspan import (
     SEARCH_BUDGET,
@@ -22,6 +21,8 @@ from es_calibration.data.searchspan import (
 from es_calibration.pipeline import calibrate
 from es_calibration.search.state import SCREEN_SIZE
 from tests.es_calibration import law_bags as lb
+
+from .measured_bags import read_measured_bags
 
 GRID = (4, 4)  # within the screening block: the whole grid is searched, then refitted
 EXPANSION_M_PER_DEGC = 0.4e-9

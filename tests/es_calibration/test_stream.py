@@ -13,9 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from es_calibration._typing import FloatArray, IndexArray
 from es_calibration.data.align import AlignedData, align
-from es_calibration.data.bags import read_measured_bags
 from es_calibration.data.bagstream import BagRecording
 from es_calibration.data.recording import MemoryRecording, gather, gather_arrays
 from es_calibration.grid.tiles import DASK_INSTALL_HINT, TileJob, compact_grid
@@ -32,9 +30,12 @@ from es_calibration.search.state import (
     local_start,
     screen_block,
 )
+from es_common.arrays import FloatArray, IndexArray
 from es_msgs_py.bag import read_bag
 from es_msgs_py.bag.stream import iter_bag
 from tests.es_calibration import law_bags as lb
+
+from .measured_bags import read_measured_bags
 
 GRID = (10, 10)  # larger than the 8 x 8 screening block: the grid-wide refit runs
 EXPANSION_M_PER_DEGC = 0.4e-9

@@ -12,13 +12,11 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-import numpy.typing as npt
 
+from es_common.arrays import FloatArray
 from es_thermal.interpolation import sampling_matrix
 from es_thermal.modal import discretise
 from es_thermal.network import NetworkParams, continuous_model
-
-FloatArray = npt.NDArray[np.float64]
 
 
 @dataclass

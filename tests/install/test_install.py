@@ -84,8 +84,8 @@ def assert_installed(prefix: Path, package: str) -> None:
 
 def test_every_package_lists_executables_with_modules() -> None:
     assert PACKAGES == [
-        "es_bringup", "es_calibration", "es_feedforward", "es_msgs_py", "es_node_runtime",
-        "es_physics", "es_recordings", "es_sim_plant", "es_thermal",
+        "es_bringup", "es_calibration", "es_common", "es_feedforward", "es_msgs_py",
+        "es_node_runtime", "es_physics", "es_recordings", "es_sim_plant", "es_thermal",
     ]
     for package, exe in ALL_EXECUTABLES:
         module = executable_modules(package)[exe]
@@ -237,7 +237,7 @@ def test_ament_index_lists_every_executable(monkeypatch: pytest.MonkeyPatch) -> 
     for package in PACKAGES:
         lib = Path(get_package_prefix(package)) / "lib" / package
         # ros2pkg lists every executable file under <prefix>/lib/<pkg>.
-        # A library package (es_physics, es_node_runtime) has no lib/<pkg> folder at all.
+        # A library package (es_common, es_physics, es_node_runtime) has no lib/<pkg> folder at all.
         files = lib.iterdir() if lib.is_dir() else iter(())
         found = sorted(p.name for p in files if p.is_file() and os.access(p, os.X_OK))
         assert found == sorted([*executables_of(package), *moved_executables(package)]), package

@@ -1,8 +1,10 @@
 """The packages' layers (docs/architecture.md): every import of ours points down, none up.
 
-Layer 1 is the contract (es_msgs_py), what every node runs on (es_node_runtime) and the shared
-physics (es_physics), none importing another; layer 2 the roles (es_sim_plant, es_thermal,
-es_feedforward, es_recordings: they never import each other), layer 3 the offline calibration
+Layer 0 is what every package shares (es_common: array type aliases, the lazy public face),
+importing nothing of ours. Layer 1 is the contract (es_msgs_py), what every node runs on
+(es_node_runtime) and the shared physics (es_physics), none importing another; layer 2 the
+roles (es_sim_plant, es_thermal, es_feedforward, es_recordings: they never import each other),
+layer 3 the offline calibration
 (es_calibration) beside the bring-up and evaluation (es_bringup): nothing under src/ imports
 either, and they never import each other (the bring-up runs the calibration tool as an
 executable). Read from the source with ast, every module of every package (launch files
@@ -36,6 +38,7 @@ from support.workspace import packages as _packages
 
 #: Layer of each package; a module may import packages of a lower layer only.
 LAYER = {
+    "es_common": 0,
     "es_msgs_py": 1,
     "es_node_runtime": 1,
     "es_physics": 1,
@@ -159,12 +162,14 @@ def test_imports_point_only_down() -> None:
 
 def test_the_roles_and_the_bottom_use_what_the_doc_says() -> None:
     uses = _uses()
-    assert uses["es_msgs_py"] == uses["es_node_runtime"] == uses["es_physics"] == set()
-    bottom = {"es_msgs_py", "es_node_runtime", "es_physics"}
+    assert uses["es_common"] == set()
+    common = {"es_common"}
+    assert uses["es_msgs_py"] | uses["es_node_runtime"] | uses["es_physics"] <= common
+    bottom = {"es_msgs_py", "es_node_runtime", "es_physics"} | common
     assert uses["es_sim_plant"] <= bottom
     assert uses["es_feedforward"] <= bottom
     assert uses["es_thermal"] <= bottom
-    assert uses["es_recordings"] <= {"es_msgs_py", "es_node_runtime"}
+    assert uses["es_recordings"] <= {"es_msgs_py", "es_node_runtime"} | common
     assert uses["es_calibration"] <= bottom | {"es_feedforward", "es_recordings", "es_thermal"}
     assert not any({"es_bringup", "es_calibration"} & used for used in uses.values())
 

@@ -12,9 +12,9 @@ Importing the package is cheap: its modules are loaded on first use (``es_bringu
 
 from __future__ import annotations
 
-import importlib
-from types import ModuleType
 from typing import TYPE_CHECKING
+
+from es_common.lazy import lazy_modules
 
 if TYPE_CHECKING:  # type checkers see the modules; at run time they load on first access
     from es_bringup import (
@@ -55,14 +55,4 @@ __all__ = [
 
 # Hidden from type checkers, which then flag a misspelt module instead of accepting any name.
 if not TYPE_CHECKING:
-
-    def __getattr__(name: str) -> ModuleType:
-        """Import a public module on first access (e.g. ``es_bringup.graph``).
-
-        Raises:
-            AttributeError: ``name`` is not a public module of the package.
-
-        """
-        if name in __all__:
-            return importlib.import_module(f"{__name__}.{name}")
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    __getattr__ = lazy_modules(__name__, __all__)

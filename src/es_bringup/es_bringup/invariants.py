@@ -18,7 +18,8 @@ from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
-import numpy.typing as npt
+
+from es_common.arrays import FloatArray
 
 #: Line a node logs at exit for each topic it published on (es_dm convention):
 #: ``published <topic>: <count>``; the recorder logs ``<topic>: received <n>, written <m>``.
@@ -50,7 +51,7 @@ class InvariantReport:
 
 
 def check_commands(
-    commands: npt.NDArray[np.float64], v_limit: float, report: InvariantReport
+    commands: FloatArray, v_limit: float, report: InvariantReport
 ) -> None:
     """Check recorded /dm/command values (any shape, first axis = messages) into ``report``."""
     values = np.asarray(commands, dtype=np.float64)

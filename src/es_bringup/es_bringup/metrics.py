@@ -19,14 +19,12 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
-import numpy.typing as npt
 
 from es_bringup.errors import RunDataError
+from es_common.arrays import FloatArray, IndexArray
 
 if TYPE_CHECKING:
     from es_sim_plant.plant import SimulationResult
-
-FloatArray = npt.NDArray[np.float64]
 
 #: Thesis temperature slot for period averaging (section 4-2), degC.
 DEFAULT_SLOT_WIDTH = 0.2
@@ -97,7 +95,7 @@ class PeriodSlots:
     mean_output: FloatArray
     mean_setpoint: FloatArray
     temperature: FloatArray
-    reference_slot: npt.NDArray[np.intp]
+    reference_slot: IndexArray
     variation: FloatArray
     ac_variation: FloatArray
 

@@ -29,17 +29,15 @@ import matplotlib
 matplotlib.use("Agg")  # files only; never a window
 import matplotlib.pyplot as plt
 import numpy as np
-import numpy.typing as npt
 import yaml
 
 from es_bringup.bringup import ParamValue, executable
 from es_bringup.selfsensing_study import CASE_TITLES, CASES, SKIP_FRACTION
+from es_common.arrays import FloatArray
 from es_msgs_py.bag import read_bag, write_array_bag
 from es_sim_plant.plant import Plant, sensor_every, simulate
 from es_sim_plant.scenario import load_scenario
 from es_thermal.interpolation import block_centre_positions
-
-FloatArray = npt.NDArray[np.float64]
 
 #: The mirror and exposure of the section (12 x 12, dipole: a non-uniform heat load).
 SCENARIO: Final = "dm_exposure"

@@ -24,9 +24,9 @@ from dataclasses import asdict, dataclass, replace
 from typing import Final
 
 import numpy as np
-import numpy.typing as npt
 
 from es_bringup.metrics import AlignedRun, run_metrics
+from es_common.arrays import FloatArray
 from es_feedforward.feedforward import Feedforward, FeedforwardConfig
 from es_sim_plant.errors import SimulationInputError
 from es_sim_plant.plant import Observation, Plant, simulate
@@ -38,8 +38,6 @@ from es_thermal.kalman import KalmanTuning
 from es_thermal.network import NetworkParams
 from es_thermal.resonance_calibration import ResonanceFit, fit_resonance
 from es_thermal.selfsensing import FusionConfig, ResonanceCalibration, SelfSensingFusion
-
-FloatArray = npt.NDArray[np.float64]
 
 CASES: Final = ("ntc", "ntc_selfsensing", "sensor_per_actuator")
 #: Human-readable case names (report and bench).

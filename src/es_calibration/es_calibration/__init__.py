@@ -16,5 +16,5 @@ memory; the CLI is :mod:`.calibrate`):
 - :mod:`.output`: calibration.json and the feedforward parameters YAML
   (:mod:`.output.schema`), the Markdown report and figures (:mod:`.output.report`).
 
-Array type aliases are in :mod:`._typing`; exception classes in :mod:`.errors`.
+Array type aliases come from :mod:`es_common.arrays`; exception classes are in :mod:`.errors`.
 """

@@ -16,7 +16,6 @@ from typing import Final
 
 import numpy as np
 
-from es_calibration._typing import FloatArray, IndexArray
 from es_calibration.data.align import (
     MIN_SAMPLES,
     AlignedData,
@@ -77,6 +76,7 @@ from es_calibration.search.state import (
 )
 from es_calibration.search.unexplained import NOISE_RATIO_LIMIT
 from es_calibration.verdict import Verdict, judge, law_problems
+from es_common.arrays import FloatArray, IndexArray
 from es_physics.effects import get
 from es_physics.params import ActuatorParams
 

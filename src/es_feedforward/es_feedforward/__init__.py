@@ -10,9 +10,9 @@ use (``es_feedforward.param_file``).
 
 from __future__ import annotations
 
-import importlib
-from types import ModuleType
 from typing import TYPE_CHECKING
+
+from es_common.lazy import lazy_modules
 
 if TYPE_CHECKING:  # type checkers see the modules; at run time they load on first access
     from es_feedforward import (
@@ -39,14 +39,4 @@ __all__ = [
 
 # Hidden from type checkers, which then flag a misspelt module instead of accepting any name.
 if not TYPE_CHECKING:
-
-    def __getattr__(name: str) -> ModuleType:
-        """Import a public module on first access (e.g. ``es_feedforward.errors``).
-
-        Raises:
-            AttributeError: ``name`` is not a public module of the package.
-
-        """
-        if name in __all__ and name != "__version__":
-            return importlib.import_module(f"{__name__}.{name}")
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    __getattr__ = lazy_modules(__name__, __all__)

@@ -17,14 +17,12 @@ import numpy as np
 import numpy.typing as npt
 from std_msgs.msg import Float64MultiArray, MultiArrayDimension
 
+from es_common.arrays import FloatArray
 from es_msgs_py.errors import LayoutError
 
 ROW_LABEL = "row"
 COL_LABEL = "col"
 SENSOR_LABEL = "sensor"
-
-FloatArray = npt.NDArray[np.float64]
-
 
 def _buffer_of(
     values: npt.ArrayLike, expected_ndim: int, what: str

@@ -20,6 +20,7 @@ from typing import Final, NamedTuple
 import numpy as np
 import numpy.typing as npt
 
+from es_common.arrays import BoolArray
 from es_physics.params import (
     VALIDITY_MARGIN_BELOW_TM,
     VALIDITY_SPAN_ABOVE_TM,
@@ -154,7 +155,7 @@ class CompiledLaws:
                 low = max(low, float(np.max(-c0[rising] / c1[rising])))
         return (low, high) if np.all(np.isfinite(self.Tm)) else empty
 
-    def positive_between(self, ts_low: float, ts_high: float) -> npt.NDArray[np.bool_]:
+    def positive_between(self, ts_low: float, ts_high: float) -> BoolArray:
         """Return, per element, whether k and M stay finite and > 0 for T* in [low, high]."""
         ok = np.ones(np.broadcast_shapes(self.Tm.shape, *(c.shape for c in self.q)), bool)
         for c0, c1, c2 in (self.q, self.n):
@@ -355,7 +356,7 @@ class LawsAtTemperature:
 
 def clean_inputs(
     ratio: FloatArray, status: StatusArray, cap: float = RATIO_CAP
-) -> tuple[FloatArray, StatusArray, npt.NDArray[np.bool_]]:
+) -> tuple[FloatArray, StatusArray, BoolArray]:
     """Return (ratio with bad entries replaced by 0 or the cap, updated status, beyond-cap mask)."""
     invalid = ~np.isfinite(ratio) | (status == CODE_INVALID)
     negative = (ratio < 0.0) & ~invalid

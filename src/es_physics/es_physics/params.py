@@ -14,7 +14,8 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
-FloatArray = npt.NDArray[np.float64]
+from es_common.arrays import FloatArray
+
 ParamValue = float | FloatArray
 
 #: 95 % confidence intervals of the thesis's linear fits (40-52 degC), SI units.

@@ -24,15 +24,13 @@ from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
 import numpy as np
-import numpy.typing as npt
 
+from es_common.arrays import FloatArray
 from es_physics.effects import Drive, PlantContext, StepState
 from es_physics.laws import DEFAULT_V_LIMIT, hyperbolic_forward
 from es_physics.params import ActuatorParams
 from es_sim_plant.effects import Effects
 from es_sim_plant.errors import ScenarioError
-
-FloatArray = npt.NDArray[np.float64]
 
 #: Fields of ActuatorParams that may get a manufacturing spread.
 SPREADABLE = tuple(f.name for f in fields(ActuatorParams))

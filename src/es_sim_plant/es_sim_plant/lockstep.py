@@ -24,15 +24,14 @@ from enum import Enum, auto
 from typing import Protocol
 
 import numpy as np
-import numpy.typing as npt
 
+from es_common.arrays import FloatArray
 from es_msgs_py.diagnostics import Level
 from es_sim_plant.node_config import LockstepSettings
 from es_sim_plant.plant import Plant
 
 __all__ = ["BATCH_WALL", "GRAPH_PERIOD", "Lockstep", "LockstepIo", "Phase", "StatusRow"]
 
-FloatArray = npt.NDArray[np.float64]
 #: Longest stretch [s wall] the plant steps without returning to the executor.
 BATCH_WALL = 0.02
 #: How often the watchdog refreshes who publishes commands and temperatures [s wall].

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from es_common.arrays import FloatArray, IntArray
 from es_physics.params import ActuatorParams
 from es_sim_plant.actuators import ActuatorGrid
 from es_sim_plant.errors import CommandError, SimulationInputError
@@ -29,8 +30,6 @@ from es_sim_plant.resonance import ResonanceSensor
 from es_sim_plant.scenario import Scenario
 from es_sim_plant.sensors import SensorArray
 from es_sim_plant.thermal import ThermalNetwork
-
-FloatArray = npt.NDArray[np.float64]
 
 
 def sensor_every(control_rate: float, sensor_rate: float) -> int:
@@ -300,7 +299,7 @@ class SimulationResult:
     heat_load: FloatArray
     displacement: FloatArray
     displacement_measured: FloatArray
-    sensor_step: npt.NDArray[np.int64]
+    sensor_step: IntArray
     sensor_time: FloatArray
     temperature_raw: FloatArray
     substep_time: FloatArray | None = None

@@ -21,12 +21,10 @@ from dataclasses import dataclass, field
 from typing import Any, Final
 
 import numpy as np
-import numpy.typing as npt
 
+from es_common.arrays import FloatArray
 from es_sim_plant.errors import ScenarioError
 from es_sim_plant.thermal import normalised_coordinates
-
-FloatArray = npt.NDArray[np.float64]
 
 _ZERNIKE: Final[dict[str, Callable[[FloatArray, FloatArray, FloatArray], FloatArray]]] = {
     "tip": lambda x, y, r2: x,

@@ -35,11 +35,9 @@ from dataclasses import dataclass
 from typing import Any, Final
 
 import numpy as np
-import numpy.typing as npt
 
+from es_common.arrays import FloatArray
 from es_sim_plant.errors import ScenarioError
-
-FloatArray = npt.NDArray[np.float64]
 
 #: The thesis's thickness-mode sensitivities (table 3-2, 100 V DC bias).
 THESIS_A_T_HZ_PER_DEGC: Final = 3227.0

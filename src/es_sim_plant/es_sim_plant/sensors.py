@@ -18,11 +18,9 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-import numpy.typing as npt
 
+from es_common.arrays import FloatArray, IndexArray
 from es_sim_plant.errors import ScenarioError
-
-FloatArray = npt.NDArray[np.float64]
 
 
 @dataclass(frozen=True)
@@ -118,7 +116,7 @@ class SensorArray:
         self.config = config
         self._rng = rng_noise
         if config.positions is None:
-            self._index: npt.NDArray[np.intp] | None = None
+            self._index: IndexArray | None = None
             self._weights: FloatArray | None = None
             self.count = rows * cols
         else:

@@ -39,13 +39,11 @@ from dataclasses import dataclass, fields, replace
 from typing import Any, Final
 
 import numpy as np
-import numpy.typing as npt
 import scipy.linalg
 
+from es_common.arrays import FloatArray
 from es_physics.thermal_network import CellThermalParams
 from es_sim_plant.errors import ScenarioError
-
-FloatArray = npt.NDArray[np.float64]
 
 PATTERNS: Final = ("uniform", "dipole", "quadrupole", "off_axis_spot", "annular")
 

@@ -24,18 +24,15 @@ from dataclasses import dataclass, field
 from typing import Final
 
 import numpy as np
-import numpy.typing as npt
 from scipy import sparse
 
+from es_common.arrays import BoolArray, FloatArray
 from es_thermal.errors import ThermalConfigError, ThermalInputError
 from es_thermal.faults import FaultConfig, SensorFaultMonitor, SensorHealth, heat_load_problem
 from es_thermal.interpolation import interpolation_matrix
 from es_thermal.kalman import KalmanTuning, ModelEstimator
 from es_thermal.lowpass import DEFAULT_CUTOFF_HZ, DEFAULT_ORDER, LowpassBank
 from es_thermal.network import NetworkParams, per_sensor, sensor_lags
-
-FloatArray = npt.NDArray[np.float64]
-BoolArray = npt.NDArray[np.bool_]
 
 ESTIMATORS: Final = ("model", "lowpass")
 #: A gap longer than this many sample periods restarts the estimate from the readings

@@ -12,12 +12,10 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-import numpy.typing as npt
 
+from es_common.arrays import FloatArray
 from es_thermal.errors import ThermalInputError
 from es_thermal.estimator import EstimatorConfig, TemperatureEstimator
-
-FloatArray = npt.NDArray[np.float64]
 
 
 @dataclass(frozen=True)

@@ -19,14 +19,11 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
-import numpy.typing as npt
 from scipy import sparse
 from scipy.spatial import Delaunay, QhullError, cKDTree
 
+from es_common.arrays import BoolArray, FloatArray
 from es_thermal.errors import ThermalConfigError, ThermalInputError
-
-FloatArray = npt.NDArray[np.float64]
-BoolArray = npt.NDArray[np.bool_]
 
 
 def actuator_positions(rows: int, cols: int) -> FloatArray:

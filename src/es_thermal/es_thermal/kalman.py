@@ -37,9 +37,9 @@ from dataclasses import dataclass, replace
 from typing import Final
 
 import numpy as np
-import numpy.typing as npt
 from scipy import sparse
 
+from es_common.arrays import BoolArray, FloatArray
 from es_thermal.errors import EstimatorStateError, ThermalConfigError, ThermalInputError
 from es_thermal.interpolation import sparse_sampling
 from es_thermal.modal import ModalSolution, modal_solution
@@ -52,9 +52,6 @@ from es_thermal.network import (
     sensor_lags,
     sensor_transform,
 )
-
-FloatArray = npt.NDArray[np.float64]
-BoolArray = npt.NDArray[np.bool_]
 
 #: How long the step gain is used after the mean innovation passed the gate, in sensor lags
 #: (plus STEP_SETTLING_PERIODS samples). With the lag in the model the estimate needs no

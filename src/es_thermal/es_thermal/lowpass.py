@@ -8,13 +8,10 @@ filtered by one ``scipy.signal.sosfilt`` call per sample).
 from __future__ import annotations
 
 import numpy as np
-import numpy.typing as npt
 from scipy import signal
 
+from es_common.arrays import BoolArray, FloatArray
 from es_thermal.errors import ThermalConfigError
-
-FloatArray = npt.NDArray[np.float64]
-BoolArray = npt.NDArray[np.bool_]
 
 #: The thesis's temperature filter: "noise and perturbation above about 0.1 Hz".
 DEFAULT_CUTOFF_HZ = 0.1

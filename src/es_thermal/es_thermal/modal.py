@@ -13,14 +13,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import numpy.typing as npt
 from scipy import linalg, sparse
 from scipy.sparse import csgraph
 
+from es_common.arrays import FloatArray, IndexArray
 from es_thermal.errors import ConvergenceError
-
-FloatArray = npt.NDArray[np.float64]
-IndexArray = npt.NDArray[np.intp]
 
 
 def discretise(A: FloatArray, B: FloatArray, dt: float) -> tuple[FloatArray, FloatArray]:

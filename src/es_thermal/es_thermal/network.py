@@ -30,11 +30,10 @@ import numpy as np
 import numpy.typing as npt
 from scipy import fft, sparse
 
+from es_common.arrays import FloatArray, IndexArray
 from es_physics.thermal_network import CellThermalParams
 from es_thermal.errors import ThermalConfigError
 from es_thermal.interpolation import sampling_matrix
-
-FloatArray = npt.NDArray[np.float64]
 
 
 @dataclass(frozen=True)
@@ -286,7 +285,7 @@ class GridTransform:
             return np.asarray(self.dense.T @ values, float)
         return self._fast(values, fft.idctn)
 
-    def columns(self, index: npt.NDArray[np.intp]) -> FloatArray:
+    def columns(self, index: IndexArray) -> FloatArray:
         """Return the columns ``T[:, index]`` as a dense (N, len(index)) array."""
         r, c = np.divmod(index, self.col.shape[0])
         out = self.row[:, r][:, None, :] * self.col[:, c][None, :, :]

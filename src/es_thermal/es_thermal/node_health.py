@@ -11,8 +11,8 @@ from __future__ import annotations
 from collections import deque
 
 import numpy as np
-import numpy.typing as npt
 
+from es_common.arrays import FloatArray
 from es_msgs_py.diagnostics import Level
 from es_thermal.estimator import Estimate, EstimatorConfig
 from es_thermal.faults import StaleWatch
@@ -22,7 +22,6 @@ from es_thermal.sweep_sync import SampleSync
 
 __all__ = ["REJECTION_HOLD", "NodeHealth", "Row"]
 
-FloatArray = npt.NDArray[np.float64]
 #: One diagnostic aspect: (level, message, key/values).
 Row = tuple[Level, str, dict[str, object]]
 #: Measured sample intervals this far off the configured ``sample_rate`` give a WARN.

@@ -22,13 +22,11 @@ from pathlib import Path
 from typing import Final
 
 import numpy as np
-import numpy.typing as npt
 import yaml
 
+from es_common.arrays import FloatArray, IntArray
 from es_msgs_py import bag as bagio
 from es_thermal.errors import ResonanceCalibrationError
-
-FloatArray = npt.NDArray[np.float64]
 
 # The contract's topic names (es_msgs_py.topics imports rclpy; this tool must not need it).
 RESONANCE_TOPIC: Final = "/dm/resonance"
@@ -64,7 +62,7 @@ class ResonanceFit:
     a_t_sd: FloatArray
     a_v_sd: FloatArray
     residual_hz: FloatArray
-    readings: npt.NDArray[np.int64]
+    readings: IntArray
     reference_temperature: float
     disabled: tuple[int, ...]
 

@@ -34,10 +34,8 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
+from es_common.arrays import BoolArray, FloatArray
 from es_thermal.errors import CalibrationError, ThermalConfigError, ThermalInputError
-
-FloatArray = npt.NDArray[np.float64]
-BoolArray = npt.NDArray[np.bool_]
 
 #: Worst channels named in a health summary.
 WORST_LISTED: Final = 5

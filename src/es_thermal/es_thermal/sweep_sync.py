@@ -11,12 +11,10 @@ from collections import deque
 from typing import Final
 
 import numpy as np
-import numpy.typing as npt
 
+from es_common.arrays import FloatArray
 from es_thermal.errors import ThermalInputError
 from es_thermal.selfsensing import ChannelHealth, SelfSensingFusion
-
-FloatArray = npt.NDArray[np.float64]
 
 #: A sweep arriving this many sample periods after readings still without one belongs to
 #: them; a sweep whose command is still unknown after this long is fused without waiting.

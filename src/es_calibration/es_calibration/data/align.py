@@ -26,7 +26,6 @@ from typing import Final
 import numpy as np
 from scipy.signal import savgol_filter
 
-from es_calibration._typing import BoolArray, FloatArray, IndexArray
 from es_calibration.data.edges import EdgeExclusion, EdgeMask, account, edge_mask
 from es_calibration.data.gaps import (
     GAP_FACTOR,
@@ -38,6 +37,7 @@ from es_calibration.data.gaps import (
 )
 from es_calibration.data.stamps import repeated, run_lengths, spread_repeated
 from es_calibration.errors import CalibrationInputError
+from es_common.arrays import BoolArray, FloatArray, IndexArray
 
 # The contract's topic names (es_msgs_py.topics imports rclpy; this tool must not need it).
 COMMAND: Final = "/dm/command"

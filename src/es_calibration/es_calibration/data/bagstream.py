@@ -7,8 +7,8 @@ never holding a whole grid topic:
    full-rate command and displacement of the screening block (search/state.py) only;
 2. :meth:`BagRecording.batches`: command and displacement batches for one gathering pass.
 
-Bags are checked as :func:`.bags.read_measured_bags` checks them (the same one-line
-:class:`CalibrationInputError`). Messages are numbered in stamp order (equal stamps in file
+Every problem with a bag is one :class:`CalibrationInputError` with one readable line
+(the checks shared with :mod:`.bags`). Messages are numbered in stamp order (equal stamps in file
 order), several bags one after the other in start-time order.
 """
 
@@ -21,7 +21,6 @@ from pathlib import Path
 
 import numpy as np
 
-from es_calibration._typing import FloatArray, IndexArray
 from es_calibration.data.align import (
     COMMAND,
     DISPLACEMENT,
@@ -33,6 +32,7 @@ from es_calibration.data.align import (
 from es_calibration.data.bags import check_bag_list, listed_topics, on_grid
 from es_calibration.data.recording import COMMAND_ROLE, DISPLACEMENT_ROLE, RecordingError
 from es_calibration.search.state import screen_block
+from es_common.arrays import FloatArray, IndexArray
 from es_msgs_py.bag import FLOAT64_MULTI_ARRAY, BagError, decode_float64_multi_arrays
 from es_msgs_py.bag.stream import BATCH_BYTES, iter_bag
 
@@ -147,7 +147,9 @@ class BagRecording:
         """Read every bag's stamps, temperature and screening block (the first pass).
 
         Raises:
-            CalibrationInputError: as :func:`.bags.read_measured_bags` (one readable line).
+            CalibrationInputError: no bag, a bag given twice, unreadable, without the needed
+                topics, bags overlapping in time or disagreeing on grid or temperature topic
+                (one readable line).
 
         """
         check_bag_list(paths)

@@ -44,12 +44,11 @@ from dataclasses import dataclass, replace
 from typing import Any, Final
 
 import numpy as np
-import numpy.typing as npt
 from scipy.ndimage import maximum_filter1d
 
-from es_calibration._typing import BoolArray, FloatArray
 from es_calibration.data.delayrange import shift_span
 from es_calibration.data.gaps import GAP_FACTOR
+from es_common.arrays import BoolArray, FloatArray, IndexArray
 
 #: An interval whose departure exceeds this many times its neighbourhood's is an edge.
 EDGE_RATIO: Final = 3.0
@@ -112,11 +111,11 @@ class EdgeMask:
 
     start_s: FloatArray
     end_s: FloatArray
-    actuator: npt.NDArray[np.intp]
+    actuator: IndexArray
     before_s: float
     after_s: float
     delay_s: float | None = None
-    examined: npt.NDArray[np.intp] | None = None
+    examined: IndexArray | None = None
 
     @classmethod
     def empty(cls) -> EdgeMask:
@@ -132,11 +131,11 @@ class EdgeMask:
         """Return the mask on a time base ``offset_s`` [s] later (times minus the offset)."""
         return replace(self, start_s=self.start_s - offset_s, end_s=self.end_s - offset_s)
 
-    def renumbered(self, columns: npt.NDArray[np.intp]) -> EdgeMask:
+    def renumbered(self, columns: IndexArray) -> EdgeMask:
         """Return the mask with actuator i renamed ``columns[i]``; only those were examined."""
         return replace(self, actuator=columns[self.actuator], examined=np.sort(columns))
 
-    def excluded(self, t: FloatArray, actuators: npt.NDArray[np.intp]) -> BoolArray:
+    def excluded(self, t: FloatArray, actuators: IndexArray) -> BoolArray:
         """Return (len(actuators), len(t)): the pairs of samples at ``t`` [s] taken out.
 
         ``actuators`` are grid row-major indices (as ``actuator`` counts them).
@@ -278,14 +277,14 @@ def departures(times: FloatArray, command: FloatArray) -> FloatArray:
 
 def edge_pairs(
     times: FloatArray, command: FloatArray
-) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.intp]]:
+) -> tuple[IndexArray, IndexArray]:
     """Return the (interval, actuator) pairs where an actuator's command has an edge.
 
     ``times`` (Nc,) [s] sorted stamps, ``command`` (Nc, A) [V] finite values (NaN held
     from the last finite value, as align.py does). Interval i runs from stamp i to i + 1.
     Pairs are sorted by interval, then actuator.
     """
-    found: list[tuple[npt.NDArray[np.intp], npt.NDArray[np.intp]]] = []
+    found: list[tuple[IndexArray, IndexArray]] = []
     if command.size and times.size > 1:
         floor = EDGE_FLOOR * float(command.max() - command.min())
         for lo in range(0, command.shape[1], COLUMNS):  # bounded temporaries, few chunks
@@ -301,7 +300,7 @@ def edge_pairs(
     return interval[order], actuator[order]
 
 
-def find_edges(times: FloatArray, command: FloatArray) -> npt.NDArray[np.intp]:
+def find_edges(times: FloatArray, command: FloatArray) -> IndexArray:
     """Return the indices i of the intervals (stamps i to i + 1) that are an edge for any actuator.
 
     ``times`` (Nc,) [s] sorted stamps, ``command`` (Nc, A) [V] finite values.

@@ -40,9 +40,9 @@ from typing import Any, Final
 
 import numpy as np
 
-from es_calibration._typing import BoolArray, FloatArray
 from es_calibration.data.stamps import repeated, spread_repeated
 from es_calibration.errors import CalibrationError
+from es_common.arrays import BoolArray, FloatArray
 
 #: An interval between consecutive messages longer than this many median periods is a gap.
 GAP_FACTOR: Final = 3.5

@@ -23,13 +23,12 @@ from dataclasses import dataclass
 from typing import Final, Protocol
 
 import numpy as np
-import numpy.typing as npt
 
-from es_calibration._typing import FloatArray, IndexArray
 from es_calibration.data.align import MeasuredData
 from es_calibration.errors import RecordingError
 from es_calibration.grid.tilestore import TileStore, play_name
 from es_calibration.model.composite import play_operator
+from es_common.arrays import FloatArray, IndexArray, IntArray
 
 #: Role names of :meth:`Recording.batches`.
 COMMAND_ROLE: Final = "command"
@@ -77,7 +76,7 @@ class Gathered:
 
     """
 
-    usable: npt.NDArray[np.int64]
+    usable: IntArray
     displacement_nan: int
     command_nan: int
 

@@ -32,9 +32,9 @@ from typing import Final
 
 import numpy as np
 
-from es_calibration._typing import IndexArray
 from es_calibration.data.align import AlignedData
 from es_calibration.data.gaps import COMMAND_SETTLING_S
+from es_common.arrays import IndexArray
 
 #: Sample-actuator values the effect search sees at most (see the module docstring).
 SEARCH_BUDGET: Final = 2_000_000

@@ -23,9 +23,8 @@ bag reader sorts stably). Then:
 from __future__ import annotations
 
 import numpy as np
-import numpy.typing as npt
 
-from es_calibration._typing import BoolArray, FloatArray
+from es_common.arrays import BoolArray, FloatArray, IndexArray
 
 
 def repeated(times: FloatArray) -> BoolArray:
@@ -35,13 +34,13 @@ def repeated(times: FloatArray) -> BoolArray:
     return out
 
 
-def _runs(times: FloatArray) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.intp]]:
+def _runs(times: FloatArray) -> tuple[IndexArray, IndexArray]:
     """Return the first index of every run of equal stamps, and each message's run number."""
     first = ~repeated(times)
     return np.flatnonzero(first), np.cumsum(first) - 1
 
 
-def run_lengths(times: FloatArray) -> npt.NDArray[np.intp]:
+def run_lengths(times: FloatArray) -> IndexArray:
     """Return, per message, how many messages share its stamp (times sorted)."""
     starts, run_of = _runs(times)
     return np.diff(np.append(starts, times.size))[run_of]

@@ -25,8 +25,8 @@ from typing import Final
 
 import numpy as np
 
-from es_calibration._typing import FloatArray
 from es_calibration.health.findings import Finding
+from es_common.arrays import FloatArray
 
 #: A clock-rate slope counts when it is this many standard errors from zero...
 MIN_T_RATIO: Final = 6.0

@@ -18,10 +18,10 @@ from typing import Final
 
 import numpy as np
 
-from es_calibration._typing import BoolArray, FloatArray, IndexArray
 from es_calibration.data.align import AlignedData
 from es_calibration.discovery.terms import FactorKey
 from es_calibration.model.history import first_order_lowpass
+from es_common.arrays import BoolArray, FloatArray, IndexArray
 from es_physics.effects.discovered import neighbour_mean
 
 #: Low-pass time constants: this many command periods at the shortest ...

@@ -17,8 +17,8 @@ from typing import Final
 
 import numpy as np
 
-from es_calibration._typing import FloatArray
 from es_calibration.search.state import MIN_RELATIVE_GAIN, information_delta
+from es_common.arrays import FloatArray
 
 #: Most terms the step selects (the parameters file carries as many).
 MAX_TERMS: Final = 3

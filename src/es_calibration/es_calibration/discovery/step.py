@@ -17,7 +17,6 @@ from typing import Final
 
 import numpy as np
 
-from es_calibration._typing import FloatArray, IndexArray
 from es_calibration.data.align import AlignedData
 from es_calibration.discovery.library import Library, Rows, columns, product_keys, usable
 from es_calibration.discovery.regression import Gram, select, stable
@@ -31,6 +30,7 @@ from es_calibration.search.state import (
     information_delta,
 )
 from es_calibration.search.unexplained import NOISE_RATIO_LIMIT
+from es_common.arrays import FloatArray, IndexArray
 
 MAX_ACTUATORS: Final = 16
 TRAIN_ROWS: Final = 1500

@@ -26,13 +26,13 @@ from typing import Final
 
 import numpy as np
 
-from es_calibration._typing import FloatArray, IndexArray
 from es_calibration.data.align import RESAMPLE_COLUMNS, AlignedData, resample_temperature
 from es_calibration.data.recording import COMMAND_FINITE, COMMAND_ROLE, DISPLACEMENT_ROLE
 from es_calibration.grid.tilestore import TileStore, play_name
 from es_calibration.model.composite import CompositeModel, Evaluation
 from es_calibration.model.fit import FitResult, levenberg_marquardt
 from es_calibration.search.state import ModelState, Workspace, initial_law
+from es_common.arrays import FloatArray, IndexArray
 
 #: Store arrays of the tiles' resampled temperature [degC] and its rate [degC/s].
 TEMPERATURE: Final = "temperature"

@@ -23,8 +23,8 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-from es_calibration._typing import IndexArray
 from es_calibration.errors import RecordingError
+from es_common.arrays import IndexArray
 
 
 @dataclass(frozen=True)

@@ -19,8 +19,8 @@ from typing import Final
 
 import numpy as np
 
-from es_calibration._typing import FloatArray
 from es_calibration.health.findings import Finding
+from es_common.arrays import FloatArray
 from es_physics.laws import d_max, z_sat
 from es_physics.params import ActuatorParams
 

@@ -29,10 +29,9 @@ from itertools import pairwise
 from typing import Final
 
 import numpy as np
-import numpy.typing as npt
 
-from es_calibration._typing import BoolArray, FloatArray
 from es_calibration.health.findings import Finding
+from es_common.arrays import BoolArray, FloatArray, IndexArray
 
 #: Shortest run of identical values that counts as frozen [samples] ...
 FROZEN_MIN_SAMPLES: Final = 20
@@ -78,7 +77,7 @@ class SensorHealth:
     bad: BoolArray
 
 
-def _longest_run(flags: BoolArray) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.intp]]:
+def _longest_run(flags: BoolArray) -> tuple[IndexArray, IndexArray]:
     """Return the longest run of True per column of ``flags`` (n, S): (length, last index)."""
     n = flags.shape[0]
     index = np.arange(n)[:, None]

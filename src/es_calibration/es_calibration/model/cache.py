@@ -19,7 +19,7 @@ from typing import Any, Final, Generic, TypeVar
 
 import numpy as np
 
-from es_calibration._typing import IndexArray
+from es_common.arrays import IndexArray
 
 #: Default byte budget of one cache.
 DEFAULT_BUDGET_BYTES: Final = 256 * 2**20

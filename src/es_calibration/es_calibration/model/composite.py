@@ -39,11 +39,10 @@ from dataclasses import dataclass
 from typing import Final
 
 import numpy as np
-import numpy.typing as npt
 
-from es_calibration._typing import BoolArray, FloatArray
 from es_calibration.errors import CalibrationError
 from es_calibration.model.history import DriveSamples, Filtered
+from es_common.arrays import BoolArray, FloatArray, IndexArray
 from es_feedforward.kernels import Backend, default_backend
 from es_physics.effects import Effect, EffectError, Role, candidates, get, with_role
 from es_physics.effects.coupling import neighbour_count, neighbour_laplacian
@@ -351,7 +350,7 @@ class CompositeModel:
 def play_operator(
     command: FloatArray,
     threshold: float | FloatArray,
-    keep: npt.NDArray[np.intp],
+    keep: IndexArray,
     state: FloatArray | None = None,
 ) -> FloatArray:
     """Return the backlash (play) operator of a command sequence at the rows ``keep``.

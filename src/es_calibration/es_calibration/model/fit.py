@@ -21,8 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from es_calibration._typing import BoolArray, FloatArray
 from es_calibration.model.composite import Evaluation
+from es_common.arrays import BoolArray, FloatArray
 
 
 @dataclass(frozen=True)

@@ -29,9 +29,9 @@ from typing import Final
 import numpy as np
 from scipy.signal import lfilter
 
-from es_calibration._typing import FloatArray, IndexArray
 from es_calibration.errors import CalibrationFitError
 from es_calibration.model.cache import DEFAULT_BUDGET_BYTES, BoundedCache, rows_key
+from es_common.arrays import FloatArray, IndexArray
 from es_feedforward.kernels import Backend, default_backend
 from es_physics.effects import Effect
 

@@ -16,16 +16,17 @@ from __future__ import annotations
 
 import numba
 import numpy as np
-import numpy.typing as npt
+
+from es_common.arrays import FloatArray, IndexArray
 
 
 @numba.njit(cache=True, nogil=True)
 def lowpass_rows(  # noqa: PLR0917 (numba calls are positional)
-    x: npt.NDArray[np.float64],
-    coefficients: npt.NDArray[np.float64],
-    keep: npt.NDArray[np.intp],
-    y_out: npt.NDArray[np.float64],
-    slope_out: npt.NDArray[np.float64],
+    x: FloatArray,
+    coefficients: FloatArray,
+    keep: IndexArray,
+    y_out: FloatArray,
+    slope_out: FloatArray,
     with_slope: bool,
 ) -> None:
     """Filter ``x`` (N, A) and write the rows ``keep`` (increasing, in [0, N)) of y and dy/dlog tau.

@@ -19,18 +19,18 @@ from __future__ import annotations
 import math
 
 import numba
-import numpy as np
-import numpy.typing as npt
+
+from es_common.arrays import FloatArray, IndexArray
 
 
 @numba.njit(cache=True, nogil=True)
 def play_rows(  # noqa: PLR0917 (numba calls are positional)
-    command: npt.NDArray[np.float64],
-    columns: npt.NDArray[np.intp],
-    threshold: npt.NDArray[np.float64],
-    state: npt.NDArray[np.float64],
-    keep: npt.NDArray[np.intp],
-    out: npt.NDArray[np.float64],
+    command: FloatArray,
+    columns: IndexArray,
+    threshold: FloatArray,
+    state: FloatArray,
+    keep: IndexArray,
+    out: FloatArray,
 ) -> None:
     """Run the play operator over ``command`` (N, C) up to the last row of ``keep``.
 

@@ -20,7 +20,6 @@ from typing import Final
 
 import numpy as np
 
-from es_calibration._typing import FloatArray, IndexArray
 from es_calibration.data.align import AlignedData
 from es_calibration.data.delayrange import longest_whole_shift
 from es_calibration.model.cache import BoundedCache, rows_key
@@ -28,6 +27,7 @@ from es_calibration.model.composite import CompositeModel, FitInputs
 from es_calibration.model.fit import levenberg_marquardt
 from es_calibration.search.scans import lowest_shift
 from es_calibration.search.state import Workspace, initial_law
+from es_common.arrays import FloatArray, IndexArray
 
 #: Time blocks whose delays are measured.
 BLOCKS: Final = 16

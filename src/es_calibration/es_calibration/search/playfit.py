@@ -21,7 +21,6 @@ from typing import Final
 import numpy as np
 from scipy.optimize import nnls
 
-from es_calibration._typing import FloatArray
 from es_calibration.errors import CalibrationFitError
 from es_calibration.model.composite import CompositeModel, FitInputs
 from es_calibration.search.state import (
@@ -34,6 +33,7 @@ from es_calibration.search.state import (
     fit_state,
     information_delta,
 )
+from es_common.arrays import FloatArray
 from es_physics.effects import Effect, Role, with_role
 from es_physics.effects.hysteresis import MAX_OPERATORS
 
@@ -46,7 +46,6 @@ ZOOM_LEVELS: Final = 2
 SCREEN_BUDGET: Final = 6_000_000
 
 NormalEquations = tuple[FloatArray, FloatArray]
-
 
 
 def nonnegative_weights(gram: FloatArray, rhs: FloatArray) -> tuple[FloatArray, float]:

@@ -14,7 +14,7 @@ from typing import Final
 import numpy as np
 from scipy import signal, stats
 
-from es_calibration._typing import BoolArray, FloatArray
+from es_common.arrays import BoolArray, FloatArray
 
 #: Lags of the autocorrelation and cross-correlation estimates [s], at most.
 MAX_LAG_S: Final = 1.0

@@ -16,7 +16,6 @@ from typing import Final
 
 import numpy as np
 
-from es_calibration._typing import FloatArray
 from es_calibration.data.delayrange import (
     DELAY_STEP,
     LOWEST_SHIFT_PERIODS,
@@ -32,6 +31,7 @@ from es_calibration.search.state import (
     extend_local,
     fit_state,
 )
+from es_common.arrays import FloatArray
 from es_physics.effects import Role, get
 
 #: An accepted shift is refined (every trial refitted) this many command periods either side.

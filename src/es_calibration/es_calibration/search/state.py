@@ -16,13 +16,13 @@ from typing import Any, Final
 import numpy as np
 import numpy.typing as npt
 
-from es_calibration._typing import BoolArray, FloatArray, IndexArray
 from es_calibration.data.align import AlignedData, select_rows
 from es_calibration.model.cache import BoundedCache, cache_bypassed, rows_key
 from es_calibration.model.composite import CompositeModel, FitInputs, play_operator
 from es_calibration.model.fit import FitResult, levenberg_marquardt
 from es_calibration.model.history import DriveHistory, DriveSamples
 from es_calibration.search.residual import integrated_autocorrelation_time
+from es_common.arrays import BoolArray, FloatArray, IndexArray
 from es_physics.effects import Effect, FittedEffect, Role, get
 from es_physics.params import ActuatorParams
 

@@ -18,8 +18,8 @@ from typing import Final
 
 import numpy as np
 
-from es_calibration._typing import BoolArray, FloatArray
 from es_calibration.search.residual import Dependence, ResidualStructure, spectral_lines, spectrum
+from es_common.arrays import BoolArray, FloatArray
 
 NM: Final = 1e9
 #: Ratio of held-out RMS to noise floor above which the residual counts as unexplained (and

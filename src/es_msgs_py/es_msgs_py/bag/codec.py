@@ -16,6 +16,7 @@ from typing import Final, Literal
 import numpy as np
 import numpy.typing as npt
 
+from es_common.arrays import FloatArray
 from es_msgs_py.bag.errors import BagLayoutError, CorruptBagError, UnsupportedBagError
 
 __all__ = [
@@ -35,8 +36,6 @@ FLOAT64_MULTI_ARRAY: Final = "std_msgs/msg/Float64MultiArray"
 ROW_LABEL: Final = "row"
 COL_LABEL: Final = "col"
 SENSOR_LABEL: Final = "sensor"
-
-FloatArray = npt.NDArray[np.float64]
 
 _CDR_LE: Final = b"\x00\x01\x00\x00"
 _CDR_BE: Final = b"\x00\x00\x00\x00"

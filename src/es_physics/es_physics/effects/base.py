@@ -27,14 +27,10 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import ClassVar
 
-import numpy as np
-import numpy.typing as npt
-
+from es_common.arrays import FloatArray
 from es_physics.effects.identifiable import Identifiable
 from es_physics.effects.stages import Compensator, PlantContext, PlantStage
 from es_physics.errors import EffectError
-
-FloatArray = npt.NDArray[np.float64]
 
 
 class Role(enum.Enum):

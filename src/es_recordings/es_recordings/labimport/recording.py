@@ -14,9 +14,9 @@ from pathlib import Path
 from typing import Protocol
 
 import numpy as np
-import numpy.typing as npt
 
-FloatArray = npt.NDArray[np.float64]
+from es_common.arrays import FloatArray
+
 
 @dataclass(frozen=True)
 class Variable:
