@@ -185,6 +185,7 @@ def test_colcon_launcher_built_on_the_system_python_runs_from_any_shell(tmp_path
     assert "usage: record" in out
 
 
+@pytest.mark.timeout(1200)  # ten packages' pytest starts: 254 s alone at load 12, over the 300 s guard beside others
 def test_colcon_test_runs_every_package_s_tests(colcon_install: Path, tmp_path: Path) -> None:
     """`colcon test` runs each package's tests (tests/<package>, src/conftest.py) with pytest
     and `colcon test-result` counts them: not 0 for any package. Bounded: the first test of
