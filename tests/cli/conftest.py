@@ -22,9 +22,12 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
 README = ROOT / "README.md"
-#: Fenced README blocks the tier runs: ```bash ros2-tier (one after the other) and
-#: ```bash ros2-tier-live (against a running graph, started by its first line, ending in &).
-BLOCK = re.compile(r"^```bash (ros2-tier(?:-live)?)\n(.*?)^```", re.MULTILINE | re.DOTALL)
+#: Fenced README blocks the tier runs: ```bash ros2-tier (one after the other),
+#: ```bash ros2-tier-live (against a running graph, started by its first line, ending in &)
+#: and ```bash colcon-tier (one script in a fresh colcon workspace).
+BLOCK = re.compile(
+    r"^```bash (ros2-tier(?:-live)?|colcon-tier)\n(.*?)^```", re.MULTILINE | re.DOTALL
+)
 
 
 def readme_commands(kind: str) -> list[str]:

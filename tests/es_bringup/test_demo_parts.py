@@ -101,7 +101,9 @@ def test_sample_clock_copy_restamps_by_index(tmp_path: Path) -> None:
     copy = read_bag(daq_clock_copy(tmp_path / "bag", tmp_path / "daq", str(stand)))
     np.testing.assert_allclose(copy[COMMAND].times, np.arange(steps) / 250.0)
     np.testing.assert_allclose(copy[TEMPERATURE_RAW].times, [0.0, every / 250.0])
-    np.testing.assert_array_equal(copy[DISPLACEMENT].values, grid)
+    got = copy[DISPLACEMENT].values
+    assert got is not None
+    np.testing.assert_array_equal(got, grid)
 
 
 def test_parameters_file_follows_the_graph_into_its_namespace(tmp_path: Path) -> None:

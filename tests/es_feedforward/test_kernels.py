@@ -292,6 +292,7 @@ def test_fused_linearized_is_the_numpy_path_bit_for_bit(T0: float) -> None:
     for result, error in ((fused[0], fused[1]), (fused_result, fused_result.model_error)):
         np.testing.assert_array_equal(result.voltage, numpy_result.voltage)
         np.testing.assert_array_equal(result.status, numpy_result.status)
+        assert error is not None and numpy_result.model_error is not None
         np.testing.assert_array_equal(error, numpy_result.model_error)
     assert {CODE_OK, CODE_CLIPPED_HIGH} <= set(np.unique(fused[0].status).tolist())
     for bad in (0.5 * (below.flat[3] + beyond.flat[3]), -1e-9, np.nan):

@@ -115,10 +115,14 @@ def test_round_trip_grid_sensor_diagnostics_clock(tmp_path: Path, storage: str) 
     series = read_bag(bag)
     assert set(series) == {COMMAND, TEMPERATURE_RAW, DIAGNOSTICS, CLOCK}
     command = series[COMMAND]
-    np.testing.assert_array_equal(command.values, grids)
+    got = command.values
+    assert got is not None
+    np.testing.assert_array_equal(got, grids)
     np.testing.assert_allclose(command.times, 1.0 + np.arange(30) * 1e-3, rtol=0, atol=1e-12)
     temperatures = series[TEMPERATURE_RAW]
-    np.testing.assert_array_equal(temperatures.values, sensors[::-1])  # sorted by bag time
+    got = temperatures.values
+    assert got is not None
+    np.testing.assert_array_equal(got, sensors[::-1])  # sorted by bag time
     assert np.all(np.diff(temperatures.times) > 0)
     (diag,) = series[DIAGNOSTICS].messages
     assert diag.status[0].name == "record: bag"
@@ -160,7 +164,9 @@ def test_zstd_compressed_mcap_chunks(tmp_path: Path) -> None:
         for i, grid in enumerate(grids):
             writer.write(conn, i, encode_float64_multi_array(grid, "grid"))
     assert b"zstd" in _storage_file(tmp_path / "bag").read_bytes()
-    np.testing.assert_array_equal(read_bag(tmp_path / "bag")[COMMAND].values, grids)
+    got = read_bag(tmp_path / "bag")[COMMAND].values
+    assert got is not None
+    np.testing.assert_array_equal(got, grids)
 
 
 def test_split_bag_reads_every_file(tmp_path: Path) -> None:
@@ -170,7 +176,9 @@ def test_split_bag_reads_every_file(tmp_path: Path) -> None:
     shutil.move(tmp_path / "part" / "part.mcap", tmp_path / "bag" / "bag_1.mcap")
     meta = tmp_path / "bag" / "metadata.yaml"
     meta.write_text(meta.read_text().replace("- bag.mcap", "- bag.mcap\n  - bag_1.mcap", 1))
-    np.testing.assert_array_equal(read_bag(tmp_path / "bag")[COMMAND].values, grids)
+    got = read_bag(tmp_path / "bag")[COMMAND].values
+    assert got is not None
+    np.testing.assert_array_equal(got, grids)
 
 
 def test_read_selected_topics_only(tmp_path: Path) -> None:

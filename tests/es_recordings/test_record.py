@@ -153,8 +153,12 @@ def test_recorder_writes_every_message_and_closes_on_sigint(tmp_path: Path) -> N
     assert "/dm/command: received 300, written 300, lost before reception 0" in recorder.output()
     assert (bag / "metadata.yaml").is_file()
     series = read_bag(bag)
-    np.testing.assert_array_equal(series[COMMAND].values, grids)
-    np.testing.assert_array_equal(series[TEMPERATURE_RAW].values, sensors)
+    got = series[COMMAND].values
+    assert got is not None
+    np.testing.assert_array_equal(got, grids)
+    got = series[TEMPERATURE_RAW].values
+    assert got is not None
+    np.testing.assert_array_equal(got, sensors)
     assert np.all(np.diff(series[COMMAND].times) >= 0)
     assert abs(series[COMMAND].times[0] - time.time()) < 120  # wall-clock stamps
     assert len(series[DIAGNOSTICS]) >= 1  # its own counts, at least
@@ -389,7 +393,9 @@ def test_sigkilled_recorder_bag_is_readable_up_to_last_flush(tmp_path: Path) -> 
         code = recorder.stop(signal.SIGKILL)
     assert code == -signal.SIGKILL
     assert not (bag / "metadata.yaml").exists()
-    np.testing.assert_array_equal(read_bag(bag)[COMMAND].values, grids)
+    got = read_bag(bag)[COMMAND].values
+    assert got is not None
+    np.testing.assert_array_equal(got, grids)
 
 
 @pytest.mark.parametrize(

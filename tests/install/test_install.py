@@ -185,6 +185,31 @@ def test_colcon_launcher_built_on_the_system_python_runs_from_any_shell(tmp_path
     assert "usage: record" in out
 
 
+def test_colcon_launcher_built_with_symlink_install_runs_from_any_shell(tmp_path: Path) -> None:
+    """`colcon build --symlink-install` (setup.py develop): lib/<pkg>/<exe> is a symlink into
+    the build tree, the console script is in install/<pkg>/bin/ and the package is found
+    through the develop hook; the launcher still runs from a clean shell."""
+    # the two packages record needs, as in the system-Python test above
+    command = [
+        sys.executable, "-m", "colcon", "--log-base", str(tmp_path / "log"), "build",
+        "--symlink-install",
+        "--base-paths", str(ROOT / "src" / "es_msgs_py"), str(ROOT / "src" / "es_recordings"),
+        "--build-base", str(tmp_path / "build"), "--install-base", str(tmp_path / "install"),
+    ]  # fmt: skip
+    proc = subprocess.run(
+        command, cwd=tmp_path, capture_output=True, text=True, timeout=300, check=False
+    )
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    install = tmp_path / "install"
+    launcher = install / "es_recordings" / "lib" / "es_recordings" / "record"
+    assert launcher.is_symlink(), f"{launcher} was copied: not a symlink install"
+    assert _shebang(install, "es_recordings", "record") == f"#!{sys.executable}"
+    # by its absolute path and relative to the working directory, as `ros2 run` and a user do
+    assert "usage: record" in _clean_shell(install, f"{launcher} --help", tmp_path)
+    relative = launcher.relative_to(tmp_path)
+    assert "usage: record" in _clean_shell(install, f"cd {tmp_path} && {relative} --help", tmp_path)
+
+
 @pytest.mark.timeout(1200)  # ten packages' pytest starts: 254 s alone at load 12, over the 300 s guard beside others
 def test_colcon_test_runs_every_package_s_tests(colcon_install: Path, tmp_path: Path) -> None:
     """`colcon test` runs each package's tests (tests/<package>, src/conftest.py) with pytest
