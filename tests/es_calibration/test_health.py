@@ -17,8 +17,10 @@ from typing import Any
 import numpy as np
 import pytest
 from standgen import StandConfig, simulate, write_bag
+from standgen.faults import Faults, SensorFault
 
 from es_calibration.calibrate import run
+from es_calibration.data.bags import read_measured_bag
 from es_calibration.health.actuators import check_actuators
 from es_calibration.health.sensors import check_sensors
 from es_calibration.verdict import EXIT_STATUS, judge
@@ -154,3 +156,30 @@ def test_verdict_levels() -> None:
     off = {**common, "unconfirmed": ["hysteresis"]}
     assert judge(law=[], kept_fraction=0.95, **off).level == "provisional"
     assert EXIT_STATUS == {"trusted": 0, "provisional": 3, "unusable": 4}
+
+
+def _single_sensor_temperature(tmp_path: Path, faults: Faults) -> tuple[Any, Any]:
+    """Read a standgen bag whose one sensor serves the whole 2 x 2 grid (as calibrate does)."""
+    config = StandConfig(rows=2, cols=2, rate_hz=250.0, duration_s=60.0, seed=7,
+                         temperature_kind="raw_single", faults=faults)
+    write_bag(simulate(config), tmp_path / "bag")
+    data = read_measured_bag(tmp_path / "bag")
+    return data.temperature_times, data.temperature.reshape(data.temperature.shape[0], -1)
+
+
+def test_a_single_frozen_sensor_for_the_whole_grid_is_named(tmp_path: Path) -> None:
+    # the one sensor is read into every actuator's column: before, each column's "others"
+    # froze with it and the freeze went unnamed, its samples used
+    times, values = _single_sensor_temperature(
+        tmp_path, Faults(sensor=SensorFault("frozen", 0, 30.0)))
+    health = check_sensors(times, values, (2, 2), float(times[0]))
+    assert [(f.kind, f.index) for f in health.findings] == [("sensor_frozen", 0)]
+    assert "single sensor" in health.findings[0].sentence
+    assert health.findings[0].start_s == pytest.approx(30.0, abs=0.5)
+    assert health.bad[times - times[0] > 31.0].all()
+    assert not health.bad[times - times[0] < 29.0].any()
+
+
+def test_a_single_moving_sensor_gives_no_finding(tmp_path: Path) -> None:
+    times, values = _single_sensor_temperature(tmp_path, Faults())
+    assert check_sensors(times, values, (2, 2), float(times[0])).findings == []

@@ -13,9 +13,18 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from standgen import StandConfig
+from standgen import StandConfig, simulate, write_bag
 from standgen.effects import Delay, Effects, Hysteresis, ThermalExpansion
-from standgen.identify import case_group, goal_lines, interleaved, main, markdown, run_case
+from standgen.faults import ClockRate, Faults
+from standgen.identify import (
+    calibrate_bag,
+    case_group,
+    goal_lines,
+    interleaved,
+    main,
+    markdown,
+    run_case,
+)
 from standgen.ranges import FAMILIES, FAULT_FAMILIES, UNLISTED_FAMILIES
 from standgen.stand import true_law
 from standgen.sweep import (
@@ -373,3 +382,15 @@ def test_summary_tables_and_goal_lines_for_faults_and_unlisted() -> None:
     assert "| `sensor_frozen` | 1 | 0 | 1/1 | 1/1 | 1 | 1/1 |" in text
     assert "| `independent_drive` | 1 | 0 | n/a | n/a | 0 | 0/1 |" in text
     assert "| `creep` | 1 | 0 | 1 | 0 | 0 | 1 | 1.2 |" in text
+
+
+def test_a_provisional_calibration_is_scored_not_failed(tmp_path: Path) -> None:
+    # a clock-rate case is corrected and judged provisional (exit 3): before, the sweep took
+    # every exit but 0 for a failed run with "no output" and scored the fault not found
+    config = StandConfig(rows=2, cols=2, rate_hz=250.0, duration_s=60.0, seed=5,
+                         temperature_kind="grid", faults=Faults(clock_rate=ClockRate(60.0)))
+    write_bag(simulate(config), tmp_path / "bag")
+    doc, error = calibrate_bag(tmp_path / "bag", tmp_path / "out")
+    assert error == ""
+    assert doc is not None and doc["verdict"]["level"] == "provisional"
+    assert [f["kind"] for f in doc["health"]["findings"]] == ["clock_rate"]

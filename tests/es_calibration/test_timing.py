@@ -98,6 +98,9 @@ def test_a_fast_displacement_clock_is_estimated_and_corrected() -> None:
     assert [e.name for e in cal.effects] == []  # no stand-in effect
     assert _law_error(cal, recording) < 0.05
     assert cal.final.heldout_rms < 1.2 * recording.config.noise_rms_m
+    # the time base rests on the estimate: not trusted without a word (before: "trusted")
+    assert cal.verdict.level == "provisional"
+    assert any("clock_rate" in reason for reason in cal.verdict.reasons)
 
 
 def test_clean_clocks_give_no_clock_rate_finding() -> None:

@@ -4,8 +4,10 @@
   law lies outside the physical intervals (the thesis's 95 % intervals widened
   ``PHYSICAL_WIDENING`` times), or fewer than ``MIN_KEPT_FRACTION`` of the data were kept;
 - ``provisional``: the held-out error stays above ``FAR_ABOVE_FLOOR`` times the noise floor
-  with structure left, health findings took data out or flagged an actuator, an effect did
-  not hold on the record's halves, or fewer than ``KEPT_FOR_TRUSTED`` of the data were kept;
+  with structure left, health findings took data out or flagged an actuator, the time base
+  rests on a timing finding (a clock-rate difference corrected, receive jitter, late
+  bursts), an effect did not hold on the record's halves, or fewer than
+  ``KEPT_FOR_TRUSTED`` of the data were kept;
 - ``trusted`` otherwise.
 """
 
@@ -35,6 +37,8 @@ MIN_KEPT_FRACTION: Final = 0.1
 KEPT_FOR_TRUSTED: Final = 0.5
 #: Kinds of findings that take data out or leave an actuator the feedforward cannot fix.
 _PROVISIONAL_KINDS: Final = ("actuator_dead", "actuator_saturating")
+#: Timing findings: the time base was corrected from an estimate, or stamps were late.
+_TIMING_KINDS: Final = ("clock_rate", "receive_jitter", "late_burst")
 
 
 @dataclass(frozen=True)
@@ -127,6 +131,12 @@ def judge(
     for f in findings:
         if f.kind in _PROVISIONAL_KINDS:
             reasons.append(f"{f.kind} {f.subject}")
+    timing = [f for f in findings if f.kind in _TIMING_KINDS]
+    if timing:
+        reasons.append(
+            f"{len(timing)} timing finding(s), the time base rests on their estimate: "
+            + "; ".join(f"{f.kind} {f.subject}" for f in timing[:5])
+        )
     if unconfirmed:
         reasons.append(
             f"effect(s) not confirmed on the record's halves, written switched off: "

@@ -24,7 +24,7 @@ from __future__ import annotations
 import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from itertools import pairwise
 from typing import Final
 
@@ -39,6 +39,9 @@ FROZEN_MIN_SAMPLES: Final = 20
 FROZEN_MIN_FRACTION: Final = 0.02
 #: Share of the other sensors that must change meanwhile (the temperature did move).
 OTHERS_MOVING: Final = 0.5
+#: A single sensor (none to compare with) is frozen when its run of identical readings is
+#: this many times its longest run elsewhere in the record (it otherwise moves).
+SELF_RUN_RATIO: Final = 5
 #: Readings a mirror's temperature sensor can give [degC].
 PLAUSIBLE_DEGC: Final = (-40.0, 125.0)
 #: A jump: a step against the common temperature beyond this many noise sigmas ...
@@ -126,9 +129,16 @@ class _Checker:
                 self._add("sensor_flat", int(column), (0, n - 1), float(self.x[0, column]),
                           ("degC", f"reads {self.x[0, column]:.4g} degC over the whole record"))
                 continue
-            others = np.delete(moving[start:end], column, axis=1)
-            if others.size and others.any(axis=0).mean() < OTHERS_MOVING:
-                continue  # the temperature itself held still
+            if self.x.shape[1] > 1:
+                others = np.delete(moving[start:end], column, axis=1)
+                if others.any(axis=0).mean() < OTHERS_MOVING:
+                    continue  # the temperature itself held still
+            else:  # one sensor: frozen only when it otherwise moves
+                elsewhere = same[:, column].copy()
+                elsewhere[start:end] = False
+                if length[column] < SELF_RUN_RATIO * max(int(_longest_run(
+                        elsewhere[:, None])[0][0]), 1):
+                    continue
             self.bad[start : end + 1, column] = True
             self._add("sensor_frozen", int(column), (start, end), float(self.x[start, column]),
                       ("degC", f"stops updating at {self.x[start, column]:.4g} degC for "
@@ -268,6 +278,20 @@ def _repair(values: FloatArray, bad: BoolArray, grid: tuple[int, int]) -> tuple[
     return fixed, actions
 
 
+def _single_sensor(times: FloatArray, values: FloatArray, start: float) -> SensorHealth:
+    """Check one sensor read for the whole grid (every column the same) as one sensor."""
+    one = check_sensors(times, values[:, :1], (1, 1), start)
+    if not one.findings:
+        return SensorHealth([], values, np.zeros(values.shape, dtype=bool))
+    findings = [replace(f, subject="the single sensor of the grid", row=None, col=None,
+                        sentence=f.sentence.replace("sensor 0 (0, 0)",
+                                                    "the single sensor of the grid"))
+                for f in one.findings]
+    shape = values.shape
+    return SensorHealth(findings, np.broadcast_to(one.temperature, shape).copy(),
+                        np.broadcast_to(one.bad, shape).copy())
+
+
 def check_sensors(
     times: FloatArray, values: FloatArray, grid: tuple[int, int], start: float
 ) -> SensorHealth:
@@ -285,6 +309,9 @@ def check_sensors(
 
     """
     n, S = values.shape
+    if S > 1 and n and np.array_equal(values, np.broadcast_to(values[:, :1], values.shape),
+                                      equal_nan=True):
+        return _single_sensor(times, values, start)
     bad = np.zeros((n, S), dtype=bool)
     found = []
     if n >= 2 * FROZEN_MIN_SAMPLES:
