@@ -20,13 +20,14 @@ from standgen import StandConfig, simulate, write_bag
 from standgen.faults import Faults, SensorFault
 
 from es_calibration.calibrate import run
-from es_calibration.data.bags import read_measured_bag
 from es_calibration.health.actuators import check_actuators
 from es_calibration.health.sensors import check_sensors
 from es_calibration.verdict import EXIT_STATUS, judge
 from es_physics.effects import get
 from es_physics.effects.identifiable import RecordSpan, identification_problem
 from es_physics.params import ActuatorParams
+
+from .measured_bags import read_measured_bags
 
 FROZEN = 4
 WEAK = 2
@@ -163,7 +164,7 @@ def _single_sensor_temperature(tmp_path: Path, faults: Faults) -> tuple[Any, Any
     config = StandConfig(rows=2, cols=2, rate_hz=250.0, duration_s=60.0, seed=7,
                          temperature_kind="raw_single", faults=faults)
     write_bag(simulate(config), tmp_path / "bag")
-    data = read_measured_bag(tmp_path / "bag")
+    data = read_measured_bags([tmp_path / "bag"])
     return data.temperature_times, data.temperature.reshape(data.temperature.shape[0], -1)
 
 
