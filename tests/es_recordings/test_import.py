@@ -257,9 +257,9 @@ def test_installed_launcher_imports(tmp_path: Path) -> None:
     _check_bag(tmp_path / "bag", rec, True)
 
 
-def test_the_readme_example_map_imports_its_rig_log(tmp_path: Path) -> None:
-    readme = (ROOT / "README.md").read_text()
-    section = readme.split("## Calibrating from your own rig", 1)[1]
+def test_the_documented_example_map_imports_its_rig_log(tmp_path: Path) -> None:
+    page = (ROOT / "docs" / "calibration.md").read_text()
+    section = page.split("## Formats and the map", 1)[1]
     example = section.split("```yaml\n", 1)[1].split("```", 1)[0]
     (tmp_path / "map.yaml").write_text(example)
     rec = recording(n=100)
