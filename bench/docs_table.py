@@ -10,7 +10,11 @@ The page marks the table with the lines ``<!-- bench-table:begin -->`` and
 ``<!-- bench-table:end -->``; what lies between is replaced by the run's summary (the table
 of ``summary.md``: :func:`common.reporting.summary_lines`) or, with ``--figures``, every
 figure, note and failure whose name starts with one of the given prefixes; then the command
-that measured it and the command that regenerates the block. So the figures in the docs are
+that measured it and the command that regenerates the block. An identification sweep's
+``identify.json`` (``scripts/identify``) gives its goals and its fault and unlisted tables
+instead; ``--keep PATH`` also writes the run's settings, summary and goals (not its cases,
+to keep committed data small) to PATH, which the regenerating command then reads. So the
+figures in the docs are
 the benchmark's own output, never copied by hand (tests/install/test_docs_tables.py reruns
 that command). A missing or unreadable file, or a page without the two markers, ends with
 one line on stderr and exit status 2; the page is then left as it was.
@@ -26,6 +30,7 @@ from pathlib import Path
 
 from common.benchlib import Record, Results
 from common.reporting import summary_header, summary_lines, summary_row
+from standgen.identify import fault_lines, goal_lines, unlisted_lines
 
 BEGIN = "<!-- bench-table:begin -->"
 END = "<!-- bench-table:end -->"
@@ -65,6 +70,39 @@ def table_block(bench: dict, figures: Sequence[str] = (), regenerate: str = "") 
     return [*lines, ""]
 
 
+def sweep_block(identify: dict, regenerate: str = "") -> list[str]:
+    """Return the lines that go between the markers for an identification sweep's results.
+
+    Args:
+        identify: identify.json's contents (``settings``, ``summary``; ``cases`` unused).
+        regenerate: the command that rewrites the block, shown under it.
+
+    Raises:
+        KeyError: a field of identify.json is missing.
+
+    """
+    settings, summary = identify["settings"], identify["summary"]
+    done, total = settings.get("cases_done"), settings.get("cases_total")
+    load = settings.get("load_average")
+    lines = [
+        f"Measured {settings['date']} on {settings['cores']} cores, {settings['jobs']} case(s) at "
+        f"a time, {settings['wall_s']:.0f} s wall"
+        + (f" (1-min load average {load:.1f} at the end)" if load is not None else "")
+        + f": {summary['cases']} cases, {summary['failed']} calibrations failed"
+        + (f", PARTIAL: {done} of {total} cases" if total and done is not None and done < total
+           else "") + ".",
+        "",
+        *[f"- {line}" for line in goal_lines(summary)],
+        "",
+        *[line.replace("## ", "**", 1) + "**" if line.startswith("## ") else line
+          for line in (*fault_lines(summary), *unlisted_lines(summary))],
+        f"Command: `{settings['command']}`.",
+    ]
+    if regenerate:
+        lines.append(f"Regenerate: `{regenerate}`.")
+    return [*lines, ""]
+
+
 def rewrite(page: str, block: list[str]) -> str:
     """Return ``page`` with the text between the markers replaced by ``block``.
 
@@ -82,19 +120,33 @@ def rewrite(page: str, block: list[str]) -> str:
 def main(argv: list[str] | None = None) -> int:
     """Rewrite the page's table; 0 on success, 2 with one line on stderr otherwise."""
     parser = argparse.ArgumentParser(prog="docs_table", description=__doc__.splitlines()[0])
-    parser.add_argument("bench_json", type=Path, help="bench.json of a ./scripts/bench run")
+    parser.add_argument("bench_json", type=Path,
+                        help="bench.json of a ./scripts/bench run, or identify.json of a sweep")
     parser.add_argument("page", type=Path, help="the docs page with the two markers")
     parser.add_argument("--figures", nargs="+", default=[], metavar="PREFIX",
                         help="show the figures, notes and failures starting with these prefixes "
                         "instead of the run's summary")
+    parser.add_argument("--keep", type=Path, metavar="PATH",
+                        help="(a sweep) also write its settings, summary and goals to PATH, and "
+                        "regenerate from there")
     args = parser.parse_args(argv)
     options = ["--figures", *args.figures] if args.figures else []
+    source = args.keep or args.bench_json
     regenerate = " ".join(
-        [".venv/bin/python bench/docs_table.py", str(args.bench_json), str(args.page), *options]
+        [".venv/bin/python bench/docs_table.py", str(source), str(args.page), *options]
     )
     try:
-        block = table_block(json.loads(args.bench_json.read_text()), args.figures, regenerate)
-        args.page.write_text(rewrite(args.page.read_text(), block))
+        document = json.loads(args.bench_json.read_text())
+        sweep = "summary" in document  # an identification sweep's identify.json
+        if sweep:
+            block = sweep_block(document, regenerate)
+        else:
+            block = table_block(document, args.figures, regenerate)
+        page = rewrite(args.page.read_text(), block)
+        if sweep and args.keep:
+            kept = {key: document[key] for key in ("settings", "summary", "goals")}
+            args.keep.write_text(json.dumps(kept, indent=1) + "\n")
+        args.page.write_text(page)
     except (OSError, ValueError, KeyError, TypeError) as err:
         print(f"docs_table: {err}", file=sys.stderr)
         return 2

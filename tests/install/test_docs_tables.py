@@ -7,6 +7,7 @@ gives the page's block line for line, so no figure between the markers was edite
 
 from __future__ import annotations
 
+import json
 import shlex
 import subprocess
 import sys
@@ -54,3 +55,24 @@ def test_a_page_without_markers_is_left_as_it_was(tmp_path: Path) -> None:
     assert proc.returncode == 2
     assert proc.stderr.startswith("docs_table: ") and len(proc.stderr.splitlines()) == 1
     assert page.read_text() == "# no markers\n"
+
+
+def test_a_sweep_s_results_become_a_block_and_a_small_kept_copy(tmp_path: Path) -> None:
+    from standgen.identify import write_results
+
+    settings = {"date": "2026-11-28 20:00 UTC", "command": "python -m standgen.identify --quick",
+                "quick": True, "jobs": 1, "seed": 0, "cores": 2, "wall_s": 12.0,
+                "cases_done": 0, "cases_total": 3, "load_average": 1.0}
+    write_results(tmp_path / "sweep", [], settings)
+    page = tmp_path / "page.md"
+    page.write_text(f"# sweep\n{BEGIN}\nstale\n{END}\n")
+    kept = tmp_path / "identify.json"
+    run = [sys.executable, "bench/docs_table.py", str(tmp_path / "sweep" / "identify.json"),
+           str(page), "--keep", str(kept)]
+    subprocess.run(run, cwd=ROOT, check=True, capture_output=True, text=True)
+    block = _block(page.read_text())
+    assert "stale" not in block
+    assert any("PARTIAL: 0 of 3 cases" in line for line in block)
+    assert any(line.startswith("- not measured: right effect set") for line in block)
+    assert block[-2] == f"Regenerate: `.venv/bin/python bench/docs_table.py {kept} {page}`."
+    assert set(json.loads(kept.read_text())) == {"settings", "summary", "goals"}
