@@ -115,3 +115,12 @@ def test_a_bounded_cache_keeps_its_budget_and_evicts_the_least_recently_used() -
         assert store.get(0) is None
         store.put(5, np.zeros(1))
     assert store.get(5) is None and store.get(0) is not None
+
+
+def test_a_kept_value_cannot_be_written_into() -> None:
+    store: BoundedCache[tuple[np.ndarray, np.ndarray]] = BoundedCache()
+    kept = store.put("k", (np.zeros(3), np.ones(2)))
+    for array in kept:
+        with pytest.raises(ValueError, match="read-only"):
+            array[0] = 5.0
+    assert store.get("k")[0].tolist() == [0.0, 0.0, 0.0]  # type: ignore[index]

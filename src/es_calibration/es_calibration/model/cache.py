@@ -6,7 +6,9 @@ itself depend only on the recording, the rows read and those values, not on the 
 :class:`BoundedCache` keeps such results, least recently used first out, under a byte
 budget (a 64 x 64 grid's record must stay within its memory target), keyed by exactly
 what they depend on. :func:`bypassed` switches every cache off (each lookup misses, nothing
-is kept), so a test can show that the caches change no result.
+is kept), so a test can show that the caches change no result. The arrays of a kept value
+are made read-only: a caller that wrote into one would change every later candidate's
+input, so such a write raises instead.
 """
 
 from __future__ import annotations
@@ -57,6 +59,18 @@ def _size(value: Any) -> int:
     return 0
 
 
+def _freeze(value: Any) -> None:
+    """Make the arrays in ``value`` (an array, tuples or dataclasses of them) read-only."""
+    if isinstance(value, np.ndarray):
+        value.flags.writeable = False
+    elif isinstance(value, tuple):
+        for item in value:
+            _freeze(item)
+    elif dataclasses.is_dataclass(value) and not isinstance(value, type):
+        for field in dataclasses.fields(value):
+            _freeze(getattr(value, field.name))
+
+
 def rows_key(rows: IndexArray) -> bytes:
     """Return a key for a row index array: its contents (equal rows, equal key; exact)."""
     return np.ascontiguousarray(rows, np.intp).tobytes()
@@ -89,7 +103,10 @@ class BoundedCache(Generic[V]):
         return self._entries[key][0]
 
     def put(self, key: Hashable, value: V) -> V:
-        """Keep ``value`` under ``key`` (unless bypassed or larger than the budget); return it."""
+        """Keep ``value`` under ``key`` (unless bypassed or larger than the budget); return it.
+
+        The arrays of a kept value become read-only (see the module's docstring).
+        """
         if _bypass:
             return value
         size = _size(value)
@@ -101,6 +118,7 @@ class BoundedCache(Generic[V]):
             self._bytes + size > self.budget_bytes or len(self._entries) >= self.max_entries
         ):
             self._bytes -= self._entries.popitem(last=False)[1][1]
+        _freeze(value)
         self._entries[key] = (value, size)
         self._bytes += size
         return value
