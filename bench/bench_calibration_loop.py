@@ -87,6 +87,11 @@ GOAL_RATIO = 1.5
 REFERENCE = "none"
 #: Closed-loop set points: the shipped scenarios whose ``setpoint`` the loop runs with.
 SETPOINTS = (LOOP_SCENARIO, "thesis_dc_ac")
+#: A stage (base) temperature change larger than this within one control step is a step [degC].
+STAGE_STEP_C = 0.5
+#: Time after a stage step left out of the steady-state RMS, physical seconds (scaled by the
+#: scenario's time_scale; bench_thermal's transient window).
+SETTLE_S = 30.0
 
 
 @dataclass
@@ -103,6 +108,8 @@ class LoopResult:
     reachable_rms_m: dict[str, float]  # by set point: over the steps with no status clipped
     unreachable_share: dict[str, float]  # by set point: share of steps with one
     floor_rms_m: dict[str, float]  # by set point: error no feedforward can avoid
+    steady_rms_m: dict[str, float]  # by set point: SETTLE_S or more after a stage step
+    after_step_rms_m: dict[str, float]  # by set point: within SETTLE_S of a stage step
 
 
 def _effects(effect: str) -> dict[str, Any]:
@@ -148,6 +155,27 @@ class LoopRun:
     reachable_rms_m: float
     unreachable_share: float
     floor_rms_m: float
+    steady_rms_m: float
+    after_step_rms_m: float
+
+
+def settled_mask(base_temperature: np.ndarray, time: np.ndarray, settle_s: float) -> np.ndarray:
+    """Return, per step, whether ``settle_s`` [s] have passed since the last stage step.
+
+    A stage step is a change of the base temperature by more than ``STAGE_STEP_C`` within one
+    step; a ramp has none, so every step of a ramp counts as settled.
+    """
+    jumps = np.flatnonzero(np.abs(np.diff(base_temperature)) > STAGE_STEP_C) + 1
+    if jumps.size == 0:
+        return np.ones(time.shape, dtype=bool)
+    last = np.searchsorted(jumps, np.arange(time.size), side="right") - 1
+    since = np.where(last >= 0, time - time[jumps[np.maximum(last, 0)]], np.inf)
+    return np.asarray(since >= settle_s)
+
+
+def _rms(values: np.ndarray) -> float:
+    """Return the RMS of ``values`` (NaN when empty)."""
+    return float(np.sqrt(np.mean(values**2))) if values.size else float("nan")
 
 
 def _estimator(path: Path, thermal_file: Path) -> tuple[TemperatureEstimator, dict[str, object]]:
@@ -198,11 +226,16 @@ def closed_loop(path: Path, scenario: Scenario, params: Path, thermal_file: Path
     skip = round(period * scenario.control_rate)
     ok = np.asarray(reachable)[skip:]
     error = (result.displacement - result.setpoint)[skip:][ok]
+    settled = settled_mask(result.base_temperature, result.time,
+                           SETTLE_S * scenario.time_scale)[skip:]
+    every = (result.displacement - result.setpoint)[skip:]
     return LoopRun(
         rms_error_m=run_metrics(aligned, period, skip_s=period)[0].rms_error_m,
         reachable_rms_m=float(np.sqrt(np.mean(error**2))) if error.size else float("nan"),
         unreachable_share=float(1.0 - ok.mean()),
         floor_rms_m=floor_rms(scenario, config.v_limit, skip),
+        steady_rms_m=_rms(every[settled]),
+        after_step_rms_m=_rms(every[~settled]),
     )
 
 
@@ -257,6 +290,8 @@ def calibration_loop(effect: str, work: Path, raw_temperature: bool = False) -> 
         reachable_rms_m={sp: run.reachable_rms_m for sp, run in runs.items()},
         unreachable_share={sp: run.unreachable_share for sp, run in runs.items()},
         floor_rms_m={sp: run.floor_rms_m for sp, run in runs.items()},
+        steady_rms_m={sp: run.steady_rms_m for sp, run in runs.items()},
+        after_step_rms_m={sp: run.after_step_rms_m for sp, run in runs.items()},
     )
 
 
@@ -321,7 +356,29 @@ def markdown(results: Sequence[LoopResult]) -> list[str]:
             f"| {r.effect} | {', '.join(r.found) or 'none'} | "
             f"{r.heldout_rms_m / r.noise_floor_m:.2f} | {cells} | {goal} | {r.wall_s:.0f} |"
         )
-    return lines + lines_reach
+    lines_steady = [
+        "",
+        f"Steady state and stage steps: RMS error [nm] {SETTLE_S:g} s (physical, scaled by "
+        "the scenario's time_scale) or more after a stage step, and within that time (- where "
+        "the stage only ramps):",
+        "",
+        "| effect | "
+        + " | ".join(f"set point of {sp}: steady RMS [nm], after steps [nm]" for sp in SETPOINTS)
+        + " |",
+        "|---|" + "---|" * len(SETPOINTS),
+    ]
+    for r in results:
+        lines_steady.append(
+            f"| {r.effect} | "
+            + " | ".join(
+                f"{r.steady_rms_m[sp] * 1e9:.3f}, "
+                + ("-" if np.isnan(r.after_step_rms_m[sp]) else
+                   f"{r.after_step_rms_m[sp] * 1e9:.3f}")
+                for sp in SETPOINTS
+            )
+            + " |"
+        )
+    return lines + lines_reach + lines_steady
 
 
 def _goal(result: LoopResult, setpoint: str, reference: LoopResult | None) -> str:

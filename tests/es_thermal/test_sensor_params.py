@@ -10,7 +10,12 @@ import yaml
 
 from es_thermal.errors import ThermalConfigError
 from es_thermal.node_params import SPECS, config_from_parameters
-from es_thermal.sensor_params import SensorCalibration, sensor_parameters, write_sensor_params
+from es_thermal.sensor_params import (
+    CALIBRATED_STEP_GATE,
+    SensorCalibration,
+    sensor_parameters,
+    write_sensor_params,
+)
 
 
 def test_the_file_is_the_nodes_parameters_and_loads(tmp_path: Path) -> None:
@@ -36,7 +41,8 @@ def test_the_file_is_the_nodes_parameters_and_loads(tmp_path: Path) -> None:
 
 def test_one_value_for_all_stays_a_scalar() -> None:
     written = sensor_parameters(SensorCalibration(lag_s=3.0))
-    assert written == {"sensor_lag_tau": 3.0, "sensor_offsets": 0.0, "sensor_offsets_sd": 0.0}
+    assert written == {"model.step_gate": CALIBRATED_STEP_GATE, "sensor_lag_tau": 3.0,
+                       "sensor_offsets": 0.0, "sensor_offsets_sd": 0.0}
 
 
 @pytest.mark.parametrize(
