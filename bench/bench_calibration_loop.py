@@ -323,30 +323,16 @@ def markdown(results: Sequence[LoopResult]) -> list[str]:
         + " | goal | wall [s] |",
         "|---|---|---|" + "---|" * len(SETPOINTS) + "---|---|",
     ]
-    lines_reach = [
-        "",
+    lines_reach = _per_setpoint_table(
+        results,
         "Diagnosis: RMS error [nm] over the steps whose set point the feedforward could reach "
         "at every actuator (none clipped at 0 V or the limit) and the share of steps that were "
         "not; the floor: RMS error [nm] no feedforward can avoid (set point below the "
         "displacement at 0 V or above the one at the limit):",
-        "",
-        "| effect | "
-        + " | ".join(
-            f"set point of {sp}: reachable RMS [nm] (unreachable), floor [nm]" for sp in SETPOINTS
-        )
-        + " |",
-        "|---|" + "---|" * len(SETPOINTS),
-    ]
-    for r in results:
-        lines_reach.append(
-            f"| {r.effect} | "
-            + " | ".join(
-                f"{r.reachable_rms_m[sp] * 1e9:.3f} ({100 * r.unreachable_share[sp]:.1f} %), "
-                f"{r.floor_rms_m[sp] * 1e9:.3f}"
-                for sp in SETPOINTS
-            )
-            + " |"
-        )
+        "reachable RMS [nm] (unreachable), floor [nm]",
+        lambda r, sp: f"{r.reachable_rms_m[sp] * 1e9:.3f} ({100 * r.unreachable_share[sp]:.1f} %), "
+        f"{r.floor_rms_m[sp] * 1e9:.3f}",
+    )
     reference = next((r for r in results if r.effect == REFERENCE), None)
     for r in results:
         goals = (_goal(r, sp, reference) for sp in SETPOINTS)
@@ -356,29 +342,29 @@ def markdown(results: Sequence[LoopResult]) -> list[str]:
             f"| {r.effect} | {', '.join(r.found) or 'none'} | "
             f"{r.heldout_rms_m / r.noise_floor_m:.2f} | {cells} | {goal} | {r.wall_s:.0f} |"
         )
-    lines_steady = [
-        "",
+    lines_steady = _per_setpoint_table(
+        results,
         f"Steady state and stage steps: RMS error [nm] {SETTLE_S:g} s (physical, scaled by "
         "the scenario's time_scale) or more after a stage step, and within that time (- where "
         "the stage only ramps):",
-        "",
-        "| effect | "
-        + " | ".join(f"set point of {sp}: steady RMS [nm], after steps [nm]" for sp in SETPOINTS)
-        + " |",
-        "|---|" + "---|" * len(SETPOINTS),
-    ]
-    for r in results:
-        lines_steady.append(
-            f"| {r.effect} | "
-            + " | ".join(
-                f"{r.steady_rms_m[sp] * 1e9:.3f}, "
-                + ("-" if np.isnan(r.after_step_rms_m[sp]) else
-                   f"{r.after_step_rms_m[sp] * 1e9:.3f}")
-                for sp in SETPOINTS
-            )
-            + " |"
-        )
+        "steady RMS [nm], after steps [nm]",
+        lambda r, sp: f"{r.steady_rms_m[sp] * 1e9:.3f}, "
+        + ("-" if np.isnan(r.after_step_rms_m[sp]) else f"{r.after_step_rms_m[sp] * 1e9:.3f}"),
+    )
     return lines + lines_reach + lines_steady
+
+
+def _per_setpoint_table(
+    results: Sequence[LoopResult], caption: str, heading: str,
+    cell: Callable[[LoopResult, str], str],
+) -> list[str]:
+    """Return a captioned table: one row per effect, one ``cell`` per scenario's set point."""
+    lines = ["", caption, "",
+             "| effect | " + " | ".join(f"set point of {sp}: {heading}" for sp in SETPOINTS) + " |",
+             "|---|" + "---|" * len(SETPOINTS)]
+    lines += [f"| {r.effect} | " + " | ".join(cell(r, sp) for sp in SETPOINTS) + " |"
+              for r in results]
+    return lines
 
 
 def _goal(result: LoopResult, setpoint: str, reference: LoopResult | None) -> str:
