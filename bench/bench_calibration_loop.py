@@ -225,13 +225,12 @@ def closed_loop(path: Path, scenario: Scenario, params: Path, thermal_file: Path
     period = 1.0 / scenario.setpoint.sine_frequency
     skip = round(period * scenario.control_rate)
     ok = np.asarray(reachable)[skip:]
-    error = (result.displacement - result.setpoint)[skip:][ok]
+    every = (result.displacement - result.setpoint)[skip:]
     settled = settled_mask(result.base_temperature, result.time,
                            SETTLE_S * scenario.time_scale)[skip:]
-    every = (result.displacement - result.setpoint)[skip:]
     return LoopRun(
         rms_error_m=run_metrics(aligned, period, skip_s=period)[0].rms_error_m,
-        reachable_rms_m=float(np.sqrt(np.mean(error**2))) if error.size else float("nan"),
+        reachable_rms_m=_rms(every[ok]),
         unreachable_share=float(1.0 - ok.mean()),
         floor_rms_m=floor_rms(scenario, config.v_limit, skip),
         steady_rms_m=_rms(every[settled]),
