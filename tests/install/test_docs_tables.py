@@ -76,3 +76,20 @@ def test_a_sweep_s_results_become_a_block_and_a_small_kept_copy(tmp_path: Path) 
     assert any(line.startswith("- not measured: right effect set") for line in block)
     assert block[-2] == f"Regenerate: `.venv/bin/python bench/docs_table.py {kept} {page}`."
     assert set(json.loads(kept.read_text())) == {"settings", "summary", "goals"}
+
+
+@pytest.mark.parametrize("content", ['{"summary": {}}', '{"settings": {}, "summary"', ""])
+def test_an_incomplete_or_corrupt_sweep_file_leaves_the_page_and_no_copy(
+    tmp_path: Path, content: str
+) -> None:
+    bad = tmp_path / "identify.json"
+    bad.write_text(content)
+    page = tmp_path / "page.md"
+    page.write_text(f"# sweep\n{BEGIN}\nold\n{END}\n")
+    kept = tmp_path / "kept.json"
+    run = [sys.executable, "bench/docs_table.py", str(bad), str(page), "--keep", str(kept)]
+    proc = subprocess.run(run, cwd=ROOT, capture_output=True, text=True, check=False)
+    assert proc.returncode == 2
+    assert proc.stderr.startswith("docs_table: ") and len(proc.stderr.splitlines()) == 1
+    assert page.read_text() == f"# sweep\n{BEGIN}\nold\n{END}\n"
+    assert not kept.exists()
