@@ -155,7 +155,9 @@ def test_a_rival_with_a_whiter_but_larger_residual_does_not_take_the_place() -> 
     candidates = ("sensor_lag", "drift", "coupling")
     final, _, rounds = search_effects(ws, base, candidates)
     first = {s.name: s for s in rounds[0].scores}
-    assert all(s.reason == "passes" for s in first.values())
+    assert first["sensor_lag"].reason == first["coupling"].reason == "passes"
+    # drift's fraction moves once each actuator may carry a constant offset (offsets.py)
+    assert first["drift"].reason.startswith(("passes", "stand-in: "))
     # the sweep's situation had drift's own criterion lowest, not its held-out RMS; the
     # samples at the command's unresolvable edges (edges.py) made that, and are left out now
     assert first["sensor_lag"].rms_after_m < first["drift"].rms_after_m

@@ -2,26 +2,17 @@
 
 The final model is refitted on the first and on the second half of the training and
 held-out rows (delay and play thresholds as found); each accepted effect's reported
-parameters must agree between the halves. A parameter differing by more than
-``HALVES_SIGMAS`` combined 1-sigma *and* by more than ``HALVES_RELATIVE`` of its larger
-magnitude moves: the effect was fitted to something else (a real effect keeps its value;
-one standing in for, say, a clock drift changes with the part of the record).
+parameters must agree between the halves (:func:`.agreement.disagreement`): one that
+moves was fitted to something else (a real effect keeps its value; one standing in for,
+say, a clock drift changes with the part of the record).
 """
 
 from __future__ import annotations
 
-from typing import Final
-
-import numpy as np
-
+from es_calibration.search.agreement import NotANumberError, disagreement
 from es_calibration.search.selection import STAND_IN, CandidateScore, RoundRecord, subset_state
 from es_calibration.search.state import ModelState, Workspace, fitted_effect
 from es_physics.effects import get
-
-#: Combined 1-sigma uncertainties two halves' values may differ by.
-HALVES_SIGMAS: Final = 4.0
-#: Share of the larger magnitude two halves' values may differ by (a sign change never).
-HALVES_RELATIVE: Final = 0.5
 
 
 def _half(ws: Workspace, first: bool) -> Workspace:
@@ -42,20 +33,16 @@ def _moved(name: str, halves: list[ModelState], ws: Workspace) -> tuple[str | No
     sigmas = [effect.uncertainties(f) for f in fits]
     params = {f"{k} ({which})": v[k] for which, v in zip(("first", "second"), values,
                                                          strict=True) for k in v}
-    for key in sigmas[0]:
-        if key not in values[0] or key not in sigmas[1]:
-            continue
-        a, b = values[0][key], values[1][key]
-        combined = float(np.hypot(sigmas[0][key], sigmas[1][key]))
-        gap = abs(a - b)
-        if not (np.isfinite(a) and np.isfinite(b)):
-            return f"{key} not a number on a half", params
-        if gap > HALVES_SIGMAS * combined and gap > HALVES_RELATIVE * max(abs(a), abs(b)):
-            return (
-                f"{key} moves between the record's halves: {a:.3g} vs {b:.3g} "
-                f"(1-sigma {combined:.2g})"
-            ), params
-    return None, params
+    try:
+        moved = disagreement(values, sigmas)
+    except NotANumberError as bad:
+        return f"{bad} not a number on a half", params
+    if moved is None:
+        return None, params
+    key, a, b, combined = moved
+    return (
+        f"{key} moves between the record's halves: {a:.3g} vs {b:.3g} (1-sigma {combined:.2g})"
+    ), params
 
 
 def check_halves(ws: Workspace, final: ModelState) -> tuple[RoundRecord | None, set[str]]:

@@ -6,10 +6,12 @@ the *effective* number of independent held-out residuals (n / integrated autocor
 time), so that a correlated residual cannot buy a spurious effect; of the residuals before
 and after the candidate, the less correlated one counts (a candidate that explains the
 structure which made the residual correlated is not discounted by it). A candidate passes only
-when it lowers that criterion, cuts the held-out RMS by at least ``MIN_RELATIVE_GAIN`` and has
-physical parameter values. Of the passing candidates, the one with the lowest held-out RMS
-is added, and the round repeats (the criterion's effective counts differ between candidates,
-so it would prefer a candidate that leaves a whiter but larger residual than a rival).
+when it lowers that criterion, cuts the held-out RMS by at least ``MIN_RELATIVE_GAIN``, has
+physical parameter values and keeps them when each actuator may carry a constant offset
+(:mod:`.offsets`: else it stood in for one). Of the passing candidates, the one with the
+lowest held-out RMS is added, and the round repeats (the criterion's effective counts differ
+between candidates, so it would prefer a candidate that leaves a whiter but larger residual
+than a rival).
 
 Backward: with two or more effects accepted, each is taken out in turn (the rest refitted
 from the current values) and scored the same way; an effect whose removal the criterion
@@ -28,6 +30,7 @@ from typing import Final
 import numpy as np
 
 from es_calibration.model.composite import CANDIDATES, CompositeModel
+from es_calibration.search.offsets import offset_stand_in
 from es_calibration.search.playfit import without_weakest_operator
 from es_calibration.search.scans import candidate_states, refine_shift
 from es_calibration.search.state import (
@@ -168,12 +171,14 @@ def _forward_round(
         params = effect_parameters(new, name, ws.aligned)
         # the structure a candidate explains made the old residual correlated: a residual
         # it leaves whiter counts as many independent residuals as it then has
-        _, held_new = ws.input_pair(new.delay_s, new.play_thresholds)
+        train_new, held_new = ws.input_pair(new.delay_s, new.play_thresholds)
         n_new = max(n_eff, effective_count(ws, new, held_new))
         delta = information_delta(
             state.heldout_sse, new.heldout_sse, n_new, _unknowns(new, name, A)
         )
         reason = _verdict(name, params, state, new, delta, span=span)
+        if reason == "passes" and (offset := offset_stand_in(new, name, train_new, ws.aligned)):
+            reason = f"{STAND_IN}{offset}"
         ok = reason == "passes"
         scores.append(
             CandidateScore(name, state.heldout_rms, new.heldout_rms, delta, ok, reason, params)
