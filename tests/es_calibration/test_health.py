@@ -137,6 +137,22 @@ def test_sensor_checks_name_flat_jump_range_and_dropout() -> None:
     assert jump.value == pytest.approx(2.0, abs=0.1)
 
 
+def test_a_slow_sensor_frozen_for_a_dozen_readings_is_named() -> None:
+    # a 1 Hz temperature logger over 30 s: the sensor stops for 17 readings (the sweep's
+    # sensor_frozen case, once left unnamed because a run had to be 20 readings long)
+    faults = Faults(sensor=SensorFault("frozen", 5, 12.8))
+    r = simulate(StandConfig(rows=4, cols=4, rate_hz=500.0, temperature_rate_hz=1.0,
+                             duration_s=30.0, seed=19, faults=faults))
+    values = r.temperature.reshape(r.temperature.shape[0], -1)
+    health = check_sensors(r.temperature_times, values, (4, 4), float(r.temperature_times[0]))
+    assert [(f.kind, f.index) for f in health.findings] == [("sensor_frozen", 5)]
+    assert 11.5 <= health.findings[0].start_s <= 13.0
+    clean = simulate(StandConfig(rows=4, cols=4, rate_hz=500.0, temperature_rate_hz=1.0,
+                                 duration_s=30.0, seed=19))
+    values = clean.temperature.reshape(clean.temperature.shape[0], -1)
+    assert check_sensors(clean.temperature_times, values, (4, 4), 0.0).findings == []
+
+
 def test_clean_sensors_give_no_finding() -> None:
     r = simulate(StandConfig(rows=3, cols=3, rate_hz=500.0, duration_s=20.0, seed=3))
     health = check_sensors(r.temperature_times, r.temperature, (3, 3), 0.0)

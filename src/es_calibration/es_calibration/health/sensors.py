@@ -33,8 +33,9 @@ import numpy as np
 from es_calibration.health.findings import Finding
 from es_common.arrays import BoolArray, FloatArray, IndexArray
 
-#: Shortest run of identical values that counts as frozen [samples] ...
-FROZEN_MIN_SAMPLES: Final = 20
+#: Shortest run of identical values that counts as frozen [samples] (a 1 Hz logger over a
+#: 30 s record freezes for a dozen readings; noisy readings never repeat eight times) ...
+FROZEN_MIN_SAMPLES: Final = 8
 #: ... and as a share of the record.
 FROZEN_MIN_FRACTION: Final = 0.02
 #: Share of the other sensors that must change meanwhile (the temperature did move).
