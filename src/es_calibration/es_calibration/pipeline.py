@@ -17,6 +17,7 @@ from typing import Final
 import numpy as np
 
 from es_calibration.data.align import (
+    LATE_BURST_DROPS,
     MIN_SAMPLES,
     AlignedData,
     CalibrationInputError,
@@ -32,6 +33,7 @@ from es_calibration.data.timing import (
     clock_rate,
     clock_rate_finding,
     corrected_times,
+    receive_jitter,
     stamp_findings,
 )
 from es_calibration.discovery import Discovery, discover
@@ -372,7 +374,8 @@ def _align_block(
         origin = float(data.displacement_times[0])
         data = replace(data, displacement_times=corrected_times(
             data.displacement_times, clock_fraction, origin))
-    block = align(data)
+    # a delay within the stamps' jitter may be their own lateness (identifiable.py)
+    block = replace(align(data), stamp_jitter_s=receive_jitter(data.displacement_times))
     if block_grid != grid:  # the block's model inputs use the whole grid's mean temperature
         grid_temperature = _grid_temperature(recording, block.start_time)
         mean, temp_nan = grid_temperature_mean(*grid_temperature)
@@ -391,8 +394,10 @@ def _timing_health(recording: Recording) -> tuple[AlignedData, list[Finding], fl
     aligned, data = _align_block(recording)
     origin = aligned.start_time
     findings = [
-        *stamp_findings("command logger", data.command_times, origin),
-        *stamp_findings("displacement logger", data.displacement_times, origin),
+        *stamp_findings("command logger", data.command_times, origin,
+                        burst_action="reported; stamps used as recorded"),
+        *stamp_findings("displacement logger", data.displacement_times, origin,
+                        burst_action=f"samples left out ({LATE_BURST_DROPS})"),
     ]
     duration = float(aligned.t[-1])
     fraction = 0.0

@@ -36,6 +36,7 @@ from es_calibration.data.gaps import (
     find_gaps,
 )
 from es_calibration.data.stamps import repeated, run_lengths, spread_repeated
+from es_calibration.data.timing import late_burst_messages
 from es_calibration.errors import CalibrationInputError
 from es_common.arrays import BoolArray, FloatArray, IndexArray
 
@@ -60,6 +61,8 @@ GAP_DROPS: Final = {
 }
 #: Key of :attr:`AlignedData.dropped` for samples outside the temperature topic's span.
 SPAN_DROPS: Final = "displacement outside the temperature record"
+#: Key of :attr:`AlignedData.dropped` for displacement samples delivered in a late burst.
+LATE_BURST_DROPS: Final = "displacement in a late burst"
 #: Actuators resampled at once by :func:`resample_temperature` (bounds its temporaries).
 RESAMPLE_COLUMNS: Final = 512
 #: Number of interleaved blocks for long records, and the shortest block [s].
@@ -119,6 +122,8 @@ class AlignedData:
         columns: the grid (row-major) index of each actuator column (None: the columns are
             the grid's first ones in order), what ``edge_mask`` names actuators by.
         recorded_samples: displacement messages of the recording before any was dropped.
+        stamp_jitter_s: the displacement stamps' receive jitter [s rms] (timing.py; 0 when
+            they are sampling times or it was not measured).
         temperature_span: what the ends of the temperature topic took out (gaps.py; None:
             the rule was not applied).
 
@@ -150,6 +155,7 @@ class AlignedData:
     edge_mask: EdgeMask = field(default_factory=EdgeMask.empty)
     columns: IndexArray | None = None
     recorded_samples: int = 0
+    stamp_jitter_s: float = 0.0
 
     @property
     def command_finite_all(self) -> bool:
@@ -442,6 +448,11 @@ def align(data: MeasuredData, n_blocks: int | None = None) -> AlignedData:
     t_abs = data.displacement_times[first:]
     z = data.displacement[first:].reshape(-1, A)
     index = index[first:]
+    # samples delivered in a late burst were sampled at unknown times (timing.py): they go
+    late = late_burst_messages(data.displacement_times)[first:]
+    if late.any():
+        dropped[LATE_BURST_DROPS] = int(late.sum())
+        t_abs, z, index = t_abs[~late], z[~late], index[~late]
     cmd = data.command.reshape(-1, A)
     cmd_finite = np.isfinite(cmd)
     dropped["command NaN"] = int((~cmd_finite).sum())

@@ -14,8 +14,12 @@ search/blockdelay.py with the plain law), returning dataclasses and health findi
   is then corrected, t_true = t0 + (t_stamp - t0) / (1 + e).
 - **Jitter.** The spread of a topic's stamp intervals about their median (robust: 1.4826 x
   the median absolute deviation), reported above ``JITTER_LIMIT`` of the median period.
-- **Late bursts.** Runs of bunched stamps (intervals below ``BUNCHED`` of the median period)
-  after a late one: messages held up and delivered together, their stamps the receive times.
+- **Late bursts.** A run of bunched stamps (intervals below ``BUNCHED`` of the median period)
+  after a gap that holds its first message back by more than ``BURST_MIN_PERIODS`` periods
+  and ``BURST_JITTER_SIGMAS`` times the jitter: messages held up and delivered together,
+  their stamps the receive times, up to the gap late. Shorter bunching is the jitter itself.
+  The displacement samples of a late burst are left out by align.py (their sampling times
+  are unknown); the command's are reported.
 """
 
 from __future__ import annotations
@@ -26,7 +30,7 @@ from typing import Final
 import numpy as np
 
 from es_calibration.health.findings import Finding
-from es_common.arrays import FloatArray
+from es_common.arrays import BoolArray, FloatArray
 
 #: A clock-rate slope counts when it is this many standard errors from zero...
 MIN_T_RATIO: Final = 6.0
@@ -36,8 +40,25 @@ MIN_DRIFT_PERIODS: Final = 0.1
 JITTER_LIMIT: Final = 0.05
 #: An interval shorter than this fraction of the median period is bunched.
 BUNCHED: Final = 0.5
+#: A bunched run is a late burst when its first message is held back by more than this many
+#: periods ...
+BURST_MIN_PERIODS: Final = 10.0
+#: ... and this many times the stamps' jitter (robust sd of the intervals).
+BURST_JITTER_SIGMAS: Final = 10.0
 #: Late bursts listed one by one at most (the rest summed into the last finding).
 MAX_BURSTS: Final = 10
+
+
+@dataclass(frozen=True)
+class LateBurst:
+    """Messages ``first`` .. ``last`` (stamp order) delivered together, ``late_s`` late.
+
+    ``late_s`` is how long the first of them was held back beyond one period [s].
+    """
+
+    first: int
+    last: int
+    late_s: float
 
 
 @dataclass(frozen=True)
@@ -136,11 +157,53 @@ def _robust_sd(x: FloatArray) -> float:
     return float(1.4826 * np.median(np.abs(x - np.median(x)))) if x.size else 0.0
 
 
-def stamp_findings(subject: str, times: FloatArray, origin: float) -> list[Finding]:
+def receive_jitter(times: FloatArray) -> float:
+    """Return the jitter [s rms] of sorted stamps ``times`` above ``JITTER_LIMIT``, else 0."""
+    steps = np.diff(times)
+    if steps.size < 10:
+        return 0.0
+    period = float(np.median(steps))
+    jitter = _robust_sd(steps - period)
+    return jitter if period > 0.0 and jitter > JITTER_LIMIT * period else 0.0
+
+
+def late_bursts(times: FloatArray) -> list[LateBurst]:
+    """Return the late bursts (see the module) of one topic's sorted stamps ``times`` [s]."""
+    steps = np.diff(times)
+    if steps.size < 10:
+        return []
+    period = float(np.median(steps))
+    if period <= 0.0:
+        return []
+    bunched = steps < BUNCHED * period
+    if not bunched.any():
+        return []
+    held = max(BURST_MIN_PERIODS * period, BURST_JITTER_SIGMAS * _robust_sd(steps - period))
+    # steps a .. b - 1 bunched: messages a .. b arrived together after the gap steps[a - 1]
+    starts = np.flatnonzero(bunched & ~np.r_[False, bunched[:-1]])
+    stops = np.flatnonzero(bunched & ~np.r_[bunched[1:], False]) + 1
+    late = steps[np.maximum(starts - 1, 0)] - period
+    keep = (starts > 0) & (late > held)
+    return [LateBurst(int(a), int(b), float(d))
+            for a, b, d in zip(starts[keep], stops[keep], late[keep], strict=True)]
+
+
+def late_burst_messages(times: FloatArray) -> BoolArray:
+    """Return which of the sorted stamps ``times`` belong to a late burst."""
+    out = np.zeros(times.shape, dtype=bool)
+    for burst in late_bursts(times):
+        out[burst.first : burst.last + 1] = True
+    return out
+
+
+def stamp_findings(
+    subject: str, times: FloatArray, origin: float, *, burst_action: str
+) -> list[Finding]:
     """Return the jitter and late-burst findings of one topic's sorted stamps ``times`` [s].
 
     ``subject`` names the topic's logger ("displacement logger"), ``origin`` [s] is the
-    record's start (finding times are since it).
+    record's start (finding times are since it), ``burst_action`` says what the calibration
+    does with a late burst's messages.
     """
     steps = np.diff(times)
     if steps.size < 10:
@@ -150,8 +213,8 @@ def stamp_findings(subject: str, times: FloatArray, origin: float) -> list[Findi
         return []
     out: list[Finding] = []
     end = float(times[-1] - origin)
-    jitter = _robust_sd(steps - period)
-    if jitter > JITTER_LIMIT * period:
+    jitter = receive_jitter(times)
+    if jitter:
         out.append(Finding(
             kind="receive_jitter", subject=subject, index=None, row=None, col=None,
             start_s=float(times[0] - origin), end_s=end, value=jitter * 1e3, unit="ms rms",
@@ -162,26 +225,20 @@ def stamp_findings(subject: str, times: FloatArray, origin: float) -> list[Findi
             ),
             action="reported; stamps used as recorded",
         ))
-    bunched = steps < BUNCHED * period
-    if not bunched.any():
-        return out
-    # a burst: a run of bunched intervals (short breaks of a few regular ones joined)
-    starts = np.flatnonzero(bunched & ~np.r_[False, bunched[:-1]])
-    stops = np.flatnonzero(bunched & ~np.r_[bunched[1:], False]) + 1
-    spans = [(int(a), int(b)) for a, b in zip(starts, stops, strict=True)]
-    for k, (a, b) in enumerate(spans[:MAX_BURSTS]):
-        late = float(np.max(steps[max(a - 1, 0) : b])) - period
-        more = len(spans) - MAX_BURSTS if k == MAX_BURSTS - 1 else 0
+    bursts = late_bursts(times)
+    for k, burst in enumerate(bursts[:MAX_BURSTS]):
+        a, b = burst.first, burst.last
+        more = len(bursts) - MAX_BURSTS if k == MAX_BURSTS - 1 else 0
         out.append(Finding(
             kind="late_burst", subject=subject, index=None, row=None, col=None,
-            start_s=float(times[max(a - 1, 0)] - origin), end_s=float(times[b] - origin),
+            start_s=float(times[a - 1] - origin), end_s=float(times[b] - origin),
             value=b - a + 1, unit="messages",
             sentence=(
-                f"{b - a + 1} {subject} messages arrived bunched together, up to "
-                f"{late * 1e3:.2f} ms late"
+                f"{b - a + 1} {subject} messages arrived together, the first "
+                f"{burst.late_s * 1e3:.0f} ms late"
                 + (f" ({more} more bursts like it)" if more > 0 else "")
                 + "."
             ),
-            action="reported; stamps used as recorded",
+            action=burst_action,
         ))
     return out

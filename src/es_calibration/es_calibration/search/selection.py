@@ -118,7 +118,7 @@ def record_span(ws: Workspace) -> RecordSpan:
     temperature = a.temperature[:, ws.actuators]
     finite = temperature[np.isfinite(temperature)]
     low, high = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 0.0)
-    return RecordSpan(low, high, 1.0 / a.sample_rate, float(a.t[-1] - a.t[0]))
+    return RecordSpan(low, high, 1.0 / a.sample_rate, float(a.t[-1] - a.t[0]), a.stamp_jitter_s)
 
 
 def _verdict(

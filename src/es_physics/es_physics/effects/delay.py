@@ -15,6 +15,7 @@ from typing import ClassVar
 import numpy as np
 
 from es_physics.effects.base import Effect, FittedEffect, FloatArray, Parameter, Role
+from es_physics.effects.identifiable import Identifiable
 from es_physics.effects.stages import Compensator, PlantContext, PlantStage
 
 
@@ -78,6 +79,9 @@ class Delay(Effect):
         ),
     )
     searched: ClassVar[tuple[str, ...]] = ("delay_s",)
+    identifiable: ClassVar[Mapping[str, Identifiable]] = {
+        "delay_s": Identifiable.BEYOND_STAMP_JITTER
+    }
     compensation: ClassVar[tuple[Parameter, ...]] = (
         Parameter("delay_s", "s", 0.0, 1.0, 0.0, "delay to predict the set point over (0 = off)"),
     )

@@ -27,6 +27,9 @@ MAX_TIME_CONSTANT_FRACTION: Final = 0.5
 TEMPERATURE_MARGIN_FRACTION: Final = 0.25
 #: Smallest margin around the recorded temperature range [degC].
 MIN_TEMPERATURE_MARGIN_DEGC: Final = 0.5
+#: A time shift shows when it exceeds this many times the displacement stamps' jitter (a
+#: shift within it may be the stamps' own lateness: receive times, not sampling times).
+STAMP_JITTER_MULTIPLE: Final = 2.0
 
 
 class Identifiable(enum.Enum):
@@ -35,22 +38,29 @@ class Identifiable(enum.Enum):
     ``INSIDE_TEMPERATURE_RANGE``: a temperature [degC] inside the recorded range;
     ``TIME_CONSTANT``: a time [s] between a few sample periods and a fraction of the record;
     ``CORNER_FREQUENCY``: a frequency [Hz] between one cycle in that fraction of the record
-    and a few samples a cycle.
+    and a few samples a cycle; ``BEYOND_STAMP_JITTER``: a time shift [s] beyond
+    ``STAMP_JITTER_MULTIPLE`` times the jitter of the displacement stamps.
     """
 
     INSIDE_TEMPERATURE_RANGE = "inside_temperature_range"
     TIME_CONSTANT = "time_constant"
     CORNER_FREQUENCY = "corner_frequency"
+    BEYOND_STAMP_JITTER = "beyond_stamp_jitter"
 
 
 @dataclass(frozen=True)
 class RecordSpan:
-    """What a record spans: its temperatures [degC], sample period [s] and length [s]."""
+    """What a record spans: its temperatures [degC], sample period [s] and length [s].
+
+    ``stamp_jitter_s`` is the displacement stamps' jitter [s rms] when they are receive
+    times (0: sampling times).
+    """
 
     temperature_low: float
     temperature_high: float
     sample_period_s: float
     duration_s: float
+    stamp_jitter_s: float = 0.0
 
     def temperature_bounds(self) -> tuple[float, float]:
         """Return the recorded temperature range with its margin [degC]."""
@@ -74,6 +84,15 @@ def _problem(name: str, value: float, rule: Identifiable, span: RecordSpan) -> s
             return (
                 f"{name} {value:.3g} degC outside the recorded temperatures "
                 f"{span.temperature_low:.3g}-{span.temperature_high:.3g} degC"
+            )
+        return None
+    if rule is Identifiable.BEYOND_STAMP_JITTER:
+        limit = STAMP_JITTER_MULTIPLE * span.stamp_jitter_s
+        if abs(value) <= limit:
+            return (
+                f"{name} {value * 1e3:.3g} ms within {STAMP_JITTER_MULTIPLE:g} x the "
+                f"displacement stamps' jitter {span.stamp_jitter_s * 1e3:.3g} ms rms (receive "
+                "times: their own lateness looks like a delay)"
             )
         return None
     low, high = span.time_bounds()
