@@ -176,6 +176,11 @@ def test_identifiable_rules_refuse_what_the_record_cannot_show() -> None:
     heating = get("self_heating").identifiable
     assert identification_problem(heating, {"tau_s": 0.013}, span)  # 3 samples
     assert identification_problem(heating, {"tau_s": 2.0}, span) is None
+    delay = get("delay").identifiable
+    jittery = RecordSpan(40.0, 52.0, 0.001, 30.0, stamp_jitter_s=0.53e-3)
+    assert identification_problem(delay, {"delay_s": 0.46e-3}, jittery)  # the stamps' lateness
+    assert identification_problem(delay, {"delay_s": 2.4e-3}, jittery) is None
+    assert identification_problem(delay, {"delay_s": 0.46e-3}, span) is None  # sampling stamps
 
 
 def test_verdict_levels() -> None:
