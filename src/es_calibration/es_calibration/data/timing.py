@@ -157,24 +157,29 @@ def _robust_sd(x: FloatArray) -> float:
     return float(1.4826 * np.median(np.abs(x - np.median(x)))) if x.size else 0.0
 
 
-def receive_jitter(times: FloatArray) -> float:
-    """Return the jitter [s rms] of sorted stamps ``times`` above ``JITTER_LIMIT``, else 0."""
+def _intervals(times: FloatArray) -> tuple[FloatArray, float] | None:
+    """Return sorted stamps' intervals and their median period, or None (too few, no period)."""
     steps = np.diff(times)
     if steps.size < 10:
-        return 0.0
+        return None
     period = float(np.median(steps))
+    return (steps, period) if period > 0.0 else None
+
+
+def receive_jitter(times: FloatArray) -> float:
+    """Return the jitter [s rms] of sorted stamps ``times`` above ``JITTER_LIMIT``, else 0."""
+    if (intervals := _intervals(times)) is None:
+        return 0.0
+    steps, period = intervals
     jitter = _robust_sd(steps - period)
-    return jitter if period > 0.0 and jitter > JITTER_LIMIT * period else 0.0
+    return jitter if jitter > JITTER_LIMIT * period else 0.0
 
 
 def late_bursts(times: FloatArray) -> list[LateBurst]:
     """Return the late bursts (see the module) of one topic's sorted stamps ``times`` [s]."""
-    steps = np.diff(times)
-    if steps.size < 10:
+    if (intervals := _intervals(times)) is None:
         return []
-    period = float(np.median(steps))
-    if period <= 0.0:
-        return []
+    steps, period = intervals
     bunched = steps < BUNCHED * period
     if not bunched.any():
         return []
@@ -205,12 +210,9 @@ def stamp_findings(
     record's start (finding times are since it), ``burst_action`` says what the calibration
     does with a late burst's messages.
     """
-    steps = np.diff(times)
-    if steps.size < 10:
+    if (intervals := _intervals(times)) is None:
         return []
-    period = float(np.median(steps))
-    if period <= 0.0:
-        return []
+    period = intervals[1]
     out: list[Finding] = []
     end = float(times[-1] - origin)
     jitter = receive_jitter(times)
