@@ -2,7 +2,8 @@
 
 Candidate-independent work (play passes of the NNLS screening, drive signals and their
 low-passes per time constant and rows) is cached per recording (model/cache.py), and the
-low-pass runs in a compiled loop (model/lowpass_loop.py). Here the whole effect search runs
+low-pass and self-heating's drive signal run in compiled loops (model/lowpass_loop.py,
+model/heating_loop.py). Here the whole effect search runs
 on a small independent stand record (testing/standgen) once as the calibration runs it and
 once with every cache bypassed and the numpy low-pass: the accepted effects, their
 parameters and the fit's numbers must be the same.
@@ -20,10 +21,11 @@ from standgen.effects import Effects, Hysteresis, SelfHeating
 from es_calibration.data.align import align
 from es_calibration.model import cache
 from es_calibration.model.cache import BoundedCache
-from es_calibration.model.history import first_order_lowpass, lowpass_at
+from es_calibration.model.history import DriveHistory, first_order_lowpass, lowpass_at
 from es_calibration.search.selection import search_effects
 from es_calibration.search.state import Workspace, base_state, choose_stamp_convention
 from es_feedforward.kernels import KERNELS_ENV
+from es_physics.effects import get
 
 from .stand_data import measured
 
@@ -99,6 +101,29 @@ def test_the_compiled_lowpass_gives_numpys_numbers(
         np.testing.assert_array_equal(got_y, y[rows])
         assert not got_slope.any()
     assert "es_calibration.model.lowpass_loop" in sys.modules
+
+
+@pytest.mark.parametrize("log_window", [float(np.log(1.6)), float(np.log(0.2)), 9.0])
+def test_the_compiled_heating_signal_gives_numpys_numbers(
+    monkeypatch: pytest.MonkeyPatch, log_window: float
+) -> None:
+    # 9.0: a window beyond the range, held at its bound (the slope is zero)
+    rng = np.random.default_rng(5)
+    command = np.cumsum(rng.normal(0.0, 3.0, (1200, 6)), axis=0)
+    command[300:340] = command[300]  # a held command: level and swing of zero
+    effect = get("self_heating")
+    period = 0.002
+    signal = effect.drive_signal(command, period, (log_window,))
+    (slope,) = effect.drive_signal_slopes(command, period, (log_window,))
+    for backend in ("numpy", "fused"):
+        monkeypatch.setenv(KERNELS_ENV, backend)
+        with cache.bypassed():
+            history = DriveHistory(command, period)
+            np.testing.assert_array_equal(history.signal(effect, (log_window,)), signal)
+            (got,) = history.signal_slopes(effect, (log_window,))
+            np.testing.assert_array_equal(got, slope)
+    assert "es_calibration.model.heating_loop" in sys.modules
+    assert (log_window == 9.0) == (not slope.any())
 
 
 def test_a_bounded_cache_keeps_its_budget_and_evicts_the_least_recently_used() -> None:

@@ -7,7 +7,8 @@ constant is an unknown of the fit, as are the parameters that shape the signal, 
 derivatives are the filtered derivatives of the signal). A low-pass needs the whole
 history, not only the sampled rows, so :class:`DriveHistory` keeps the block's command and
 filters all of it, keeping the rows a fit reads (one compiled pass where the kernels are
-fused, :mod:`.lowpass_loop`; else ``scipy.signal.lfilter``, vectorised over actuators),
+fused, :mod:`.lowpass_loop`, and self-heating's signal with its slope in another,
+:mod:`.heating_loop`; else ``scipy.signal.lfilter``, vectorised over actuators),
 caching the results by what they depend on; :class:`DriveSamples` takes the filtered series
 at a set of sample rows, with the same command taps (fractional delay) as the voltage in
 effect.
@@ -139,10 +140,30 @@ class DriveHistory:
         )
         self._filtered: BoundedCache[Filtered] = BoundedCache(budget_bytes)
 
+    def _fused(
+        self, effect: Effect, key: tuple[str, tuple[float, ...]]
+    ) -> tuple[FloatArray, tuple[FloatArray, ...]] | None:
+        """Return the signal and its slopes from one compiled pass (kept), or None.
+
+        None unless the kernels are fused and the effect has a compiled twin
+        (:mod:`.heating_loop`).
+        """
+        if default_backend() is not Backend.FUSED:
+            return None
+        from es_calibration.model.heating_loop import fused_drive_signal
+
+        both = fused_drive_signal(effect, self.command, self.period, key[1])
+        if both is not None:
+            self._signals.put(key, both[0])
+            self._signal_slopes.put(key, both[1])
+        return both
+
     def signal(self, effect: Effect, shape: Sequence[float] = ()) -> FloatArray:
         """Return ``effect``'s drive signal (N, A) with signal parameters ``shape``."""
         key = (effect.name, tuple(float(v) for v in shape))
         found = self._signals.get(key)
+        if found is None and (both := self._fused(effect, key)) is not None:
+            found = both[0]
         if found is None:
             found = self._signals.put(
                 key, np.asarray(effect.drive_signal(self.command, self.period, key[1]), np.float64)
@@ -157,6 +178,8 @@ class DriveHistory:
         """
         key = (effect.name, tuple(float(v) for v in shape))
         found = self._signal_slopes.get(key)
+        if found is None and (both := self._fused(effect, key)) is not None:
+            found = both[1]
         if found is None:
             found = self._signal_slopes.put(
                 key,

@@ -210,7 +210,7 @@ class SelfHeating(Effect):
         ]
 
     @staticmethod
-    def _window(shape: Sequence[float]) -> tuple[float, bool]:
+    def mean_window(shape: Sequence[float]) -> tuple[float, bool]:
         """Return the window W [s] of ``shape`` (log W; empty: ``MEAN_WINDOW_S``), in range.
 
         The flag says whether W lies inside ``MEAN_WINDOW_RANGE_S`` (outside, it is held at
@@ -218,9 +218,10 @@ class SelfHeating(Effect):
         """
         if not shape:
             return MEAN_WINDOW_S, True
-        low, high = MEAN_WINDOW_RANGE_S
-        window = math.exp(min(max(float(shape[0]), math.log(low)), math.log(high)))
-        return window, low < window < high
+        low, high = (math.log(v) for v in MEAN_WINDOW_RANGE_S)
+        log_window = float(shape[0])
+        # decided on log W: exp(log(50)) rounds below 50, so a held bound looked inside
+        return math.exp(min(max(log_window, low), high)), low < log_window < high
 
     @staticmethod
     def _means(command: FloatArray, keep: float) -> FloatArray:
@@ -245,7 +246,7 @@ class SelfHeating(Effect):
         out = np.zeros_like(command)
         if command.shape[0] < 2:
             return out
-        window, _ = self._window(shape)
+        window, _ = self.mean_window(shape)
         means = self._means(command, math.exp(-period / window))
         out[1:] = loss_measure(command[:-1], command[1:], means[1:], period)
         return out
@@ -256,7 +257,7 @@ class SelfHeating(Effect):
         """Return (d P_drive / d log W,) (N, A) [V^2/s] (0 with W held at a bound)."""
         command = np.asarray(command, np.float64)
         out = np.zeros_like(command)
-        window, inside = self._window(shape)
+        window, inside = self.mean_window(shape)
         if command.shape[0] < 2 or not inside:
             return (out,)
         keep = math.exp(-period / window)
@@ -274,7 +275,7 @@ class SelfHeating(Effect):
         return {
             "gain": float(fit.values["gain"]),
             "tau_s": float(np.exp(fit.values["log_tau_s"])),
-            "mean_window_s": self._window((fit.values["log_mean_window_s"],))[0],
+            "mean_window_s": self.mean_window((fit.values["log_mean_window_s"],))[0],
         }
 
     def uncertainties(self, fit: FittedEffect) -> dict[str, float]:
@@ -282,7 +283,7 @@ class SelfHeating(Effect):
         return {
             "gain": float(fit.sigma["gain"]),
             "tau_s": float(np.exp(fit.values["log_tau_s"])) * float(fit.sigma["log_tau_s"]),
-            "mean_window_s": self._window((fit.values["log_mean_window_s"],))[0]
+            "mean_window_s": self.mean_window((fit.values["log_mean_window_s"],))[0]
             * float(fit.sigma["log_mean_window_s"]),
         }
 
