@@ -1,11 +1,11 @@
 """The discovery's term library: the factors of es_physics.effects.discovered on sampled rows.
 
 Signals (each (A, n) on the screening block's actuators and chosen rows): the command V, its
-rate and the rate's size, the temperature (from the data's mean), its rate, the time since
-the start, the modelled displacement, the 4-neighbour means of the command, of the
-temperature (minus the actuator's own) and of its rate, first-order low-passes of V and V^2
-at time constants spread from ``LOWPASS_SHORTEST_PERIODS`` command periods to a fifth of the
-record, the command delayed by ``DELAY_PERIODS`` periods, and sin / cos of the displacement over the
+rate, the temperature (from the data's mean), its rate, the time since the start, the
+modelled displacement, the 4-neighbour means of the command, of the temperature (minus the
+actuator's own) and of its rate, first-order low-passes of V and V^2 at time constants
+spread from ``LOWPASS_SHORTEST_PERIODS`` command periods to a fifth of the record, the
+command delayed by ``DELAY_PERIODS`` periods, and sin / cos of the displacement over the
 interferometer's periods (``FRINGE_LENGTHS_M``). The library is every signal alone and every
 product of two (squares included); the scales are the recording's own (each column is
 divided by its training RMS for the regression, and the coefficient converted back).
@@ -75,7 +75,7 @@ class Library:
         a = self.aligned
         keys: list[FactorKey] = [
             (1, 0.0), (2, 0.0), (3, a.mean_temperature), (4, 0.0), (5, a.start_time),
-            (6, 0.0), (7, 0.0), (8, 0.0), (9, 0.0), (15, 0.0),
+            (6, 0.0), (7, 0.0), (8, 0.0), (9, 0.0),
         ]
         keys += [(10, tau) for tau in self.taus] + [(11, tau) for tau in self.taus]
         keys += [(12, j * a.command_period) for j in DELAY_PERIODS]
@@ -109,7 +109,6 @@ class Library:
         act = np.arange(a.n_actuators)
         ci = np.maximum(a.command_index(rows, 0.0), 0)
         V = self._command[ci].T
-        dV = (V - self._command[np.maximum(ci - 1, 0)].T) / a.command_period
         T = a.temperature_at(rows, act)
         rate = a.temperature_rate_at(rows, act)
         out: dict[FactorKey, FloatArray] = {}
@@ -118,9 +117,7 @@ class Library:
             if code == 1:
                 out[key] = V
             elif code == 2:
-                out[key] = dV
-            elif code == 15:
-                out[key] = np.abs(dV)
+                out[key] = (V - self._command[np.maximum(ci - 1, 0)].T) / a.command_period
             elif code == 3:
                 out[key] = T - p
             elif code == 4:

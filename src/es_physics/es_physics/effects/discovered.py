@@ -85,9 +85,6 @@ FACTORS: Final[tuple[Factor, ...]] = (
            "sin of the displacement over a length: an interferometer's periodic nonlinearity"),
     Factor(14, "cos(2 pi z/l)", "", "length [m]", "output", True,
            "cos of the displacement over a length: an interferometer's periodic nonlinearity"),
-    Factor(15, "|dV/dt|", "V/s", "", "drive", False,
-           "the command's speed either way: an amplifier whose gain droops with its output "
-           "current, or one that cannot follow a fast command"),
 )
 BY_CODE: Final[dict[int, Factor]] = {f.code: f for f in FACTORS}
 #: Terms the parameters file can carry.
