@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+from typing import Any
 
 import numpy as np
 import pytest
@@ -338,26 +339,38 @@ def test_only_offered_parameters_can_be_fitted_per_actuator() -> None:
     assert model.global_names == ("self_heating.log_tau_s", "self_heating.log_mean_window_s")
 
 
-def test_drive_history_computes_a_signals_slopes_once_for_every_time_constant() -> None:
+@pytest.mark.parametrize("backend", ["numpy", "fused"])
+def test_drive_history_computes_a_signals_slopes_once_for_every_time_constant(
+    monkeypatch: pytest.MonkeyPatch, backend: str
+) -> None:
     # A fit varies tau; the drive signal's slopes by its own parameters do not depend on it.
+    # Fused, the signal and its slopes come from one compiled pass (model/heating_loop.py).
+    import es_calibration.model.heating_loop as heating_loop
+
+    monkeypatch.setenv(KERNELS_ENV, backend)
     effect = get_effect("self_heating")
     rng = np.random.default_rng(3)
     period, shape = 0.002, (float(np.log(0.5)),)
     command = 100.0 + 20.0 * rng.standard_normal((400, 3))
     direct = effect.drive_signal_slopes(command, period, shape)
     calls = []
-    original = type(effect).drive_signal_slopes
+    numpy_slopes = type(effect).drive_signal_slopes
+    fused = heating_loop.fused_drive_signal
 
     def counted(self: object, *args: object) -> tuple[np.ndarray, ...]:
         calls.append(args)
-        return original(self, *args)  # type: ignore[arg-type]
+        return numpy_slopes(self, *args)  # type: ignore[arg-type]
+
+    def counted_fused(*args: Any) -> Any:
+        calls.append(args)
+        return fused(*args)
 
     history = DriveHistory(command, period)
-    with pytest.MonkeyPatch.context() as patch:
-        patch.setattr(type(effect), "drive_signal_slopes", counted)
-        for tau in (0.05, 0.2, 1.0):
-            _, _, slopes = history.lowpass(effect, tau, shape)
-            # the same numbers as filtering the slopes computed afresh
-            for got, want in zip(slopes, direct, strict=True):
-                np.testing.assert_array_equal(got, first_order_lowpass(want, period, tau)[0])
+    monkeypatch.setattr(type(effect), "drive_signal_slopes", counted)
+    monkeypatch.setattr(heating_loop, "fused_drive_signal", counted_fused)
+    for tau in (0.05, 0.2, 1.0):
+        _, _, slopes = history.lowpass(effect, tau, shape)
+        # the same numbers as filtering the slopes computed afresh
+        for got, want in zip(slopes, direct, strict=True):
+            np.testing.assert_array_equal(got, first_order_lowpass(want, period, tau)[0])
     assert len(calls) == 1
