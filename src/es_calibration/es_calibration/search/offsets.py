@@ -24,7 +24,7 @@ import numpy as np
 from es_calibration.data.align import AlignedData
 from es_calibration.model.composite import Evaluation, FitInputs
 from es_calibration.model.fit import levenberg_marquardt
-from es_calibration.search.agreement import disagreement
+from es_calibration.search.agreement import NotANumberError, disagreement
 from es_calibration.search.state import ModelState, fitted_effect
 from es_common.arrays import BoolArray, FloatArray
 from es_physics.effects import get
@@ -77,7 +77,10 @@ def offset_stand_in(
     fits = [fitted_effect(s, effect, aligned) for s in (state, with_offsets)]
     values = [effect.reported(f) for f in fits]
     sigmas = [effect.uncertainties(f) for f in fits]
-    moved = disagreement(values, sigmas)
+    try:
+        moved = disagreement(values, sigmas)
+    except NotANumberError as bad:  # as on a half (halves.py): never a crash of the search
+        return f"{bad} not a number once each actuator may carry a constant offset"
     if moved is None:
         return None
     key, before, after, combined = moved
