@@ -19,6 +19,7 @@ from standgen import StandConfig, simulate
 from standgen.effects import Effects, Hysteresis, SelfHeating
 
 from es_calibration.data.align import align
+from es_calibration.discovery.library import Library, Rows
 from es_calibration.model import cache
 from es_calibration.model.cache import BoundedCache
 from es_calibration.model.history import DriveHistory, first_order_lowpass, lowpass_at
@@ -126,6 +127,30 @@ def test_the_compiled_heating_signal_gives_numpys_numbers(
     assert (log_window == 9.0) == (not slope.any())
 
 
+def test_the_discovery_librarys_lowpasses_at_rows_equal_the_full_rate_numpy_filter(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    config = StandConfig(
+        rows=2, cols=2, rate_hz=250.0, duration_s=6.0, temperature_kind="grid", noise_m=0.4e-9,
+        seed=3,
+    )
+    aligned = choose_stamp_convention(align(measured(simulate(config))))
+    rows = np.sort(np.random.default_rng(6).choice(aligned.t.size, 300, replace=False))
+    blank = np.zeros((aligned.n_actuators, rows.size))
+    at = Rows(rows, blank, blank)
+    command = np.nan_to_num(aligned.command)
+    ci = np.maximum(aligned.command_index(rows, 0.0), 0)
+    for backend in ("numpy", "fused"):
+        monkeypatch.setenv(KERNELS_ENV, backend)
+        library = Library(aligned, (2, 2))
+        keys = [(code, tau) for code in (10, 11) for tau in library.taus]
+        got = library.signals(at, keys)
+        for code, tau in keys:
+            x = command if code == 10 else command**2
+            full, _ = first_order_lowpass(x, aligned.command_period, tau)
+            np.testing.assert_array_equal(got[(code, tau)], full[ci].T)
+
+
 def test_a_bounded_cache_keeps_its_budget_and_evicts_the_least_recently_used() -> None:
     store: BoundedCache[np.ndarray] = BoundedCache(budget_bytes=3 * 800)
     for i in range(3):
@@ -149,3 +174,4 @@ def test_a_kept_value_cannot_be_written_into() -> None:
         with pytest.raises(ValueError, match="read-only"):
             array[0] = 5.0
     assert store.get("k")[0].tolist() == [0.0, 0.0, 0.0]  # type: ignore[index]
+
