@@ -6,11 +6,15 @@ low-pass and self-heating's drive signal run in compiled loops (model/lowpass_lo
 model/heating_loop.py). Here the whole effect search runs
 on a small independent stand record (testing/standgen) once as the calibration runs it and
 once with every cache bypassed and the numpy low-pass: the accepted effects, their
-parameters and the fit's numbers must be the same.
+parameters and the fit's numbers must be the same. The discovery library's low-passes, the
+pooled grams of the normal equations (one BLAS product) and the tool's one BLAS thread are
+checked the same way, against their plain definitions.
 """
 
 from __future__ import annotations
 
+import os
+import subprocess
 import sys
 
 import numpy as np
@@ -22,6 +26,7 @@ from es_calibration.data.align import align
 from es_calibration.discovery.library import Library, Rows
 from es_calibration.model import cache
 from es_calibration.model.cache import BoundedCache
+from es_calibration.model.fit import pooled_gram
 from es_calibration.model.history import DriveHistory, first_order_lowpass, lowpass_at
 from es_calibration.search.selection import search_effects
 from es_calibration.search.state import Workspace, base_state, choose_stamp_convention
@@ -175,3 +180,29 @@ def test_a_kept_value_cannot_be_written_into() -> None:
             array[0] = 5.0
     assert store.get("k")[0].tolist() == [0.0, 0.0, 0.0]  # type: ignore[index]
 
+
+
+def test_the_pooled_gram_is_the_einsum_of_its_definition() -> None:
+    # one BLAS product over the (actuator, sample) pairs: the sums of np.einsum's definition
+    # up to their order's rounding (the LM's global normal equations, the play screening's)
+    rng = np.random.default_rng(12)
+    for shape in ((7, 300, 3), (4, 120, 28), (3, 50, 0)):
+        columns = rng.normal(size=shape) * rng.uniform(1e-12, 1e3, shape[-1])
+        resid = rng.normal(size=shape[:2]) * 1e-9
+        gram, rhs = pooled_gram(columns, resid)
+        np.testing.assert_allclose(gram, np.einsum("anp,anq->pq", columns, columns),
+                                   rtol=1e-12, atol=0.0)
+        np.testing.assert_allclose(rhs, np.einsum("anp,an->p", columns, resid),
+                                   rtol=1e-12, atol=1e-300)
+        assert gram.shape == (shape[-1], shape[-1]) and rhs.shape == (shape[-1],)
+
+
+def test_the_calibrate_tool_runs_one_blas_thread_unless_told_otherwise() -> None:
+    code = "import os, es_calibration.calibrate; print(os.environ['OPENBLAS_NUM_THREADS'])"
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
+    for given, expected in ((None, "1"), ("2", "2")):
+        run_env = env if given is None else {**env, "OPENBLAS_NUM_THREADS": given}
+        proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                              check=False, timeout=120, env=run_env)
+        assert proc.returncode == 0, proc.stderr
+        assert proc.stdout.strip() == expected
