@@ -6,11 +6,15 @@ low-pass and self-heating's drive signal run in compiled loops (model/lowpass_lo
 model/heating_loop.py). Here the whole effect search runs
 on a small independent stand record (testing/standgen) once as the calibration runs it and
 once with every cache bypassed and the numpy low-pass: the accepted effects, their
-parameters and the fit's numbers must be the same.
+parameters and the fit's numbers must be the same. The discovery library's low-passes, the
+pooled grams of the normal equations (one BLAS product) and the tool's one BLAS thread are
+checked the same way, against their plain definitions.
 """
 
 from __future__ import annotations
 
+import os
+import subprocess
 import sys
 
 import numpy as np
@@ -19,8 +23,10 @@ from standgen import StandConfig, simulate
 from standgen.effects import Effects, Hysteresis, SelfHeating
 
 from es_calibration.data.align import align
+from es_calibration.discovery.library import Library, Rows
 from es_calibration.model import cache
 from es_calibration.model.cache import BoundedCache
+from es_calibration.model.fit import pooled_gram
 from es_calibration.model.history import DriveHistory, first_order_lowpass, lowpass_at
 from es_calibration.search.selection import search_effects
 from es_calibration.search.state import Workspace, base_state, choose_stamp_convention
@@ -126,6 +132,30 @@ def test_the_compiled_heating_signal_gives_numpys_numbers(
     assert (log_window == 9.0) == (not slope.any())
 
 
+def test_the_discovery_librarys_lowpasses_at_rows_equal_the_full_rate_numpy_filter(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    config = StandConfig(
+        rows=2, cols=2, rate_hz=250.0, duration_s=6.0, temperature_kind="grid", noise_m=0.4e-9,
+        seed=3,
+    )
+    aligned = choose_stamp_convention(align(measured(simulate(config))))
+    rows = np.sort(np.random.default_rng(6).choice(aligned.t.size, 300, replace=False))
+    blank = np.zeros((aligned.n_actuators, rows.size))
+    at = Rows(rows, blank, blank)
+    command = np.nan_to_num(aligned.command)
+    ci = np.maximum(aligned.command_index(rows, 0.0), 0)
+    for backend in ("numpy", "fused"):
+        monkeypatch.setenv(KERNELS_ENV, backend)
+        library = Library(aligned, (2, 2))
+        keys = [(code, tau) for code in (10, 11) for tau in library.taus]
+        got = library.signals(at, keys)
+        for code, tau in keys:
+            x = command if code == 10 else command**2
+            full, _ = first_order_lowpass(x, aligned.command_period, tau)
+            np.testing.assert_array_equal(got[(code, tau)], full[ci].T)
+
+
 def test_a_bounded_cache_keeps_its_budget_and_evicts_the_least_recently_used() -> None:
     store: BoundedCache[np.ndarray] = BoundedCache(budget_bytes=3 * 800)
     for i in range(3):
@@ -149,3 +179,30 @@ def test_a_kept_value_cannot_be_written_into() -> None:
         with pytest.raises(ValueError, match="read-only"):
             array[0] = 5.0
     assert store.get("k")[0].tolist() == [0.0, 0.0, 0.0]  # type: ignore[index]
+
+
+
+def test_the_pooled_gram_is_the_einsum_of_its_definition() -> None:
+    # one BLAS product over the (actuator, sample) pairs: the sums of np.einsum's definition
+    # up to their order's rounding (the LM's global normal equations, the play screening's)
+    rng = np.random.default_rng(12)
+    for shape in ((7, 300, 3), (4, 120, 28), (3, 50, 0)):
+        columns = rng.normal(size=shape) * rng.uniform(1e-12, 1e3, shape[-1])
+        resid = rng.normal(size=shape[:2]) * 1e-9
+        gram, rhs = pooled_gram(columns, resid)
+        np.testing.assert_allclose(gram, np.einsum("anp,anq->pq", columns, columns),
+                                   rtol=1e-12, atol=0.0)
+        np.testing.assert_allclose(rhs, np.einsum("anp,an->p", columns, resid),
+                                   rtol=1e-12, atol=1e-300)
+        assert gram.shape == (shape[-1], shape[-1]) and rhs.shape == (shape[-1],)
+
+
+def test_the_calibrate_tool_runs_one_blas_thread_unless_told_otherwise() -> None:
+    code = "import os, es_calibration.calibrate; print(os.environ['OPENBLAS_NUM_THREADS'])"
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
+    for given, expected in ((None, "1"), ("2", "2")):
+        run_env = env if given is None else {**env, "OPENBLAS_NUM_THREADS": given}
+        proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                              check=False, timeout=120, env=run_env)
+        assert proc.returncode == 0, proc.stderr
+        assert proc.stdout.strip() == expected

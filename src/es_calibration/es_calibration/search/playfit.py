@@ -23,6 +23,7 @@ from scipy.optimize import nnls
 
 from es_calibration.errors import CalibrationFitError
 from es_calibration.model.composite import CompositeModel, FitInputs
+from es_calibration.model.fit import pooled_gram
 from es_calibration.search.state import (
     MIN_RELATIVE_GAIN,
     ModelState,
@@ -183,8 +184,9 @@ def normal_equations(
         C = (slope * np.exp(-beta * dT))[..., None] * gaps
         W = np.swapaxes(J, 1, 2) @ C  # (A, P, K)
         Ui_W = np.linalg.solve(U, W)
-        G = np.einsum("ank,anl->kl", C, C) - np.einsum("apk,apl->kl", W, Ui_W)
-        b = np.einsum("ank,an->k", C, resid) - np.einsum("apk,ap->k", W, Ui_bl)
+        CC, Cr = pooled_gram(C, resid)
+        G = CC - np.einsum("apk,apl->kl", W, Ui_W)
+        b = Cr - np.einsum("apk,ap->k", W, Ui_bl)
         out.append((0.5 * (G + G.T), b))
     return out
 
