@@ -26,10 +26,17 @@ from es_calibration.data.align import align
 from es_calibration.discovery.library import Library, Rows
 from es_calibration.model import cache
 from es_calibration.model.cache import BoundedCache
+from es_calibration.model.composite import CompositeModel
 from es_calibration.model.fit import pooled_gram
 from es_calibration.model.history import DriveHistory, first_order_lowpass, lowpass_at
 from es_calibration.search.selection import search_effects
-from es_calibration.search.state import Workspace, base_state, choose_stamp_convention
+from es_calibration.search.state import (
+    Workspace,
+    base_state,
+    choose_stamp_convention,
+    extend_global,
+    extend_local,
+)
 from es_feedforward.kernels import KERNELS_ENV
 from es_physics.effects import get
 
@@ -154,6 +161,50 @@ def test_the_discovery_librarys_lowpasses_at_rows_equal_the_full_rate_numpy_filt
             x = command if code == 10 else command**2
             full, _ = first_order_lowpass(x, aligned.command_period, tau)
             np.testing.assert_array_equal(got[(code, tau)], full[ci].T)
+
+
+#: Models whose law evaluation both paths must agree on: every stage of the composite model
+#: (lead, heating per actuator, play, relaxation, curved law, gain, coupling, additive).
+MODELS = [
+    ((), ()),
+    (("temperature_curvature", "drift", "coupling"), ()),
+    (("sensor_lag", "hysteresis", "thermal_expansion"), ()),
+    (("self_heating", "frequency_dispersion", "temperature_curvature"), ("self_heating.gain",)),
+    (("sensor_lag", "self_heating", "hysteresis", "drift", "coupling"), ()),
+]
+
+
+@pytest.mark.parametrize(("effects", "per_actuator"), MODELS)
+def test_the_compiled_law_gives_numpys_numbers(
+    monkeypatch: pytest.MonkeyPatch, effects: tuple[str, ...], per_actuator: tuple[str, ...]
+) -> None:
+    config = StandConfig(rows=2, cols=3, rate_hz=250.0, duration_s=12.0,
+                         temperature_kind="grid", noise_m=0.4e-9, seed=3)
+    aligned = choose_stamp_convention(align(measured(simulate(config))))
+    ws = Workspace(aligned, np.arange(aligned.n_actuators, dtype=np.intp), (2, 3))
+    base = base_state(ws)
+    model = CompositeModel(effects, operators=2, per_actuator=per_actuator)
+    rng = np.random.default_rng(8)
+    local = extend_local(base, model)
+    local[:, 4:] += rng.normal(0.0, 1e-3, (local.shape[0], local.shape[1] - 4))
+    starts = {f"{e}.{k}": v for e in effects for k, v in get(e).starts(12.0)[0].items()}
+    glob = extend_global(base, model, starts)
+    glob += rng.normal(0.0, 0.01, glob.size)  # away from any start's zeros
+    thresholds = (0.5, 2.0) if model.play else None
+    data, _ = ws.input_pair(0.0013, thresholds)
+    results = {}
+    for backend in ("numpy", "fused"):
+        monkeypatch.setenv(KERNELS_ENV, backend)
+        results[backend] = (model.evaluate(local, glob, data),
+                            model.evaluate(local, glob, data, jacobian=False))
+    assert "es_calibration.model.law_loop" in sys.modules
+    (plain, plain_value), (fused, fused_value) = results["numpy"], results["fused"]
+    assert np.isfinite(plain.prediction).all() and plain.jac_local.any()
+    np.testing.assert_array_equal(fused.prediction, plain.prediction)
+    np.testing.assert_array_equal(fused.jac_local, plain.jac_local)
+    np.testing.assert_array_equal(fused.jac_global, plain.jac_global)
+    np.testing.assert_array_equal(fused_value.prediction, plain.prediction)
+    np.testing.assert_array_equal(plain_value.prediction, plain.prediction)
 
 
 def test_a_bounded_cache_keeps_its_budget_and_evicts_the_least_recently_used() -> None:

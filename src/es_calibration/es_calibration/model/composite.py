@@ -194,6 +194,47 @@ class CompositeModel:
         # a time constant beyond e^+-30 s is no physical one (and would overflow)
         return data.drive.lowpass(effect, float(np.exp(np.clip(log_tau, -30.0, 30.0))), shape)
 
+    def _law(  # noqa: PLR0917 - the numpy twin of law_loop.fused_law
+        self,
+        Ts: FloatArray,
+        V: FloatArray,
+        local: FloatArray,
+        jacobian: bool,
+        dTa: dict[str, FloatArray],
+        dV_dTa: FloatArray | None,
+        jac_l: FloatArray,
+    ) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Return H, dH/dV and dH/dT* and write the law's Jacobian columns into ``jac_l``.
+
+        dH/dV and dH/dT* are 0.0 where they are not needed (no Jacobian; no ``dTa``).
+        """
+        m2, m1, k2, k1 = (local[:, i : i + 1] for i in range(4))
+        curved = self.law is not None
+        m3 = local[:, 4:5] if curved else 0.0
+        k3 = local[:, 5:6] if curved else 0.0
+        M = m2 + Ts * (m1 + Ts * m3)
+        k = k2 + Ts * (k1 + Ts * k3)
+        th = np.tanh(k * V / self.L)
+        dH_dM = self.L / (k * k) * th * th
+        H = M * dH_dM
+        dH_dT: FloatArray | float = 0.0
+        dH_dV: FloatArray | float = 0.0
+        if jacobian:
+            # th (1 - th^2) M / k: shared by the slope dz/dV and dz/dk
+            slope_part = M * th * (1.0 - th * th) / k
+            dH_dk = (V * slope_part - H) * (2.0 / k)
+            dH_dV = 2.0 * slope_part
+            columns = [dH_dM, dH_dM * Ts, dH_dk, dH_dk * Ts]
+            if curved:
+                columns += [dH_dM * Ts * Ts, dH_dk * Ts * Ts]
+            for i, col in enumerate(columns):
+                jac_l[..., i] = col
+            if dTa:
+                dH_dT = dH_dM * (m1 + 2.0 * m3 * Ts) + dH_dk * (k1 + 2.0 * k3 * Ts)
+                if dV_dTa is not None:
+                    dH_dT = dH_dT + dH_dV * dV_dTa
+        return np.asarray(H, np.float64), np.asarray(dH_dV), np.asarray(dH_dT)
+
     def evaluate(
         self, local: FloatArray, g: FloatArray, data: FitInputs, jacobian: bool = True
     ) -> Evaluation:
@@ -255,30 +296,19 @@ class CompositeModel:
             dV[self.key(self.relaxation, 1)] = -r * d_state
 
         Ts = Ta - self.Tm
-        m2, m1, k2, k1 = (local[:, i : i + 1] for i in range(4))
         curved = self.law is not None
-        m3 = local[:, 4:5] if curved else 0.0
-        k3 = local[:, 5:6] if curved else 0.0
-        M = m2 + Ts * (m1 + Ts * m3)
-        k = k2 + Ts * (k1 + Ts * k3)
-        th = np.tanh(k * V / self.L)
-        dH_dM = self.L / (k * k) * th * th
-        H = M * dH_dM
-        columns: list[FloatArray] = []
-        dH_dT: FloatArray | float = 0.0
-        if jacobian:
-            # th (1 - th^2) M / k: shared by the slope dz/dV and dz/dk
-            slope_part = M * th * (1.0 - th * th) / k
-            dH_dk = (V * slope_part - H) * (2.0 / k)
-            dH_dV = 2.0 * slope_part
-            columns = [dH_dM, dH_dM * Ts, dH_dk, dH_dk * Ts]
-            if curved:
-                columns += [dH_dM * Ts * Ts, dH_dk * Ts * Ts]
-            if dTa:
-                dH_dT = dH_dM * (m1 + 2.0 * m3 * Ts) + dH_dk * (k1 + 2.0 * k3 * Ts)
-                if dV_dTa is not None:
-                    dH_dT = dH_dT + dH_dV * dV_dTa
+        n_law = len(LINEAR_LAW) + (len(self.law.local_parameters) if self.law else 0)
+        A, n = np.shape(Ts)
+        jac_l = np.empty((A, n, n_law + len(self.per_actuator)) if jacobian else (A, n, 0))
+        if default_backend() is Backend.FUSED:
+            from es_calibration.model.law_loop import fused_law
 
+            H, dH_dV, dH_dT = fused_law(
+                Ts, V, local, curved=curved, length=self.L, jacobian=jacobian,
+                with_temperature=bool(dTa), voltage_by_temperature=dV_dTa, columns=jac_l,
+            )
+        else:
+            H, dH_dV, dH_dT = self._law(Ts, V, local, jacobian, dTa, dV_dTa, jac_l)
         scale: FloatArray | float = 1.0  # d(prediction)/dH
         if jacobian:
             for key, column in dV.items():
@@ -333,13 +363,11 @@ class CompositeModel:
             if jacobian:
                 for key, column in dTa.items():
                     jac_g[key] = jac_g[key] + term.d_temperature * column
-        A, n = Z.shape
         if not jacobian:
-            return Evaluation(np.asarray(Z, np.float64), np.zeros((A, n, 0)), np.zeros((A, n, 0)))
-        jac_l = np.empty((A, n, len(columns) + len(self.per_actuator)))
-        for i, col in enumerate(columns):
-            np.multiply(col, scale, out=jac_l[..., i])
-        for i, key in enumerate(self.per_actuator, len(columns)):
+            return Evaluation(np.asarray(Z, np.float64), jac_l, np.zeros((A, n, 0)))
+        if not isinstance(scale, float):
+            jac_l[..., :n_law] *= np.asarray(scale)[..., None]
+        for i, key in enumerate(self.per_actuator, n_law):
             jac_l[..., i] = jac_g[key]
         jac_glob = np.empty((A, n, len(names)))
         for i, name in enumerate(names):
