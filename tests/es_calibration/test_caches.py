@@ -43,6 +43,7 @@ from es_physics.effects import get
 from .stand_data import measured
 
 CANDIDATES = ("hysteresis", "self_heating", "frequency_dispersion")
+_tanh = np.tanh
 
 
 def _search(monkeypatch: pytest.MonkeyPatch, backend: str):
@@ -195,9 +196,28 @@ def test_the_compiled_law_gives_numpys_numbers(
     results = {}
     for backend in ("numpy", "fused"):
         monkeypatch.setenv(KERNELS_ENV, backend)
-        results[backend] = (model.evaluate(local, glob, data),
-                            model.evaluate(local, glob, data, jacobian=False))
+        with cache.bypassed():  # each path computes its own tanh
+            results[backend] = (model.evaluate(local, glob, data),
+                                model.evaluate(local, glob, data, jacobian=False))
     assert "es_calibration.model.law_loop" in sys.modules
+    # the trial point's tanh reused by the same point's Jacobian evaluation (and only there)
+    monkeypatch.setenv(KERNELS_ENV, "fused")
+    calls = []
+
+    def counted_tanh(x: np.ndarray, *args: object, **kwargs: object) -> np.ndarray:
+        calls.append(1)
+        return _tanh(x, *args, **kwargs)  # type: ignore[call-overload]
+
+    monkeypatch.setattr(np, "tanh", counted_tanh)
+    trial = model.evaluate(local, glob, data, jacobian=False)
+    again = model.evaluate(local, glob, data)
+    moved = local.copy()
+    moved[:, 2] *= 1.0 + 1e-9
+    model.evaluate(moved, glob, data, jacobian=False)
+    assert len(calls) == 2
+    np.testing.assert_array_equal(trial.prediction, results["numpy"][0].prediction)
+    np.testing.assert_array_equal(again.jac_local, results["numpy"][0].jac_local)
+    np.testing.assert_array_equal(again.jac_global, results["numpy"][0].jac_global)
     (plain, plain_value), (fused, fused_value) = results["numpy"], results["fused"]
     assert np.isfinite(plain.prediction).all() and plain.jac_local.any()
     np.testing.assert_array_equal(fused.prediction, plain.prediction)

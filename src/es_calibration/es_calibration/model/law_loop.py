@@ -115,18 +115,20 @@ def fused_law(
     with_temperature: bool,
     voltage_by_temperature: FloatArray | None,
     columns: FloatArray,
-) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Return H, dH/dV and dH/dT* (A, n) and fill ``columns``' law columns (see law_terms).
+    th: FloatArray | None = None,
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """Return H, dH/dV, dH/dT* and tanh(k V / L) (A, n); fill ``columns`` (see law_terms).
 
     dH/dV and dH/dT* are empty without ``jacobian`` (dH/dT* also without
-    ``with_temperature``).
+    ``with_temperature``). ``th``, when given, is that tanh already computed.
     """
     temperature = np.asarray(temperature, np.float64)
     voltage = np.broadcast_to(np.asarray(voltage, np.float64), temperature.shape)
     local = np.ascontiguousarray(local, np.float64)
-    th = np.empty(temperature.shape)
-    law_argument(temperature, voltage, local, curved, length, th)
-    np.tanh(th, out=th)
+    if th is None:
+        th = np.empty(temperature.shape)
+        law_argument(temperature, voltage, local, curved, length, th)
+        np.tanh(th, out=th)
     law = np.empty(temperature.shape)
     empty = np.empty((0, 0))
     by_voltage = np.empty(temperature.shape) if jacobian else empty
@@ -139,4 +141,4 @@ def fused_law(
     law_terms(temperature, voltage, th, local, curved, length, jacobian,
               jacobian and with_temperature, by_play, coupled, law, by_voltage, by_temperature,
               columns)
-    return law, by_voltage, by_temperature
+    return law, by_voltage, by_temperature, th
