@@ -29,6 +29,7 @@ from es_calibration.model.cache import BoundedCache
 from es_calibration.model.composite import CompositeModel
 from es_calibration.model.fit import pooled_gram
 from es_calibration.model.history import DriveHistory, first_order_lowpass, lowpass_at
+from es_calibration.search.blockdelay import _Scan
 from es_calibration.search.selection import search_effects
 from es_calibration.search.state import (
     Workspace,
@@ -225,6 +226,25 @@ def test_the_compiled_law_gives_numpys_numbers(
     np.testing.assert_array_equal(fused.jac_global, plain.jac_global)
     np.testing.assert_array_equal(fused_value.prediction, plain.prediction)
     np.testing.assert_array_equal(plain_value.prediction, plain.prediction)
+
+
+@pytest.mark.parametrize("shift", [0.0, 0.3, 1.75, 12.05])
+def test_the_compiled_block_delay_interpolation_gives_numpys_numbers(
+    monkeypatch: pytest.MonkeyPatch, shift: float
+) -> None:
+    config = StandConfig(rows=2, cols=2, rate_hz=250.0, duration_s=8.0,
+                         temperature_kind="grid", noise_m=0.4e-9, seed=6)
+    scan = _Scan(choose_stamp_convention(align(measured(simulate(config)))))
+    rows = np.arange(0, scan.ws.aligned.t.size, 3)
+    got = {}
+    for backend in ("numpy", "fused"):
+        monkeypatch.setenv(KERNELS_ENV, backend)
+        got[backend] = scan.inputs(rows, shift)
+    assert "es_calibration.search.interp_loop" in sys.modules
+    assert got["numpy"].valid.sum() > rows.size  # most samples usable
+    np.testing.assert_array_equal(got["fused"].voltage, got["numpy"].voltage)
+    np.testing.assert_array_equal(got["fused"].valid, got["numpy"].valid)
+    np.testing.assert_array_equal(got["fused"].displacement, got["numpy"].displacement)
 
 
 def test_a_bounded_cache_keeps_its_budget_and_evicts_the_least_recently_used() -> None:

@@ -28,6 +28,7 @@ from es_calibration.model.fit import levenberg_marquardt
 from es_calibration.search.scans import lowest_shift
 from es_calibration.search.state import Workspace, initial_law
 from es_common.arrays import FloatArray, IndexArray
+from es_feedforward.kernels import Backend, default_backend
 
 #: Time blocks whose delays are measured.
 BLOCKS: Final = 16
@@ -78,9 +79,18 @@ class _Scan:
             (-3 * f**3 + 4 * f**2 + f) / 2,
             (f**3 - f**2) / 2,
         )
-        voltage = sum(w[:, None] * self.command[j + k - 1] for k, w in enumerate(weights))
+        if default_backend() is Backend.FUSED and times.size >= 4:  # else: numpy's IndexError
+            from es_calibration.search.interp_loop import interpolate_rows
+
+            voltage = np.empty((self.command.shape[1], rows.size))
+            interpolate_rows(self.command, j - 1, np.stack(weights), voltage)
+        else:
+            voltage = np.asarray(
+                sum(w[:, None] * self.command[j + k - 1] for k, w in enumerate(weights)),
+                np.float64,
+            ).T
         usable = base.valid & (inside & regular)[None, :]
-        return replace(base, voltage=np.asarray(voltage, np.float64).T, valid=usable,
+        return replace(base, voltage=voltage, valid=usable,
                        displacement=np.where(usable, base.displacement, 0.0))
 
     def fit(self, rows: IndexArray, shift: float) -> None:
