@@ -21,7 +21,7 @@ from standgen.effects import Effects, SensorLag
 
 from es_calibration.calibrate import run
 from es_thermal.node_params import SPECS, config_from_parameters
-from es_thermal.sensor_params import CALIBRATED_STEP_GATE
+from es_thermal.sensor_params import CALIBRATED_BASE_DRIFT, CALIBRATED_STEP_GATE
 
 LAG_S = 2.0
 TIME_SCALE = 0.5
@@ -62,7 +62,8 @@ def test_the_file_holds_what_calibration_json_reports(
     (lag,) = [e for e in doc["effects"] if e["name"] == "sensor_lag"]
     section = doc["thermal_params"]
     written = _node_values(path)
-    for name in ("model.step_gate", "sensor_lag_tau", "sensor_offsets", "sensor_offsets_sd"):
+    for name in ("model.step_gate", "model.base_drift", "sensor_lag_tau", "sensor_offsets",
+                 "sensor_offsets_sd"):
         assert written[name] == section[name], name
     # physical: the recording's lag over its time scale, per sensor when fitted per actuator
     taus = lag["per_actuator"].get("tau_s", lag["parameters"]["tau_s"])
@@ -93,7 +94,7 @@ def test_a_stand_without_lag_writes_no_lag(tmp_path: Path) -> None:
     doc, path = _calibrated(tmp_path, STAND)
     assert [e["name"] for e in doc["effects"]] == []
     assert _node_values(path) == {
-        "model.step_gate": CALIBRATED_STEP_GATE,
+        "model.step_gate": CALIBRATED_STEP_GATE, "model.base_drift": CALIBRATED_BASE_DRIFT,
         "sensor_lag_tau": 0.0, "sensor_offsets": 0.0, "sensor_offsets_sd": 0.0,
     }
 

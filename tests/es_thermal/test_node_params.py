@@ -78,4 +78,4 @@ def test_stage_step_gain_is_off_by_default() -> None:
     assert config_from_parameters(values()).tuning.step_gate == 0.0
     scaled = config_from_parameters(values(**{"model.step_gate": 4.0, "time_scale": 0.04}))
     assert scaled.tuning.step_gate == 4.0
-    assert scaled.tuning.step_drift == pytest.approx(KalmanTuning().step_drift / 0.2)
+    assert scaled.tuning.step_size == KalmanTuning().step_size  # a temperature: not scaled

@@ -11,6 +11,7 @@ import yaml
 from es_thermal.errors import ThermalConfigError
 from es_thermal.node_params import SPECS, config_from_parameters
 from es_thermal.sensor_params import (
+    CALIBRATED_BASE_DRIFT,
     CALIBRATED_STEP_GATE,
     SensorCalibration,
     sensor_parameters,
@@ -41,7 +42,8 @@ def test_the_file_is_the_nodes_parameters_and_loads(tmp_path: Path) -> None:
 
 def test_one_value_for_all_stays_a_scalar() -> None:
     written = sensor_parameters(SensorCalibration(lag_s=3.0))
-    assert written == {"model.step_gate": CALIBRATED_STEP_GATE, "sensor_lag_tau": 3.0,
+    assert written == {"model.step_gate": CALIBRATED_STEP_GATE,
+                       "model.base_drift": CALIBRATED_BASE_DRIFT, "sensor_lag_tau": 3.0,
                        "sensor_offsets": 0.0, "sensor_offsets_sd": 0.0}
 
 

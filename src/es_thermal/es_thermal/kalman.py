@@ -12,12 +12,16 @@ actuator, not of the lagging sensor; nothing differentiates a reading.
 Stage steps (optional, ``KalmanTuning.step_gate``): the base plate is a slow random walk in
 the model, right for a temperature-controlled stage at a set point, too slow for a stage
 stepped to a new set point, which the steady-state filter then follows only after seconds.
-With the gate on, the filter keeps a second steady-state gain, solved for a base plate that
-moves fast (``step_drift``), and uses it after the mean innovation of the sensors (a stage
-step moves every sensor alike) stands out of its noise: from a sample whose mean
-innovation exceeds ``step_gate`` standard deviations (of the gain in use) for one sensor lag
-plus three sample periods, then the quiet gain again. The model-error fit
-pauses meanwhile: a stage step is no model error.
+With the gate on, a sample whose mean innovation of the sensors (a stage step moves every
+sensor alike) exceeds ``step_gate`` standard deviations is taken as a stage step of unknown
+size (``step_size``, 1 sigma): the base plate's variance is raised by its square and the
+filter runs the time-varying gains of that covariance (precomputed, :func:`modal.jump_gains`)
+until they are the steady-state gain again. These weigh the lag's inversion against the
+noise sample by sample, so the estimate neither rings nor is left with a residual when the
+step is over. The gate is not watched meanwhile, and the model-error fit pauses: a stage
+step is no model error. (Behind a lagging sensor, a fixed "fast base plate" gain for a fixed
+window, the earlier scheme, amplified the noise through the lag's inversion while it was on
+and left a residual that the quiet gain removed only slowly.)
 
 Everything that does not depend on the data is computed once: the zero-order-hold
 discretisation (matrix exponential) and the steady-state gain (discrete algebraic Riccati
@@ -42,7 +46,7 @@ from scipy import sparse
 from es_common.arrays import BoolArray, FloatArray
 from es_thermal.errors import EstimatorStateError, ThermalConfigError, ThermalInputError
 from es_thermal.interpolation import sparse_sampling
-from es_thermal.modal import ModalSolution, modal_solution
+from es_thermal.modal import ModalSolution, jump_gains, modal_solution
 from es_thermal.network import (
     GridTransform,
     NetworkParams,
@@ -53,13 +57,6 @@ from es_thermal.network import (
     sensor_transform,
 )
 
-#: How long the step gain is used after the mean innovation passed the gate, in sensor lags
-#: (plus STEP_SETTLING_PERIODS samples). With the lag in the model the estimate needs no
-#: wait for the sensor to catch up; a longer window kept the noisier step gain on (three
-#: lags: errors above 0.2 degC up to 103 s after a step behind a 15 s lag; one lag: 25 s).
-STEP_SETTLING_LAGS: Final = 1.0
-#: Samples added to the step gain's window (a lag-free sensor still settles over a few).
-STEP_SETTLING_PERIODS: Final = 3
 #: Sensor-transform columns formed at a time for the innovation weights (bounds memory).
 _WEIGHT_CHUNK: Final = 256
 #: Innovations and sensitivities enter the model-error fit clipped to +- this [degC, degC per
@@ -82,10 +79,9 @@ class KalmanTuning:
         bias_prior: how far off the model is expected to be (relative, 1 sigma).
         bias_limit: the model-error estimates are clipped to +- this (relative).
         step_gate: stage-step tracking: the sensors' mean innovation, in its standard
-            deviations, beyond which the base plate is followed with the step gain (0: off,
-            the filter has its quiet gain only).
-        step_drift: random-walk intensity of the base plate while a step is followed
-            [degC/sqrt(s)].
+            deviations, beyond which a stage step is followed (0: off, the filter has its
+            steady-state gain only).
+        step_size: the size of a stage step the filter expects, 1 sigma [degC].
 
     """
 
@@ -96,7 +92,7 @@ class KalmanTuning:
     bias_prior: float = 0.3
     bias_limit: float = 0.6
     step_gate: float = 0.0
-    step_drift: float = 0.3
+    step_size: float = 1.0
 
     def __post_init__(self) -> None:
         """Check the values.
@@ -107,7 +103,7 @@ class KalmanTuning:
         """
         for name in (
             "sensor_noise", "process_noise", "base_drift", "adaptation_time", "bias_prior",
-            "bias_limit", "step_drift",
+            "bias_limit", "step_size",
         ):
             value = getattr(self, name)
             if not np.isfinite(value) or value <= 0.0:
@@ -119,14 +115,14 @@ class KalmanTuning:
         """Return the tuning for a run whose slow times are multiplied by ``time_scale``.
 
         The same random-walk spread over a time ``time_scale`` times as long needs
-        intensities ``1/sqrt(time_scale)`` times as large.
+        intensities ``1/sqrt(time_scale)`` times as large (a step's size is a temperature,
+        unchanged).
         """
         rate = 1.0 / np.sqrt(time_scale)
         return replace(
             self,
             process_noise=self.process_noise * rate,
             base_drift=self.base_drift * rate,
-            step_drift=self.step_drift * rate,
             adaptation_time=self.adaptation_time * time_scale,
         )
 
@@ -214,18 +210,13 @@ class ModelEstimator:
             return float(np.sqrt(spread))
 
         self._mean_sd = mean_sd(modal)
-        self._step_gain: sparse.csr_matrix | None = None
-        self._step_mean_sd = self._mean_sd
+        self._jump: tuple[sparse.csr_matrix, ...] | None = None
         if tuning.step_gate > 0.0:
-            q[layout.base] = tuning.step_drift**2
-            stepping = solve(q)
-            self._step_gain = stepping.gain
-            self._step_mean_sd = mean_sd(stepping)
-        #: Samples the step gain is used for after the gate: a sensor lag and three periods.
-        self._step_settling = STEP_SETTLING_PERIODS + int(
-            np.ceil(STEP_SETTLING_LAGS * float(np.max(taus)) / sample_period)
-        )
-        self._quiet_samples = self._step_settling  # since the mean innovation passed the gate
+            self._jump = jump_gains(
+                modal.A_d, H, q=q * sample_period, r=tuning.sensor_noise**2,
+                state=layout.base, variance=tuning.step_size**2,
+            )  # fmt: skip
+        self._jump_sample = self._jump_length  # samples since a step was detected
         self.layout: StateLayout = layout
         self.sampling: sparse.csr_matrix = sparse_sampling(rows, cols, positions)
         self.tuning = tuning
@@ -261,9 +252,13 @@ class ModelEstimator:
         return float(self._state[base] + self._sens[base] @ self._bias)
 
     @property
+    def _jump_length(self) -> int:
+        return 0 if self._jump is None else len(self._jump)
+
+    @property
     def following_step(self) -> bool:
-        """True while a stage step is followed with the step gain (``step_gate`` on)."""
-        return self._step_gain is not None and self._quiet_samples < self._step_settling
+        """True while a stage step is followed with its gains (``step_gate`` on)."""
+        return self._jump_sample < self._jump_length
 
     @property
     def biases(self) -> dict[str, float]:
@@ -306,7 +301,7 @@ class ModelEstimator:
         self._info = self._prior_info.copy()
         self._info_vector[:] = 0.0
         self._bias[:] = 0.0
-        self._quiet_samples = self._step_settling
+        self._jump_sample = self._jump_length
 
     def predict(self, heat_load: FloatArray, steps: int = 1) -> None:
         """Advance the model ``steps`` sample periods with the heat load (N,) held.
@@ -339,7 +334,7 @@ class ModelEstimator:
         """Correct the predicted state with the valid readings; return the innovations.
 
         Invalid sensors get a zero innovation: their gain columns are left out. With
-        ``step_gate`` on, a stage step is followed with the step gain (module docstring).
+        ``step_gate`` on, a stage step is followed with its gains (module docstring).
         """
         x = self._require_state()
         seen = self._sensors.inverse(np.asarray(self._H @ np.column_stack([x, self._sens])))
@@ -347,42 +342,37 @@ class ModelEstimator:
         regressor = seen[:, 1:]
         regressor[~valid] = 0.0
         modal = self._sensors.forward(np.column_stack([innovation, -regressor]))
-        gain = self._gain
-        if self._step_gain is not None:
-            self._watch_for_steps(modal[:, 0], valid)
-            if self.following_step:
-                gain = self._step_gain
+        if not self.following_step and self._is_stage_step(modal[:, 0], valid):
+            self._jump_sample = 0
         # One pass over the (sparse, modal) gain corrects the state and the sensitivities.
-        update = np.asarray(gain @ modal)
+        update = np.asarray(self._gain @ modal)
+        if self._jump is not None and self.following_step:
+            update += np.asarray(self._jump[self._jump_sample] @ modal)
+            self._jump_sample += 1
+            self._state = x + update[:, 0]
+            self._sens = self._sens + update[:, 1:]
+            return innovation  # a stage step is no model error: the fit pauses
         self._state = x + update[:, 0]
         self._sens = self._sens + update[:, 1:]
-        if self.following_step:
-            return innovation  # a stage step is no model error: the fit pauses
         self._fit_biases(
             np.clip(innovation, -BIAS_FIT_LIMIT, BIAS_FIT_LIMIT),
             np.clip(regressor, -BIAS_FIT_LIMIT, BIAS_FIT_LIMIT),
         )
         return innovation
 
-    def _watch_for_steps(self, modal_innovation: FloatArray, valid: BoolArray) -> None:
-        """Start or end following a stage step from the sensors' mean innovation.
+    def _is_stage_step(self, modal_innovation: FloatArray, valid: BoolArray) -> bool:
+        """Return whether the sensors' mean innovation stands out as a stage step.
 
         ``modal_innovation`` is the innovation in sensor modes (invalid sensors at 0); the
-        mean over fewer valid sensors has a proportionally larger spread. It is measured in
-        the standard deviation of the gain in use: the step gain's innovations are wider,
-        and measured against the quiet gain's they re-triggered the step gain on noise.
+        mean over fewer valid sensors has a proportionally larger spread. Always False with
+        ``step_gate`` off.
         """
         count = int(np.count_nonzero(valid))
-        if count == 0:
-            return
+        if self._jump is None or count == 0:
+            return False
         share = count / valid.size
         z = abs(float(self._mean_weights @ modal_innovation)) / share
-        sd = self._step_mean_sd if self.following_step else self._mean_sd
-        z /= sd / np.sqrt(share)
-        if z > self.tuning.step_gate:
-            self._quiet_samples = 0
-        else:
-            self._quiet_samples = min(self._quiet_samples + 1, self._step_settling)
+        return z > self.tuning.step_gate * self._mean_sd / np.sqrt(share)
 
     def _fit_biases(self, innovation: FloatArray, regressor: FloatArray) -> None:
         """Update the model-error estimates by least squares pulled towards zero bias.

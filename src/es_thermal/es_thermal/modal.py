@@ -159,6 +159,73 @@ def modal_solution(
     )
 
 
+def jump_gains(
+    A_d: sparse.spmatrix,
+    H: sparse.spmatrix,
+    *,
+    q: FloatArray,
+    r: float,
+    state: int,
+    variance: float,
+    tol: float = 1e-3,
+    max_samples: int = 100_000,
+) -> tuple[sparse.csr_matrix, ...]:
+    """Return the gains that follow a jump of ``state`` by a random amount of ``variance``.
+
+    After the jump the gain is time-varying (the Riccati recursion from the steady-state
+    covariance raised by the jump's variance) until it is the steady-state gain again. Only
+    the jumping state's group of coupled states and measurements differs from the steady
+    state, so each sample's gain is returned as its difference from the steady-state gain
+    (n x s, sparse, nonzero on that group only), one per sample after the jump.
+
+    The jump happened during the sample before the first gain's: the prior covariance is
+    the steady state's plus ``variance`` along the jumping state's column of ``A_d``. The
+    gains run until they are within ``tol`` (relative to the largest entry) of the steady
+    state's, at most ``max_samples``.
+
+    Args:
+        A_d: discretised state transition (n x n), block diagonal by group.
+        H: measurement matrix (s x n).
+        q: process noise variance per state over one sample (n,).
+        r: measurement noise variance (R = r I).
+        state: index of the jumping state.
+        variance: the jump's variance.
+        tol: relative tolerance of the return to the steady-state gain.
+        max_samples: cap on the number of gains.
+
+    Raises:
+        ConvergenceError: the steady-state Riccati iteration did not converge.
+
+    """
+    A_d, H = sparse.csr_matrix(A_d), sparse.csr_matrix(H)
+    n, s = A_d.shape[0], H.shape[0]
+    labels = _component_labels(A_d, sparse.csr_matrix((n, 1)), H)  # one idle input
+    states = np.flatnonzero(labels[:n] == labels[state])
+    measurements = np.flatnonzero(labels[n:n + s] == labels[state])
+    A = A_d[states][:, states].toarray()
+    Hg = H[measurements][:, states].toarray()
+    Q = np.diag(q[states])
+    R = r * np.eye(measurements.size)
+    P = steady_state_covariance(A, Hg, Q, R)
+    steady_cov = Hg @ P @ Hg.T + R
+    steady_gain = np.linalg.solve(steady_cov, Hg @ P).T
+    column = A[:, int(np.searchsorted(states, state))]
+    P = P + variance * np.outer(column, column)
+    scale = tol * max(float(np.max(np.abs(steady_gain))), np.finfo(float).tiny)
+
+    corrections: list[sparse.csr_matrix] = []
+    for _ in range(max_samples):
+        cov = Hg @ P @ Hg.T + R
+        gain = np.linalg.solve(cov, Hg @ P).T
+        if corrections and np.max(np.abs(gain - steady_gain)) <= scale:
+            break
+        corrections.append(_scatter([(states[None, :], measurements[None, :],
+                                      (gain - steady_gain)[None])], (n, s)))
+        P = A @ (P - gain @ Hg @ P) @ A.T + Q
+        P = 0.5 * (P + P.T)
+    return tuple(corrections)
+
+
 def _component_labels(
     A: sparse.csr_matrix, B: sparse.csr_matrix, H: sparse.csr_matrix
 ) -> IndexArray:

@@ -200,13 +200,13 @@ SPECS: tuple[ParameterSpec, ...] = (
     ),
     ParameterSpec(
         "model.step_gate", _TUNING.step_gate,
-        "Stage steps: the sensors' mean innovation, in standard deviations, beyond which the "
-        "base plate is followed with the step gain (0: off).", 0.0, 1e3, read_only=True,
+        "Stage steps: the sensors' mean innovation, in standard deviations, beyond which a "
+        "stage step is followed (0: off).", 0.0, 1e3, read_only=True,
     ),
     ParameterSpec(
-        "model.step_drift", _TUNING.step_drift,
-        "Random-walk intensity of the base plate while a stage step is followed, "
-        "degC/sqrt(s).", 1e-9, 1e3, read_only=True,
+        "model.step_size", _TUNING.step_size,
+        "Size of a stage step the filter expects when it follows one, 1 sigma, degC.",
+        1e-6, 1e3, read_only=True,
     ),
     ParameterSpec(
         "fault.valid_min", _FAULTS.valid_min, "Lowest physical reading, degC.", -273.0, 1000.0,
@@ -274,7 +274,7 @@ def config_from_parameters(values: Mapping[str, object]) -> EstimatorConfig:
         base_drift=num("model.base_drift"),
         adaptation_time=num("model.adaptation_time"),
         step_gate=num("model.step_gate"),
-        step_drift=num("model.step_drift"),
+        step_size=num("model.step_size"),
     ).time_scaled(scale)
     faults = FaultConfig(
         valid_min=num("fault.valid_min"),

@@ -14,7 +14,9 @@ What is written (:func:`sensor_calibration`):
   sensors (the grid's median) otherwise; 0 when no lag was found or it did not hold on the
   record's halves. Physical seconds: the recording's lag divided by its ``time_scale``.
 - ``model.step_gate``: ``es_thermal.sensor_params.CALIBRATED_STEP_GATE`` (a calibrated
-  node follows stage steps; the node's default, 0, stays for uncalibrated runs).
+  node follows stage steps) and ``model.base_drift``:
+  ``es_thermal.sensor_params.CALIBRATED_BASE_DRIFT`` (a quiet stage between them); the
+  node's defaults stay for uncalibrated runs.
 - ``sensor_offsets`` and ``sensor_offsets_sd``: 0 (the calibration identifies no sensor
   offset: a common offset is absorbed by the law's temperature terms).
 
