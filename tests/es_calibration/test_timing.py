@@ -117,6 +117,22 @@ def test_clean_clocks_give_no_clock_rate_finding() -> None:
     assert findings == []
 
 
+def test_a_clock_rate_near_the_scans_reach_is_measured_at_both_ends_of_the_record() -> None:
+    # each block's scan reaches MAX_PPM over its distance from the record's middle (not the
+    # whole record's span): 280 ppm puts the first and last blocks near the edge of theirs
+    from es_calibration.data.recording import MemoryRecording
+    from es_calibration.pipeline import _align_block
+    from es_calibration.search.blockdelay import MAX_PPM, block_delays
+
+    assert MAX_PPM > 280.0
+    aligned, _ = _align_block(MemoryRecording(measured(_case(280.0, 120.0))))
+    times, delays, _ = block_delays(aligned)
+    line = np.polyval(np.polyfit(times, delays, 1), times)
+    assert np.polyfit(times, delays, 1)[0] == pytest.approx(280e-6, abs=8e-6)
+    # every block on the line, the first and the last too (not held at their scan's edge)
+    assert np.max(np.abs(delays - line)) < 0.5 * T  # their scatter: up to 0.23 T
+
+
 def test_late_bursts_are_named_and_left_out_and_no_delay_stands_in_for_the_jitter() -> None:
     # the sweep's receive_jitter case: stamps are receive times (0.46 ms mean lateness) and
     # three windows of messages arrive together 38-94 ms late. Before: the bursts were lost

@@ -37,6 +37,8 @@ BLOCK_ROWS: Final = 1500
 ACTUATORS: Final = 16
 #: Fastest clock-rate difference the per-block scans reach [ppm] (a crystal is within 100).
 MAX_PPM: Final = 300.0
+#: Periods a block's scan reaches beyond its clock-rate span.
+REACH_MARGIN: Final = 1.0
 #: Steps of the coarse and the fine scans [command periods].
 COARSE_STEP: Final = 0.25
 FINE_STEP: Final = 0.05
@@ -137,6 +139,17 @@ def _refined(scan: _Scan, rows: IndexArray, centre: float, half: float) -> tuple
     return best, variance
 
 
+def _block_reach(edges: FloatArray, period: float) -> FloatArray:
+    """Return how far each block's shift can stray from the whole record's [periods] (B,).
+
+    ``MAX_PPM`` over the block's farthest edge's distance from the record's middle, plus
+    ``REACH_MARGIN`` (the whole record's shift is fitted, not exactly the middle's).
+    """
+    middle = 0.5 * (edges[0] + edges[-1])
+    farthest = np.maximum(np.abs(edges[:-1] - middle), np.abs(edges[1:] - middle))
+    return REACH_MARGIN + MAX_PPM * 1e-6 * farthest / period
+
+
 def block_delays(aligned: AlignedData) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Return the blocks' centre times, the delay measured in each and its sd (B,) [s].
 
@@ -159,14 +172,16 @@ def block_delays(aligned: AlignedData) -> tuple[FloatArray, FloatArray, FloatArr
     scan.fit(every, whole)
     shift, _ = _refined(scan, every, whole, 1.0)
     scan.fit(every, shift)
-    # each block's own shift, the law fixed
-    reach = max(1.0, MAX_PPM * 1e-6 * duration / scan.period)
+    # each block's own shift, the law fixed; the whole record's shift is that of its middle,
+    # so a block strays from it by at most MAX_PPM times its farthest edge's distance from
+    # the middle (a scan of the whole record's span per block was 4x the work)
+    reach = _block_reach(edges, scan.period)
     delays = np.full(BLOCKS, np.nan)
     sigmas = np.full(BLOCKS, np.inf)
     for b, rows in enumerate(per_block):
         if rows.size < 50:
             continue
-        coarse = shift + np.arange(-reach, reach + 0.5 * COARSE_STEP, COARSE_STEP)
+        coarse = shift + np.arange(-reach[b], reach[b] + 0.5 * COARSE_STEP, COARSE_STEP)
         near, _, _ = scan.best(rows, coarse)
         best, variance = _refined(scan, rows, near, COARSE_STEP)
         delays[b] = best * scan.period
