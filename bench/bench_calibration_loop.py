@@ -67,10 +67,10 @@ from es_bringup.demo_calibration import (
 )
 from es_bringup.demo_options import DEFAULT_CONTROL_RATE
 from es_bringup.graph import FEEDFORWARD, THERMAL, scenario_parameters
-from es_bringup.metrics import AlignedRun, run_metrics
+from es_bringup.metrics import DEFAULT_SLOT_WIDTH, AlignedRun, reduction, run_metrics
 from es_calibration.calibrate import run as calibrate_run
 from es_calibration.model.composite import CANDIDATES
-from es_feedforward.feedforward import Feedforward, Mode
+from es_feedforward.feedforward import Feedforward, FeedforwardConfig, Mode
 from es_feedforward.param_file import read_params_file
 from es_msgs_py.bag import write_array_bag
 from es_physics.laws import CODE_CLIPPED_LOW
@@ -92,6 +92,9 @@ STAGE_STEP_C = 0.5
 #: Time after a stage step left out of the steady-state RMS, physical seconds (scaled by the
 #: scenario's time_scale; bench_thermal's transient window).
 SETTLE_S = 30.0
+#: Temperature slot [degC] fine enough that each period stands alone (the demo's slots average
+#: every period within one, and so the periods just after a stage step with the settled ones).
+FINE_SLOT_C = 0.01
 
 
 @dataclass
@@ -110,6 +113,10 @@ class LoopResult:
     floor_rms_m: dict[str, float]  # by set point: error no feedforward can avoid
     steady_rms_m: dict[str, float]  # by set point: SETTLE_S or more after a stage step
     after_step_rms_m: dict[str, float]  # by set point: within SETTLE_S of a stage step
+    # by set point: variation reduction against uncompensated and that baseline's variation,
+    # each (periods averaged per demo slot, single periods)
+    reduction: dict[str, tuple[float, ...]]
+    uncompensated_variation_m: dict[str, tuple[float, ...]]
 
 
 def _effects(effect: str) -> dict[str, Any]:
@@ -157,6 +164,8 @@ class LoopRun:
     floor_rms_m: float
     steady_rms_m: float
     after_step_rms_m: float
+    variation_m: tuple[float, ...]  # (periods averaged, single periods); see FINE_SLOT_C
+    uncompensated_variation_m: tuple[float, ...]
 
 
 def settled_mask(base_temperature: np.ndarray, time: np.ndarray, settle_s: float) -> np.ndarray:
@@ -205,6 +214,8 @@ def closed_loop(path: Path, scenario: Scenario, params: Path, thermal_file: Path
     plant = Plant(scenario)
     core = Feedforward(config)
     reachable: list[bool] = []
+    # the thesis's baseline: the same loop with no temperature compensation
+    uncompensated = simulate(Plant(scenario), controller=_uncompensated(scenario, config))
 
     def controller(observation: Observation) -> np.ndarray:
         if observation.temperature_raw is not None:
@@ -228,14 +239,30 @@ def closed_loop(path: Path, scenario: Scenario, params: Path, thermal_file: Path
     every = (result.displacement - result.setpoint)[skip:]
     settled = settled_mask(result.base_temperature, result.time,
                            SETTLE_S * scenario.time_scale)[skip:]
+    metrics = run_metrics(aligned, period, skip_s=period)[0]
+    baseline_run = AlignedRun.of_simulation(uncompensated, plant.dt)
+    compensated, baseline = (
+        tuple(run_metrics(r, period, slot, skip_s=period)[0].variation_m
+              for slot in (DEFAULT_SLOT_WIDTH, FINE_SLOT_C))
+        for r in (aligned, baseline_run)
+    )
     return LoopRun(
-        rms_error_m=run_metrics(aligned, period, skip_s=period)[0].rms_error_m,
+        rms_error_m=metrics.rms_error_m,
         reachable_rms_m=_rms(every[ok]),
         unreachable_share=float(1.0 - ok.mean()),
         floor_rms_m=floor_rms(scenario, config.v_limit, skip),
         steady_rms_m=_rms(every[settled]),
         after_step_rms_m=_rms(every[~settled]),
+        variation_m=compensated,
+        uncompensated_variation_m=baseline,
     )
+
+
+def _uncompensated(scenario: Scenario, config: FeedforwardConfig
+                   ) -> Callable[[Observation], np.ndarray]:
+    """Return a controller: the calibrated law at its reference temperature, never updated."""
+    core = Feedforward(replace(config, mode=Mode.UNCOMPENSATED))
+    return lambda observation: core.command(observation.setpoint, observation.time).voltage
 
 
 def _constant(scenario: Scenario, voltage: float) -> Callable[[Observation], np.ndarray]:
@@ -291,6 +318,9 @@ def calibration_loop(effect: str, work: Path, raw_temperature: bool = False) -> 
         floor_rms_m={sp: run.floor_rms_m for sp, run in runs.items()},
         steady_rms_m={sp: run.steady_rms_m for sp, run in runs.items()},
         after_step_rms_m={sp: run.after_step_rms_m for sp, run in runs.items()},
+        reduction={sp: tuple(map(reduction, run.variation_m, run.uncompensated_variation_m))
+                   for sp, run in runs.items()},
+        uncompensated_variation_m={sp: run.uncompensated_variation_m for sp, run in runs.items()},
     )
 
 
@@ -350,7 +380,19 @@ def markdown(results: Sequence[LoopResult]) -> list[str]:
         lambda r, sp: f"{r.steady_rms_m[sp] * 1e9:.3f}, "
         + ("-" if np.isnan(r.after_step_rms_m[sp]) else f"{r.after_step_rms_m[sp] * 1e9:.3f}"),
     )
-    return lines + lines_reach + lines_steady
+    lines_reduction = _per_setpoint_table(
+        results,
+        "Temperature variation reduction (the thesis's figure, es_bringup.metrics: the largest "
+        "deviation of the period-averaged output from the one at mid-range temperature, "
+        "against the same loop uncompensated, the calibrated law at its reference "
+        f"temperature), every period after the first, stage steps included; periods averaged "
+        f"per {DEFAULT_SLOT_WIDTH:g} degC slot as the demo does, and each period alone "
+        f"({FINE_SLOT_C:g} degC slots: the periods just after a stage step count in full):",
+        "reduction averaged, single periods (uncompensated variation [nm], single periods)",
+        lambda r, sp: ", ".join(f"{100 * x:.1f} %" for x in r.reduction[sp])
+        + f" ({r.uncompensated_variation_m[sp][1] * 1e9:.2f})",
+    )
+    return lines + lines_reach + lines_steady + lines_reduction
 
 
 def _per_setpoint_table(
