@@ -211,7 +211,7 @@ def jump_gains(
     steady_gain = np.linalg.solve(steady_cov, Hg @ P).T
     column = A[:, int(np.searchsorted(states, state))]
     P = P + variance * np.outer(column, column)
-    scale = tol * max(float(np.max(np.abs(steady_gain))), np.finfo(float).tiny)
+    scale = tol * max(float(np.max(np.abs(steady_gain))), float(np.finfo(float).tiny))
 
     corrections: list[sparse.csr_matrix] = []
     for _ in range(max_samples):
