@@ -49,3 +49,20 @@ def test_the_free_offset_centres_prediction_and_jacobians_over_valid_samples() -
     assert np.abs(out.jac_global[:2]).max() < 1e-12
     # an actuator with no valid sample keeps its values (nothing to take a mean over)
     np.testing.assert_array_equal(out.prediction[2], prediction[2])
+
+
+def test_a_parameter_not_a_number_with_offsets_refuses_the_candidate_with_a_reason(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # the refit with free offsets gives NaN for a parameter: a reason, not a NotANumberError
+    # out of the effect search (before 8118d5c it escaped; halves.py always caught it)
+    from types import SimpleNamespace
+
+    from es_calibration.search import offsets
+
+    effect = SimpleNamespace(reported=lambda fit: fit, uncertainties=lambda fit: {"c": 1e-4})
+    monkeypatch.setattr(offsets, "get", lambda name: effect)
+    monkeypatch.setattr(offsets, "refit_with_offsets", lambda state, train: float("nan"))
+    monkeypatch.setattr(offsets, "fitted_effect", lambda state, eff, aligned: {"c": state})
+    why = offsets.offset_stand_in(0.03, "coupling", None, None)  # type: ignore[arg-type]
+    assert why == "c not a number once each actuator may carry a constant offset"
