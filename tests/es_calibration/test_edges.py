@@ -21,16 +21,24 @@ from standgen.sweep import build_cases
 from es_calibration.calibrate import run
 from es_calibration.data.align import MeasuredData, align
 from es_calibration.data.delayrange import shift_span
+from es_calibration.data.edge_loop import departure_rows
 from es_calibration.data.edges import (
     EDGE_MARGIN_PERIODS,
     REACH_PERIODS,
+    EdgeMask,
+    EdgeStream,
+    _interval_geometry,
     account,
+    departures,
     edge_mask,
     edge_pairs,
     find_edges,
 )
-from es_calibration.pipeline import _with_delay
+from es_calibration.data.recording import MemoryRecording
+from es_calibration.output.schema import calibration_document
+from es_calibration.pipeline import _with_delay, calibrate
 from es_calibration.verdict import WRITTEN
+from es_feedforward.kernels import KERNELS_ENV
 
 from . import law_bags as lb
 from .independent_drive import simulate_independent
@@ -190,3 +198,90 @@ def test_independently_driven_8x8_keeps_its_samples() -> None:
     assert known.kept_fraction() >= 0.9
     assert known.command_edges is not None
     assert known.command_edges.fraction < 0.06
+
+
+@pytest.mark.parametrize("backend", ["numpy", "fused"])
+def test_edges_found_a_chunk_at_a_time_are_those_of_the_whole_record(
+    monkeypatch: pytest.MonkeyPatch, backend: str
+) -> None:
+    # the grid-wide refit streams the command (recording.gather): the pairs must not depend
+    # on where the chunks begin and end, nor on gaps and repeated stamps inside them, nor
+    # on the kernels (the compiled departures are numpy's to the bit)
+    rng = np.random.default_rng(5)
+    for trial in range(20):
+        n, width = int(rng.integers(20, 500)), int(rng.integers(1, 30))
+        times = np.arange(n, dtype=np.float64) * T
+        if trial % 3 == 0:
+            times[n // 2:] += 20 * T  # a gap
+        if trial % 4 == 0:
+            times[10] = times[9]  # a repeated stamp
+        command = np.cumsum(rng.normal(0.0, 0.01, (n, width)), axis=0) + np.sin(
+            0.05 * np.arange(n)[:, None] + rng.uniform(0, 6, width))
+        for row, actuator in zip(rng.integers(0, n, 2 * width), rng.integers(0, width, 2 * width),
+                                 strict=True):
+            command[row:, actuator] += rng.normal(0.0, 2.0)  # steps at their own instants
+        monkeypatch.setenv(KERNELS_ENV, "numpy")
+        whole = edge_pairs(times, command)
+        numpy_departures = departures(times, command)
+        monkeypatch.setenv(KERNELS_ENV, backend)
+        stream = EdgeStream(times, width)
+        start = 0
+        while start < n:
+            size = int(rng.integers(1, 60))
+            stream.feed(command[start : start + size])
+            start += size
+        assert whole[0].size > 0
+        if backend == "fused":
+            compiled = np.empty_like(numpy_departures)
+            length, w, usable = _interval_geometry(times, float(np.median(np.diff(times))))
+            departure_rows(command, 0, length, w, usable, float(np.median(np.diff(times))),
+                           compiled)
+            np.testing.assert_array_equal(compiled, numpy_departures)
+        for got, want in zip(stream.pairs(), whole, strict=True):
+            np.testing.assert_array_equal(got, want)
+
+
+def test_independently_driven_grid_beyond_the_block_keeps_its_samples() -> None:
+    # 10 x 10: the actuators outside the 8 x 8 screening block are refitted from the
+    # streamed gather; they once took every block actuator's edges (none of their own
+    # were looked at), now each takes its own, found in the same pass
+    effects = draw_effects(["delay"], np.random.default_rng(4), rate_hz=RATE, duration_s=30.0,
+                           shape=(10, 10))
+    config = StandConfig(rows=10, cols=10, rate_hz=RATE, duration_s=30.0, effects=effects,
+                         seed=4, temperature_kind="grid")
+    data = measured(simulate_independent(config))
+    cal = calibrate(MemoryRecording(data), ("delay",))
+    edges = cal.grid_edges
+    assert edges is not None and cal.grid_kept_fraction is not None
+    assert edges.actuators == 100 and min(edges.per_actuator_edges) > 10
+    assert cal.grid_kept_fraction >= 0.9
+    # the whole grid's own edges, as align finds them with the whole grid in memory
+    whole = align(data).edge_mask
+    assert edges.pairs == whole.actuator.size
+    # the block's edges on every other actuator (the old rule) would have kept little
+    block_rule = replace(cal.aligned.edge_mask.renumbered(np.arange(64, dtype=np.intp)),
+                         examined=np.arange(64, dtype=np.intp))
+    outside = np.array([99], dtype=np.intp)
+    assert block_rule.excluded(cal.aligned.t, outside).mean() > 0.3
+    doc = calibration_document(cal)
+    assert doc["data"]["grid_command_edges"]["per_actuator"]["edges"] == list(
+        edges.per_actuator_edges)
+    assert doc["health"]["grid_kept_fraction"] == cal.grid_kept_fraction
+
+
+def test_the_excluded_counts_are_the_sums_of_the_excluded_pairs() -> None:
+    # account() counts a 64 x 64 grid's own edges without a (actuators, samples) array
+    rng = np.random.default_rng(2)
+    for trial in range(40):
+        pairs, width, n = (int(v) for v in rng.integers((0, 1, 1), (200, 30, 400)))
+        t = np.sort(rng.uniform(0.0, 10.0, n))
+        start = rng.uniform(-1.0, 11.0, pairs)
+        examined = np.sort(rng.choice(width, max(1, width // 2), replace=False))
+        mask = EdgeMask(start, start + rng.uniform(0.0, 0.1, pairs),
+                        rng.integers(0, width, pairs).astype(np.intp),
+                        float(rng.uniform(0.0, 0.5)), float(rng.uniform(0.0, 0.5)),
+                        examined=examined.astype(np.intp) if trial % 2 else None)
+        actuators = np.sort(rng.choice(width + 3, int(rng.integers(1, width + 3)),
+                                       replace=False)).astype(np.intp)
+        np.testing.assert_array_equal(mask.excluded_counts(t, actuators),
+                                      mask.excluded(t, actuators).sum(axis=1))

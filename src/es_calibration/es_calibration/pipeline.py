@@ -26,7 +26,7 @@ from es_calibration.data.align import (
     resample_temperature,
     temperature_stamps,
 )
-from es_calibration.data.edges import account
+from es_calibration.data.edges import EdgeExclusion, EdgeMask, account
 from es_calibration.data.recording import MemoryRecording, Recording, gather, gather_arrays
 from es_calibration.data.searchspan import SEARCH_BUDGET, search_span, search_windows
 from es_calibration.data.timing import (
@@ -141,6 +141,11 @@ class Calibration:
     clock_rate_ppm: float | None = None
     #: Share of the screening block's (sample, actuator) pairs kept for the fit.
     kept_fraction: float = 1.0
+    #: What every actuator's own command edges take out of the grid beyond the screening
+    #: block (None: the grid is the block, its edges are ``aligned.command_edges``).
+    grid_edges: EdgeExclusion | None = None
+    #: Share of the whole grid's (sample, actuator) pairs kept, at least (None: as above).
+    grid_kept_fraction: float | None = None
     verdict: Verdict = field(default_factory=lambda: Verdict("trusted"))
 
     @property
@@ -252,6 +257,24 @@ def _unexplained(after: ResidualStructure, final_rms: float) -> list[str]:
     return unexplained.describe(after, final_rms, NOISE_RATIO_LIMIT)
 
 
+@dataclass(frozen=True)
+class _GridRefit:
+    """The grid-wide refit: the refitted models, NaN counts, the actuators' own edges.
+
+    Attributes:
+        states: each screened model refitted on the whole grid.
+        dropped: NaN displacements and commands of the whole grid (``dropped`` counts).
+        edges: every actuator's own command edges (None: not looked for).
+        usable: finite displacement (sample, actuator) pairs among the kept samples.
+
+    """
+
+    states: list[ModelState]
+    dropped: dict[str, int]
+    edges: EdgeMask | None
+    usable: int
+
+
 def _grid_refit(
     recording: Recording,
     aligned: AlignedData,
@@ -260,13 +283,16 @@ def _grid_refit(
     temperature: tuple[FloatArray, FloatArray],
     tile: int,
     run: TileMap,
-) -> tuple[list[ModelState], dict[str, int]]:
-    """Refit each model of ``states`` on the whole grid in tiles; return them and NaN counts.
+    own_edges: bool,
+) -> _GridRefit:
+    """Refit each model of ``states`` on the whole grid in tiles.
 
-    ``aligned`` is the screening block's alignment (the time base of the whole run),
-    ``temperature`` the grid's stamps since the run's start (Nt,) [s] and values (Nt, A)
-    [degC]. One streamed pass writes the grid at the refit's samples to one file per tile
-    (recording.gather, tilestore.py), each tile's resampled temperature with it.
+    ``aligned`` is the screening block's alignment (the time base of the whole run; its
+    edge mask names grid indices), ``temperature`` the grid's stamps since the run's start
+    (Nt,) [s] and values (Nt, A) [degC]. One streamed pass writes the grid at the refit's
+    samples to one file per tile (recording.gather, tilestore.py), each tile's resampled
+    temperature with it; with ``own_edges`` it also finds each actuator's own command edges,
+    which then take the actuator's samples (at ``aligned``'s window) instead of the block's.
 
     Raises:
         CalibrationInputError: an actuator has fewer than ``MIN_SAMPLES`` usable samples.
@@ -295,13 +321,20 @@ def _grid_refit(
         store = TileStore.create(Path(directory), tiles, arrays)
         write_temperature(store, times, values)
         gathered = gather(recording, aligned.sample_index[rows], aligned.sample_index, commands,
-                          thresholds, store=store)
+                          thresholds, store=store,
+                          command_times=aligned.command_times if own_edges else None)
         if gathered.usable.min() < MIN_SAMPLES:
             worst = int(np.argmin(gathered.usable))
             raise CalibrationInputError(
                 f"too short to fit: actuator {worst} has {int(gathered.usable[worst])} usable "
                 f"samples (need {MIN_SAMPLES})"
             )
+        grid_mask = None
+        if gathered.edges is not None:
+            window = aligned.edge_mask
+            grid_mask = replace(gathered.edges, before_s=window.before_s,
+                                after_s=window.after_s, delay_s=window.delay_s)
+            aligned = replace(aligned, edge_mask=grid_mask)
         header = compact_grid(aligned, rows, commands, temperature_times=uniform, grid=grid)
         out: list[ModelState] = []
         for state in states:
@@ -311,7 +344,7 @@ def _grid_refit(
         "displacement NaN": gathered.displacement_nan,
         "command NaN": gathered.command_nan,
     }
-    return out, counts
+    return _GridRefit(out, counts, grid_mask, int(gathered.usable.sum()))
 
 
 def _grid_temperature(recording: Recording, start: float) -> tuple[FloatArray, FloatArray]:
@@ -512,6 +545,8 @@ def calibrate(
     timings["residual analysis"] = time.perf_counter() - clock
 
     clock = time.perf_counter()
+    grid_edges: EdgeExclusion | None = None
+    grid_kept: float | None = None
     screened = [base_screen] + [after_state for _, _, after_state in added]
     if full_grid and not windowed:
         # refitted on the pairs the known delay keeps
@@ -523,10 +558,17 @@ def calibrate(
         # the block's edges named by grid index; the other actuators take all of them
         on_grid = aligned if full_grid else replace(
             aligned, edge_mask=aligned.edge_mask.renumbered(idx))
-        prefix_states, counts = _grid_refit(
-            recording, on_grid, screened, temperature=grid_temperature, tile=tile, run=run
+        refit = _grid_refit(
+            recording, on_grid, screened, temperature=grid_temperature, tile=tile, run=run,
+            own_edges=not full_grid,
         )
-        aligned = replace(aligned, dropped={**aligned.dropped, **counts})
+        prefix_states = refit.states
+        aligned = replace(aligned, dropped={**aligned.dropped, **refit.dropped})
+        if refit.edges is not None:
+            # at least: a pair with a NaN and an edge counts twice as lost
+            grid_edges = account(refit.edges, aligned.t, grid[0] * grid[1])
+            grid_kept = (refit.usable - grid_edges.excluded_pairs) / max(
+                max(aligned.recorded_samples, aligned.t.size) * grid[0] * grid[1], 1)
     timings["grid refit"] = time.perf_counter() - clock
     clock = time.perf_counter()
     base_full = prefix_states[0]
@@ -582,7 +624,7 @@ def calibrate(
     recorded = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 0.0)
     verdict = judge(
         law=law_problems(law, recorded),
-        kept_fraction=kept,
+        kept_fraction=kept if grid_kept is None else min(kept, grid_kept),
         heldout_rms_m=final.heldout_rms,
         noise_floor_m=after.noise_floor,
         unexplained=described,
@@ -607,6 +649,8 @@ def calibrate(
         findings=findings,
         clock_rate_ppm=ppm,
         kept_fraction=kept,
+        grid_edges=grid_edges,
+        grid_kept_fraction=grid_kept,
         verdict=verdict,
     )
 

@@ -48,7 +48,8 @@ from scipy.ndimage import maximum_filter1d
 
 from es_calibration.data.delayrange import shift_span
 from es_calibration.data.gaps import GAP_FACTOR
-from es_common.arrays import BoolArray, FloatArray, IndexArray
+from es_common.arrays import BoolArray, FloatArray, IndexArray, IntArray
+from es_feedforward.kernels import Backend, default_backend
 
 #: An interval whose departure exceeds this many times its neighbourhood's is an edge.
 EDGE_RATIO: Final = 3.0
@@ -135,18 +136,12 @@ class EdgeMask:
         """Return the mask with actuator i renamed ``columns[i]``; only those were examined."""
         return replace(self, actuator=columns[self.actuator], examined=np.sort(columns))
 
-    def excluded(self, t: FloatArray, actuators: IndexArray) -> BoolArray:
-        """Return (len(actuators), len(t)): the pairs of samples at ``t`` [s] taken out.
+    def _spans(self, t: FloatArray, actuators: IndexArray
+               ) -> tuple[IndexArray, IndexArray, IndexArray]:
+        """Return (row, lo, hi): each edge takes samples [lo, hi) of ``t`` (sorted) from row.
 
-        ``actuators`` are grid row-major indices (as ``actuator`` counts them).
+        ``row`` indexes ``actuators`` (grid row-major indices, as ``actuator`` counts them).
         """
-        out = np.zeros((actuators.size, t.size), dtype=bool)
-        if not self.actuator.size or not t.size:
-            return out
-        order = None
-        if np.any(np.diff(t) < 0):
-            order = np.argsort(t, kind="stable")
-            t = t[order]
         lo_all = np.searchsorted(t, self.start_s - self.before_s, side="left")
         hi_all = np.searchsorted(t, self.end_s + self.after_s, side="right")
         lookup = np.full(int(max(self.actuator.max(), actuators.max())) + 1, -1, np.intp)
@@ -161,6 +156,21 @@ class EdgeMask:
                 rows = np.concatenate([rows, np.repeat(unexamined, spans.shape[0])])
                 lo = np.concatenate([lo, np.tile(spans[:, 0], unexamined.size)])
                 hi = np.concatenate([hi, np.tile(spans[:, 1], unexamined.size)])
+        return rows, lo, hi
+
+    def excluded(self, t: FloatArray, actuators: IndexArray) -> BoolArray:
+        """Return (len(actuators), len(t)): the pairs of samples at ``t`` [s] taken out.
+
+        ``actuators`` are grid row-major indices (as ``actuator`` counts them).
+        """
+        out = np.zeros((actuators.size, t.size), dtype=bool)
+        if not self.actuator.size or not t.size:
+            return out
+        order = None
+        if np.any(np.diff(t) < 0):
+            order = np.argsort(t, kind="stable")
+            t = t[order]
+        rows, lo, hi = self._spans(t, actuators)
         for first in range(0, actuators.size, COLUMNS):  # bounded (COLUMNS, n) counters
             pick = (rows >= first) & (rows < first + COLUMNS)
             count = np.zeros((min(COLUMNS, actuators.size - first), t.size + 1), np.int32)
@@ -172,6 +182,26 @@ class EdgeMask:
             back[order] = np.arange(order.size)
             out = out[:, back]
         return out
+
+    def excluded_counts(self, t: FloatArray, actuators: IndexArray) -> IntArray:
+        """Return how many samples at ``t`` [s] each of ``actuators`` loses (len(actuators),).
+
+        The sum over :meth:`excluded`'s rows without its (actuators, samples) array: each
+        actuator's spans merged where they overlap (a 64 x 64 grid's own edges are over a
+        million pairs).
+        """
+        if not self.actuator.size or not t.size or not actuators.size:
+            return np.zeros(actuators.size, np.int64)
+        rows, lo, hi = self._spans(np.sort(t), actuators)
+        # sorted by (actuator, start), each actuator's spans lifted above the one before:
+        # a running maximum of the ends then never carries from one actuator to the next
+        lift = rows.astype(np.int64) * (t.size + 1)
+        order = np.lexsort((lo, rows))
+        lo, hi = lo[order] + lift[order], hi[order] + lift[order]
+        covered_to = np.maximum.accumulate(hi)
+        start = np.maximum(lo, np.concatenate([[np.iinfo(np.int64).min], covered_to[:-1]]))
+        new = np.maximum(hi - start, 0)
+        return np.bincount(rows[order], weights=new, minlength=actuators.size).astype(np.int64)
 
 
 @dataclass(frozen=True)
@@ -252,25 +282,40 @@ def _window_max(values: FloatArray, side: str) -> FloatArray:
     return out
 
 
-def departures(times: FloatArray, command: FloatArray) -> FloatArray:
-    """Return each command interval's departure (Nc - 1, A) [V] (see the module docstring).
+def _interval_geometry(times: FloatArray, period: float
+                       ) -> tuple[FloatArray, FloatArray, BoolArray]:
+    """Return the intervals' lengths (1 where not regular), the middle ones' weights, usable.
 
-    ``times`` (Nc,) [s] are the command stamps, ``command`` (Nc, A) [V] finite values. The
-    first and last intervals, and those next to a gap or a repeated stamp, get 0.
+    For :func:`departures`: ``length`` (Nc - 1,), and for each interval but the first and
+    last the weight of its midpoint between its neighbours' and whether all three are
+    regular (Nc - 3,).
     """
     step = np.diff(times)
-    period = float(np.median(step))
     regular = (step > 0.0) & (step <= GAP_FACTOR * period)
     length = np.where(regular, step, 1.0)
-    slope = np.diff(command, axis=0) / length[:, None]
     mid = times[:-1] + 0.5 * step
+    span = mid[2:] - mid[:-2]
+    w = np.where(span > 0.0, (mid[1:-1] - mid[:-2]) / np.where(span > 0.0, span, 1.0), 0.5)
+    usable = regular[:-2] & regular[1:-1] & regular[2:]
+    return length, w, usable
+
+
+def departures(times: FloatArray, command: FloatArray,
+               period: float | None = None) -> FloatArray:
+    """Return each command interval's departure (Nc - 1, A) [V] (see the module docstring).
+
+    ``times`` (Nc,) [s] are the command stamps, ``command`` (Nc, A) [V] finite values,
+    ``period`` the command period [s] (None: the median step of ``times``). The first and
+    last intervals, and those next to a gap or a repeated stamp, get 0.
+    """
+    if period is None:
+        period = float(np.median(np.diff(times)))
+    length, w, usable = _interval_geometry(times, period)
+    slope = np.diff(command, axis=0) / length[:, None]
     out = np.zeros_like(slope)
     if slope.shape[0] < 3:
         return out
-    span = mid[2:] - mid[:-2]
-    w = np.where(span > 0.0, (mid[1:-1] - mid[:-2]) / np.where(span > 0.0, span, 1.0), 0.5)
     predicted = slope[:-2] + (slope[2:] - slope[:-2]) * w[:, None]
-    usable = regular[:-2] & regular[1:-1] & regular[2:]
     out[1:-1] = np.where(usable[:, None], np.abs(slope[1:-1] - predicted) * period, 0.0)
     return out
 
@@ -287,17 +332,129 @@ def edge_pairs(
     found: list[tuple[IndexArray, IndexArray]] = []
     if command.size and times.size > 1:
         floor = EDGE_FLOOR * float(command.max() - command.min())
+        period = float(np.median(np.diff(times)))
         for lo in range(0, command.shape[1], COLUMNS):  # bounded temporaries, few chunks
-            dep = departures(times, command[:, lo : lo + COLUMNS])
-            local = np.minimum(_window_max(dep, "before"), _window_max(dep, "after"))
-            interval, column = np.nonzero((dep > EDGE_RATIO * local) & (dep > floor))
-            found.append((interval.astype(np.intp), (column + lo).astype(np.intp)))
+            hi = min(lo + COLUMNS, command.shape[1])
+            interval, column, _ = _candidates(times, command, columns=(lo, hi), period=period,
+                                              floor=floor, decide=(0, times.size - 1))
+            found.append((interval, column + lo))
+    return _sorted_pairs(found)
+
+
+def _candidates(times: FloatArray, command: FloatArray, *, columns: tuple[int, int],
+                period: float, floor: float, decide: tuple[int, int]
+                ) -> tuple[IndexArray, IndexArray, FloatArray]:
+    """Return (interval, column, departure) of the edges among the intervals ``decide``.
+
+    An edge as the module docstring says, with ``floor`` [V] as its floor, in the
+    ``columns`` [lo, hi) of ``command``; ``decide`` is the [first, stop) of the intervals to
+    test (the others only lend their departures). Columns count from ``lo``. Compiled
+    where the kernels are fused (:mod:`.edge_loop`, the same pairs).
+    """
+    first, stop = decide
+    lo, hi = columns
+    if default_backend() is Backend.FUSED and times.size > 1:
+        from es_calibration.data.edge_loop import departure_rows, edge_hits
+
+        length, w, usable = _interval_geometry(times, period)
+        dep = np.empty((times.size - 1, hi - lo))
+        departure_rows(command, lo, length, w, usable, period, dep)
+        room = 1024
+        while True:  # edges are rare: room for a few, again with room for all if not
+            interval = np.empty(room, np.intp)
+            column = np.empty(room, np.intp)
+            found = edge_hits(dep, first, stop, floor, EDGE_RATIO, LOCAL_WINDOW, interval,
+                              column)
+            if found <= room:
+                break
+            room = found
+        interval, column = interval[:found], column[:found]
+    else:
+        dep = departures(times, command[:, lo:hi], period)
+        local = np.minimum(_window_max(dep, "before"), _window_max(dep, "after"))
+        edge = (dep > EDGE_RATIO * local) & (dep > floor)
+        edge[:first] = False
+        edge[stop:] = False
+        interval, column = np.nonzero(edge)
+    return interval.astype(np.intp), column.astype(np.intp), dep[interval, column]
+
+
+def _sorted_pairs(found: list[tuple[IndexArray, IndexArray]]) -> tuple[IndexArray, IndexArray]:
+    """Return the (interval, actuator) pairs of ``found``, sorted by interval, then actuator."""
     if not found:
         return np.zeros(0, np.intp), np.zeros(0, np.intp)
-    interval = np.concatenate([f[0] for f in found])
-    actuator = np.concatenate([f[1] for f in found])
+    interval = np.concatenate([f[0] for f in found]).astype(np.intp)
+    actuator = np.concatenate([f[1] for f in found]).astype(np.intp)
     order = np.lexsort((actuator, interval))
     return interval[order], actuator[order]
+
+
+class EdgeStream:
+    """The pairs of :func:`edge_pairs` over a command fed in stamp order, a chunk at a time.
+
+    For the grid-wide refit, which never holds a whole grid's command (recording.gather):
+    each chunk is examined with the rows before it that its first intervals'
+    neighbourhoods read, and an interval is decided once the rows its neighbourhood reads
+    after it have come. The floor (``EDGE_FLOOR`` x the command range) needs the whole
+    record's range: an interval is kept when it passes the floor of the range so far (the
+    range only grows) with its departure, and :meth:`pairs` applies the record's floor.
+    """
+
+    #: Command rows before and after an interval's own that its decision reads: its window's
+    #: departures reach ``LOCAL_WINDOW`` intervals to each side, a departure the rows of
+    #: its interval and one more on each side.
+    _ROWS_BEFORE: Final = LOCAL_WINDOW + 1
+    _ROWS_AFTER: Final = LOCAL_WINDOW + 2
+    #: Actuators examined at once (bounds the temporaries).
+    _COLUMNS: Final = 512
+
+    def __init__(self, times: FloatArray, width: int) -> None:
+        """Expect ``times`` (Nc,) [s] (every command stamp) and rows of ``width`` actuators."""
+        self.times = np.asarray(times, np.float64)
+        step = np.diff(self.times)
+        self.period = float(np.median(step)) if step.size else 0.0
+        self._rows = np.zeros((0, width))
+        self._start = 0  # command index of self._rows[0]
+        self._decided = 0  # intervals before this one are decided
+        self._range = (np.inf, -np.inf)
+        self._found: list[tuple[IndexArray, IndexArray, FloatArray]] = []
+
+    def feed(self, held: FloatArray) -> None:
+        """Take the next rows (n, width) [V] of the command (finite, NaN held)."""
+        if not held.size:
+            return
+        self._range = (min(self._range[0], float(held.min())),
+                       max(self._range[1], float(held.max())))
+        rows = np.concatenate([self._rows, held]) if self._rows.size else held
+        end = self._start + rows.shape[0]
+        last = end >= self.times.size  # the record's last row is in
+        # an interval is decided when the departures of its window are those of the record
+        upto = end - 1 if last else end - self._ROWS_AFTER
+        if upto > self._decided and rows.shape[0] > 1:
+            times = self.times[self._start:end]
+            floor = EDGE_FLOOR * (self._range[1] - self._range[0])
+            decide = (self._decided - self._start, upto - self._start)
+            for lo in range(0, rows.shape[1], self._COLUMNS):
+                hi = min(lo + self._COLUMNS, rows.shape[1])
+                interval, column, dep = _candidates(times, rows, columns=(lo, hi),
+                                                    period=self.period, floor=floor,
+                                                    decide=decide)
+                self._found.append((interval + self._start, column + lo, dep))
+            self._decided = upto
+        keep_from = max(self._start, self._decided - self._ROWS_BEFORE)
+        self._rows = rows[keep_from - self._start:].copy()
+        self._start = keep_from
+
+    def pairs(self) -> tuple[IndexArray, IndexArray]:
+        """Return the (interval, actuator) pairs of the rows fed, with the record's floor."""
+        floor = EDGE_FLOOR * (self._range[1] - self._range[0]) if self._found else 0.0
+        return _sorted_pairs([(i[d > floor], c[d > floor]) for i, c, d in self._found])
+
+    def mask(self) -> EdgeMask:
+        """Return the pairs as a mask with the delay search's window (as :func:`edge_mask`)."""
+        interval, actuator = self.pairs()
+        before, after = search_window(self.period)
+        return EdgeMask(self.times[interval], self.times[interval + 1], actuator, before, after)
 
 
 def find_edges(times: FloatArray, command: FloatArray) -> IndexArray:
@@ -325,10 +482,7 @@ def account(mask: EdgeMask, t: FloatArray, actuators: int) -> EdgeExclusion:
 
     The mask's times must be on the time base of ``t``.
     """
-    excluded = np.zeros(actuators, np.int64)
-    for lo in range(0, actuators, COLUMNS):
-        cols = np.arange(lo, min(lo + COLUMNS, actuators), dtype=np.intp)
-        excluded[cols] = mask.excluded(t, cols).sum(axis=1)
+    excluded = mask.excluded_counts(t, np.arange(actuators, dtype=np.intp))
     starts = np.unique(mask.start_s)
     return EdgeExclusion(
         edges=int(starts.size),

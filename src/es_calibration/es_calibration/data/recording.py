@@ -25,6 +25,7 @@ from typing import Final, Protocol
 import numpy as np
 
 from es_calibration.data.align import MeasuredData
+from es_calibration.data.edges import EdgeMask, EdgeStream
 from es_calibration.errors import RecordingError
 from es_calibration.grid.tilestore import TileStore, play_name
 from es_calibration.model.composite import play_operator
@@ -73,12 +74,15 @@ class Gathered:
         usable: (A,) finite displacements among the kept samples, per actuator.
         displacement_nan: NaN displacements among the kept samples.
         command_nan: NaN command values in the whole run.
+        edges: every actuator's command edges, with the delay search's window (None: not
+            looked for).
 
     """
 
     usable: IntArray
     displacement_nan: int
     command_nan: int
+    edges: EdgeMask | None = None
 
 
 def _runs(positions: IndexArray) -> Iterator[tuple[int, int]]:
@@ -92,8 +96,9 @@ class _CommandStream:
     """Commands in stamp order (batches reordered), NaN held, with their play operators."""
 
     def __init__(self, wanted: IndexArray, thresholds: Sequence[float], width: int,
-                 store: TileStore) -> None:
+                 store: TileStore, edges: EdgeStream | None) -> None:
         self.wanted = wanted
+        self.edges = edges
         self.r = np.asarray(thresholds, np.float64)[:, None]
         self.held = np.zeros(width)
         self.state: FloatArray | None = None
@@ -128,6 +133,8 @@ class _CommandStream:
                 last >= 0, values[np.maximum(last, 0), np.arange(values.shape[1])], self.held
             )
         self.held = held[-1].copy()
+        if self.edges is not None:
+            self.edges.feed(held)
         lo, hi = np.searchsorted(self.wanted, [index[0], index[-1] + 1])
         local = self.wanted[lo:hi] - index[0]
         if hi > lo:
@@ -162,6 +169,7 @@ def gather(
     thresholds: Sequence[float],
     *,
     store: TileStore,
+    command_times: FloatArray | None = None,
 ) -> Gathered:
     """Write the whole grid at some samples to ``store``'s tiles in one pass over the recording.
 
@@ -177,13 +185,17 @@ def gather(
         commands: stamp-sorted command indices to keep (ascending, unique).
         thresholds: play thresholds [V] whose operators are wanted at ``commands``.
         store: where the rows go (made with at least :func:`gather_arrays`).
+        command_times: every command's stamp [s] in stamp order: each actuator's command
+            edges are looked for too (edges.py, on the held command), on this time base.
 
     Raises:
-        RecordingError: the recording's batches left a command out.
+        RecordingError: the recording's batches left a command out, or ``command_times``
+            has not one stamp per command.
 
     """
     A = recording.grid[0] * recording.grid[1]
-    stream = _CommandStream(commands, thresholds, A, store)
+    edges = None if command_times is None else EdgeStream(command_times, A)
+    stream = _CommandStream(commands, thresholds, A, store, edges)
     usable = np.zeros(A, dtype=np.int64)
     kept_sorted = np.sort(kept)
     for role, index, values in recording.batches():
@@ -204,10 +216,14 @@ def gather(
         usable += np.isfinite(values[in_kept]).sum(axis=0)
     if stream.pending:
         raise RecordingError("the recording's command batches skipped an index")
+    if command_times is not None and stream.next != command_times.size:
+        raise RecordingError(f"the recording has {stream.next} commands, its time base "
+                             f"{command_times.size} command stamps")
     return Gathered(
         usable=usable,
         displacement_nan=int(kept.size * A - usable.sum()),
         command_nan=stream.nan,
+        edges=None if edges is None else edges.mask(),
     )
 
 

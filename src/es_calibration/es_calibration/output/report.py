@@ -216,8 +216,12 @@ def _health_lines(cal: Calibration) -> list[str]:
     v = cal.verdict
     lines = [f"**Verdict: {v.level}**" + (": " + "; ".join(v.reasons) if v.reasons else ""),
              "", "## Recording health", "",
-             f"Kept for the fit: {100 * cal.kept_fraction:.1f} % of the (sample, actuator) "
-             "pairs; displacement clock against the command's: "
+             f"Kept for the fit: {100 * cal.kept_fraction:.1f} % of the screening block's "
+             "(sample, actuator) pairs"
+             + ("" if cal.grid_kept_fraction is None else
+                f", at least {100 * cal.grid_kept_fraction:.1f} % of the whole grid's "
+                "(each actuator's own command edges)")
+             + "; displacement clock against the command's: "
              + ("not estimated" if cal.clock_rate_ppm is None
                 else f"{cal.clock_rate_ppm:+.3g} ppm") + ".", ""]
     if not cal.findings:

@@ -21,6 +21,9 @@ residual's autocorrelation)::
                                  the known delay), "delay_s",
                                  "per_actuator": {"edges", "excluded_samples"} (lists over
                                  the screening block's actuators)} or null,
+               "grid_command_edges": the same over the whole grid, each actuator's own
+                                     edges (lists over R*C), when the grid is larger than
+                                     the screening block; else null,
                "temperature_span": {"start_s", "end_s" (bag times of the first and last
                                     temperature messages), "excluded_before",
                                     "excluded_after" (samples outside them)} or null},
@@ -60,7 +63,10 @@ residual's autocorrelation)::
                  "clock_rate_ppm": the displacement logger's clock against the command's
                                    (data/timing.py; null: not estimated),
                  "kept_fraction": share of the screening block's (displacement sample x
-                                  actuator) pairs kept for the fit}
+                                  actuator) pairs kept for the fit,
+                 "grid_kept_fraction": the whole grid's, at least (a pair both NaN and at
+                                       an edge counts twice), or null when the grid is
+                                       the block}
       "verdict": {"level": "trusted" | "provisional" | "unusable", "reasons": [...]},
       "thermal_params": {"file" (the thermal node's parameters file beside this one),
                          "time_scale" (the recording's, given to the tool), "temperature_topic",
@@ -188,6 +194,7 @@ def calibration_document(
             "repeated_stamps": a.repeated_stamps,
             "gaps": [g.as_dict() for g in a.gaps],
             "command_edges": a.command_edges.as_dict() if a.command_edges else None,
+            "grid_command_edges": cal.grid_edges.as_dict() if cal.grid_edges else None,
             "temperature_span": a.temperature_span.as_dict() if a.temperature_span else None,
         },
         "law": law,
@@ -238,6 +245,7 @@ def calibration_document(
             "findings": [f.as_dict() for f in cal.findings],
             "clock_rate_ppm": cal.clock_rate_ppm,
             "kept_fraction": cal.kept_fraction,
+            "grid_kept_fraction": cal.grid_kept_fraction,
         },
         "verdict": cal.verdict.as_dict(),
     }
