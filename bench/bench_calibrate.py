@@ -13,15 +13,20 @@ every actuator then has its own command edges, issue 33). Run:
         [--independent]
 
 The timed part is what ``es_calibration-calibrate BAG -o OUT`` does (read the bag, calibrate,
-write report, JSON and YAML), in this process. Nothing is asserted.
+write report, JSON and YAML), in this process; the bag is generated in a child process, so
+this process's peak resident memory is the calibration's (with the interpreter's). Nothing
+is asserted.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import multiprocessing
+import resource
 import tempfile
 import time
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -47,6 +52,9 @@ class CalibrationTiming:
     rate_hz: float
     generate_s: float
     calibrate_s: float
+    #: this process's peak resident set size after the calibration [bytes] (the
+    #: calibration's peak when it was the first run of the process)
+    peak_rss_bytes: int
     #: calibration.json's share of the (sample, actuator) pairs kept: the whole grid's
     #: where the grid is larger than the screening block, else the block's.
     kept_fraction: float
@@ -119,7 +127,9 @@ def bench_calibrate(
     with tempfile.TemporaryDirectory(prefix="bench_calibrate_") as tmp:
         bag = Path(tmp) / "bag"
         start = time.perf_counter()
-        write_measured_bag(bag, rows, cols, duration, rate, independent=independent)
+        with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as pool:
+            pool.submit(write_measured_bag, bag, rows, cols, duration, rate,
+                        independent=independent).result()
         generated = time.perf_counter() - start
         start = time.perf_counter()
         status = run([str(bag), "-o", str(Path(tmp) / "out"), "-q"])
@@ -128,7 +138,8 @@ def bench_calibrate(
             raise RuntimeError(f"calibrate exited with {status}")
         health = json.loads((Path(tmp) / "out" / "calibration.json").read_text())["health"]
     kept = health["grid_kept_fraction"]
-    return CalibrationTiming(rows, cols, duration, rate, generated, elapsed,
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024  # Linux: kB
+    return CalibrationTiming(rows, cols, duration, rate, generated, elapsed, peak,
                              health["kept_fraction"] if kept is None else kept)
 
 
@@ -146,7 +157,8 @@ def main() -> None:
         print(
             f"calibrate {n} x {n}, {args.duration:g} s at {args.rate:g} Hz: "
             f"{timing.calibrate_s:.1f} s (bag generation {timing.generate_s:.1f} s), "
-            f"{100 * timing.kept_fraction:.1f} % of the samples kept"
+            f"{100 * timing.kept_fraction:.1f} % of the samples kept, peak resident memory "
+            f"{timing.peak_rss_bytes / 1e9:.2f} GB"
         )
 
 

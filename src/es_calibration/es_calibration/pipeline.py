@@ -555,7 +555,8 @@ def calibrate(
     else:
         if full_grid:
             grid_temperature = _grid_temperature(recording, aligned.start_time)
-        # the block's edges named by grid index; the other actuators take all of them
+        # the block's edges named by grid index (for their window; beyond the block the
+        # refit's pass over the recording finds every actuator's own, _grid_refit)
         on_grid = aligned if full_grid else replace(
             aligned, edge_mask=aligned.edge_mask.renumbered(idx))
         refit = _grid_refit(

@@ -142,16 +142,19 @@ class EdgeMask:
 
         ``row`` indexes ``actuators`` (grid row-major indices, as ``actuator`` counts them).
         """
-        lo_all = np.searchsorted(t, self.start_s - self.before_s, side="left")
-        hi_all = np.searchsorted(t, self.end_s + self.after_s, side="right")
         lookup = np.full(int(max(self.actuator.max(), actuators.max())) + 1, -1, np.intp)
         lookup[actuators] = np.arange(actuators.size)
         own = lookup[self.actuator]
-        rows, lo, hi = own[own >= 0], lo_all[own >= 0], hi_all[own >= 0]
+        mine = own >= 0  # a tile of a 64 x 64 grid: a few of its million pairs
+        rows = own[mine]
+        lo = np.searchsorted(t, self.start_s[mine] - self.before_s, side="left")
+        hi = np.searchsorted(t, self.end_s[mine] + self.after_s, side="right")
         if self.examined is not None:
             # actuators never examined take every examined actuator's edges
             unexamined = np.flatnonzero(~np.isin(actuators, self.examined))
             if unexamined.size:
+                lo_all = np.searchsorted(t, self.start_s - self.before_s, side="left")
+                hi_all = np.searchsorted(t, self.end_s + self.after_s, side="right")
                 spans = np.unique(np.stack([lo_all, hi_all], axis=1), axis=0)  # one per edge
                 rows = np.concatenate([rows, np.repeat(unexamined, spans.shape[0])])
                 lo = np.concatenate([lo, np.tile(spans[:, 0], unexamined.size)])
