@@ -270,7 +270,8 @@ def test_independently_driven_grid_beyond_the_block_keeps_its_samples() -> None:
 
 
 def test_the_excluded_counts_are_the_sums_of_the_excluded_pairs() -> None:
-    # account() counts a 64 x 64 grid's own edges without a (actuators, samples) array
+    # account() counts a 64 x 64 grid's own edges without a (actuators, samples) array, and
+    # a tile finds its pairs by search when they are sorted by actuator
     rng = np.random.default_rng(2)
     for trial in range(40):
         pairs, width, n = (int(v) for v in rng.integers((0, 1, 1), (200, 30, 400)))
@@ -285,3 +286,10 @@ def test_the_excluded_counts_are_the_sums_of_the_excluded_pairs() -> None:
                                        replace=False)).astype(np.intp)
         np.testing.assert_array_equal(mask.excluded_counts(t, actuators),
                                       mask.excluded(t, actuators).sum(axis=1))
+        if mask.examined is None:  # sorted by actuator: a tile's pairs found by search
+            order = np.argsort(mask.actuator, kind="stable")
+            by_actuator = replace(mask, start_s=mask.start_s[order], end_s=mask.end_s[order],
+                                  actuator=mask.actuator[order], by_actuator=True)
+            shuffled = rng.permutation(actuators)
+            np.testing.assert_array_equal(by_actuator.excluded(t, shuffled),
+                                          mask.excluded(t, shuffled))

@@ -107,6 +107,8 @@ class EdgeMask:
         examined: the actuators whose commands were examined (None: all of them); any
             other actuator takes every examined actuator's edges (its own commands were
             never looked at, so any edge may be its own too).
+        by_actuator: the pairs are sorted by actuator (a tile's pairs are then found by
+            search, not by a pass over every pair of the grid).
 
     """
 
@@ -117,6 +119,7 @@ class EdgeMask:
     after_s: float
     delay_s: float | None = None
     examined: IndexArray | None = None
+    by_actuator: bool = False
 
     @classmethod
     def empty(cls) -> EdgeMask:
@@ -134,7 +137,22 @@ class EdgeMask:
 
     def renumbered(self, columns: IndexArray) -> EdgeMask:
         """Return the mask with actuator i renamed ``columns[i]``; only those were examined."""
-        return replace(self, actuator=columns[self.actuator], examined=np.sort(columns))
+        return replace(self, actuator=columns[self.actuator], examined=np.sort(columns),
+                       by_actuator=False)
+
+    def _pairs_of(self, actuators: IndexArray) -> tuple[IndexArray, IndexArray]:
+        """Return (pair, row): the pairs of ``actuators`` and the row of each in them."""
+        if self.by_actuator:
+            first = np.searchsorted(self.actuator, actuators, side="left")
+            count = np.searchsorted(self.actuator, actuators, side="right") - first
+            row = np.repeat(np.arange(actuators.size), count)
+            offset = np.repeat(first - (np.cumsum(count) - count), count)
+            return offset + np.arange(row.size), row
+        lookup = np.full(int(max(self.actuator.max(), actuators.max())) + 1, -1, np.intp)
+        lookup[actuators] = np.arange(actuators.size)
+        own = lookup[self.actuator]
+        pair = np.flatnonzero(own >= 0)
+        return pair, own[pair]
 
     def _spans(self, t: FloatArray, actuators: IndexArray
                ) -> tuple[IndexArray, IndexArray, IndexArray]:
@@ -142,11 +160,7 @@ class EdgeMask:
 
         ``row`` indexes ``actuators`` (grid row-major indices, as ``actuator`` counts them).
         """
-        lookup = np.full(int(max(self.actuator.max(), actuators.max())) + 1, -1, np.intp)
-        lookup[actuators] = np.arange(actuators.size)
-        own = lookup[self.actuator]
-        mine = own >= 0  # a tile of a 64 x 64 grid: a few of its million pairs
-        rows = own[mine]
+        mine, rows = self._pairs_of(actuators)  # a tile of a 64 x 64 grid: a few of a million
         lo = np.searchsorted(t, self.start_s[mine] - self.before_s, side="left")
         hi = np.searchsorted(t, self.end_s[mine] + self.after_s, side="right")
         if self.examined is not None:
@@ -176,10 +190,12 @@ class EdgeMask:
         rows, lo, hi = self._spans(t, actuators)
         for first in range(0, actuators.size, COLUMNS):  # bounded (COLUMNS, n) counters
             pick = (rows >= first) & (rows < first + COLUMNS)
-            count = np.zeros((min(COLUMNS, actuators.size - first), t.size + 1), np.int32)
-            np.add.at(count, (rows[pick] - first, lo[pick]), 1)
-            np.add.at(count, (rows[pick] - first, hi[pick]), -1)
-            out[first : first + count.shape[0]] = np.cumsum(count, axis=1)[:, :-1] > 0
+            width = min(COLUMNS, actuators.size - first)
+            cell = (rows[pick] - first) * (t.size + 1)
+            size = width * (t.size + 1)
+            count = (np.bincount(cell + lo[pick], minlength=size)
+                     - np.bincount(cell + hi[pick], minlength=size)).reshape(width, -1)
+            out[first : first + width] = np.cumsum(count, axis=1)[:, :-1] > 0
         if order is not None:
             back = np.empty_like(order)
             back[order] = np.arange(order.size)
@@ -454,10 +470,16 @@ class EdgeStream:
         return _sorted_pairs([(i[d > floor], c[d > floor]) for i, c, d in self._found])
 
     def mask(self) -> EdgeMask:
-        """Return the pairs as a mask with the delay search's window (as :func:`edge_mask`)."""
+        """Return the pairs as a mask with the delay search's window (as :func:`edge_mask`).
+
+        Its pairs are sorted by actuator (:attr:`EdgeMask.by_actuator`).
+        """
         interval, actuator = self.pairs()
+        order = np.argsort(actuator, kind="stable")
+        interval, actuator = interval[order], actuator[order]
         before, after = search_window(self.period)
-        return EdgeMask(self.times[interval], self.times[interval + 1], actuator, before, after)
+        return EdgeMask(self.times[interval], self.times[interval + 1], actuator, before, after,
+                        by_actuator=True)
 
 
 def find_edges(times: FloatArray, command: FloatArray) -> IndexArray:
