@@ -16,6 +16,7 @@ import pytest
 from es_calibration.data.align import AlignedData, align
 from es_calibration.data.bagstream import BagRecording
 from es_calibration.data.recording import MemoryRecording, gather, gather_arrays
+from es_calibration.errors import RecordingError
 from es_calibration.grid.tiles import DASK_INSTALL_HINT, TileJob, compact_grid
 from es_calibration.grid.tilestore import TileStore, layout, play_name
 from es_calibration.model.composite import LINEAR_LAW, play_operator
@@ -229,3 +230,18 @@ def test_bad_tile_and_unreachable_scheduler_are_one_line(bag: Path, tmp_path: Pa
         proc = subprocess.run(cmd, capture_output=True, text=True, check=False, timeout=900)
         assert proc.returncode == 2, proc.stderr
         assert len(proc.stderr.strip().splitlines()) == 1, proc.stderr
+
+
+def test_gather_refuses_a_time_base_without_one_stamp_per_command(tmp_path: Path) -> None:
+    # the edge search reads each command's stamp: a time base of another length would
+    # decide edges at the wrong instants, so the pass stops with a RecordingError
+    measured = read_measured_bags([lb.write(_series(6.0), tmp_path / "b")])
+    aligned = align(measured)
+    rows = np.arange(0, aligned.t.size, 7)
+    commands = np.unique(np.maximum(aligned.command_index(rows, 0.0), 0))
+    tiles = layout(GRID, 4, 0)
+    (tmp_path / "store").mkdir()
+    store = TileStore.create(tmp_path / "store", tiles, gather_arrays(rows.size, commands.size, 0))
+    with pytest.raises(RecordingError, match="command stamps"):
+        gather(MemoryRecording(measured), aligned.sample_index[rows], aligned.sample_index,
+               commands, [], store=store, command_times=aligned.command_times[:-5])
