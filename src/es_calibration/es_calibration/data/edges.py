@@ -48,6 +48,7 @@ from scipy.ndimage import maximum_filter1d
 
 from es_calibration.data.delayrange import shift_span
 from es_calibration.data.gaps import GAP_FACTOR
+from es_calibration.errors import RecordingError
 from es_common.arrays import BoolArray, FloatArray, IndexArray, IntArray
 from es_feedforward.kernels import Backend, default_backend
 
@@ -439,13 +440,21 @@ class EdgeStream:
         self._found: list[tuple[IndexArray, IndexArray, FloatArray]] = []
 
     def feed(self, held: FloatArray) -> None:
-        """Take the next rows (n, width) [V] of the command (finite, NaN held)."""
+        """Take the next rows (n, width) [V] of the command (finite, NaN held).
+
+        Raises:
+            RecordingError: more rows than ``times`` has stamps.
+
+        """
         if not held.size:
             return
         self._range = (min(self._range[0], float(held.min())),
                        max(self._range[1], float(held.max())))
         rows = np.concatenate([self._rows, held]) if self._rows.size else held
         end = self._start + rows.shape[0]
+        if end > self.times.size:
+            raise RecordingError(f"the recording has more commands than its time base "
+                                 f"{self.times.size} command stamps")
         last = end >= self.times.size  # the record's last row is in
         # an interval is decided when the departures of its window are those of the record
         upto = end - 1 if last else end - self._ROWS_AFTER
