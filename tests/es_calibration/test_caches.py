@@ -151,7 +151,7 @@ def test_the_discovery_librarys_lowpasses_at_rows_equal_the_full_rate_numpy_filt
     aligned = choose_stamp_convention(align(measured(simulate(config))))
     rows = np.sort(np.random.default_rng(6).choice(aligned.t.size, 300, replace=False))
     blank = np.zeros((aligned.n_actuators, rows.size))
-    at = Rows(rows, blank, blank)
+    at = Rows(rows, blank, blank, blank, blank)
     command = np.nan_to_num(aligned.command)
     ci = np.maximum(aligned.command_index(rows, 0.0), 0)
     for backend in ("numpy", "fused"):

@@ -5,21 +5,27 @@ principles (an exact first-order low-pass of V^2, time constant 0.5 s, that the 
 self_heating, which filters |V_ac dV/dt| into a temperature, does not take). The step runs on
 the residual of the basic law fitted on the block: it must name the term (a low-pass of V^2
 near 0.5 s), find it stable on both halves, cut the held-out error towards the noise floor
-and mark it for the parameters file; on the clean record it must find nothing.
+and mark it for the parameters file; on the clean record it must find nothing. Two effects of
+standgen.unlisted (the stand's own code): a thermal gradient (the interior's temperature
+behind its neighbours' rate, deeper from the rim) must come out as a temperature term of the
+neighbours' dT/dt and the rim depth, an amplifier's droop as a drive term of V |dV/dt|.
 """
 
 from __future__ import annotations
 
+from dataclasses import replace
 from functools import cache
 
 import numpy as np
 import pytest
 from standgen import StandConfig, simulate
+from standgen.unlisted import AmplifierDroop, ThermalGradient, Unlisted
 
 from es_calibration.data.align import align
 from es_calibration.discovery import Discovery, discover
 from es_calibration.search.residual import noise_floor
 from es_calibration.search.state import Workspace, base_state, choose_stamp_convention
+from es_physics.effects.discovered import Carrier
 
 from .stand_data import measured
 
@@ -69,11 +75,51 @@ def test_an_unlisted_lowpass_of_v_squared_is_found_stable_and_added() -> None:
     assert first.share > 0.8
     assert found.added and first in found.written
     assert found.heldout_rms_before_m > 5 * noise
-    # measured 1.57 x the true noise (0.79 nm vs 0.50 nm): the goal of 1.3 x is not met yet
-    assert found.heldout_rms_after_m < 1.7 * noise
+    # with the terms written (a third, unstable one is not): measured 1.86 x the true noise
+    # (0.93 nm vs 0.50 nm; 1.60 x with every selected term): the goal of 1.3 x is not met yet
+    assert found.heldout_rms_after_m < 2.0 * noise
+    assert found.heldout_rms_all_terms_m <= found.heldout_rms_after_m
 
 
 def test_nothing_is_discovered_on_a_clean_record() -> None:
     found, _ = _discovery(False)
     assert found.terms == []
     assert not found.added and found.written == []
+
+
+@cache
+def _unlisted_discovery(unlisted: Unlisted) -> tuple[Discovery, float]:
+    """Discovery on a 4 x 4 stand record with an effect of standgen.unlisted (its own code)."""
+    config = replace(CONFIG, rows=4, cols=4, seed=11, unlisted=unlisted)
+    aligned = choose_stamp_convention(align(measured(simulate(config))))
+    ws = Workspace(aligned, np.arange(aligned.n_actuators), aligned.grid)
+    state = base_state(ws)
+    _, held = ws.input_pair(0.0, None)
+    resid = held.displacement - state.model.evaluate(
+        state.fit.local, state.fit.glob, held, jacobian=False).prediction
+    floor = noise_floor(np.where(held.valid, resid, np.nan), np.diff(ws.score_rows) == 1)
+    return discover(aligned, aligned.grid, state, floor), config.noise_rms_m
+
+
+def test_a_thermal_gradient_is_found_as_a_temperature_term_across_the_grid() -> None:
+    lag = 1.0
+    found, noise = _unlisted_discovery(Unlisted(thermal_gradient=ThermalGradient(lag)))
+    assert found.added
+    term = next(t for t in found.written if t.acts_on is Carrier.TEMPERATURE)
+    assert {c for c, _ in term.factors} == {9, 16}  # neighbours' dT/dt x distance from the rim
+    assert term.coefficient == pytest.approx(-lag, rel=0.25)
+    assert term.unit == "degC/(degC/s)" and term.side == "temperature"
+    assert "temperature the law sees" in term.mechanism
+    assert found.heldout_rms_before_m > 1.3 * noise
+    assert found.heldout_rms_after_m < 1.15 * noise
+
+
+def test_an_amplifier_droop_is_found_on_the_drive_and_written() -> None:
+    droop = AmplifierDroop(0.06)
+    found, _ = _unlisted_discovery(Unlisted(amplifier_droop=droop))
+    assert found.added
+    drive = [t for t in found.written if t.acts_on is Carrier.DRIVE]
+    assert drive, [t.expression for t in found.terms]
+    assert {c for c, _ in drive[0].factors} == {1, 15}  # V x |dV/dt|
+    assert drive[0].coefficient < 0 and drive[0].unit == "V/(V V/s)"
+    assert found.heldout_rms_after_m < 0.8 * found.heldout_rms_before_m

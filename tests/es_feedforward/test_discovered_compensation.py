@@ -1,8 +1,10 @@
-"""The feedforward undoes a discovered output-side term (closed on the model).
+"""The feedforward undoes discovered terms (closed on the model).
 
 The plant here is the basic law plus the term's truth, computed in the test with its own
-exact zero-order-hold low-pass: the command with the term compensated must hold the set point
-better than the same feedforward without it, and stay finite and within v_limit.
+code (an exact zero-order-hold low-pass; an amplifier that droops with the commands' rate; an
+interior that runs behind the sensed temperature): the command with the term compensated
+must hold the set point better than the same feedforward without it, and stay finite and
+within v_limit.
 """
 
 from __future__ import annotations
@@ -11,7 +13,14 @@ import numpy as np
 
 from es_feedforward.compensation import CompensationParams
 from es_feedforward.feedforward import Feedforward, FeedforwardConfig
-from es_physics.effects.discovered import Term, values_from_terms
+from es_physics.effects.discovered import (
+    SCAN_SPAN,
+    Carrier,
+    DiscoveredCompensation,
+    Term,
+    terms_from_values,
+    values_from_terms,
+)
 from es_physics.laws import hyperbolic_forward
 from es_physics.params import ActuatorParams
 
@@ -63,3 +72,99 @@ def test_drive_side_terms_are_not_compensated_and_zero_is_off() -> None:
     drive_only = values_from_terms([Term(1e-12, (1, 0.0), (2, 0.0))])  # V * dV/dt
     assert effect.compensator({**CompensationParams().of("discovered"), **drive_only},
                               SHAPE) is None
+
+
+def _neighbour_mean(x: np.ndarray) -> np.ndarray:
+    """The test's own 4-neighbour mean (edges: the neighbours that exist)."""
+    padded = np.pad(x, 1, constant_values=np.nan)
+    stack = np.stack([padded[:-2, 1:-1], padded[2:, 1:-1], padded[1:-1, :-2], padded[1:-1, 2:]])
+    return np.asarray(np.nanmean(stack, axis=0))
+
+
+def _rim_depth(shape: tuple[int, int]) -> np.ndarray:
+    r = np.arange(shape[0])[:, None]
+    c = np.arange(shape[1])[None, :]
+    d = np.minimum(np.minimum(r, shape[0] - 1 - r), np.minimum(c, shape[1] - 1 - c))
+    return d / d.max()
+
+
+DROOP = -1.2e-5  # V/(V V/s): the amplifier loses 1.2 % of V per 1 kV/s
+RATE_LIMIT = 4000.0  # V/s: the droop stops growing beyond this rate
+LAG_S = 1.0  # s: the interior's temperature lags its neighbours' rate
+
+
+def _run_plant(compensation: CompensationParams, *, droop: bool, lag: bool,
+               shape: tuple[int, int] = (4, 4)) -> tuple[float, np.ndarray, Feedforward]:
+    """RMS error [m] over 2 s of a fast sine on a warming grid: the plant's amplifier droops
+    (the test's own backward difference of the commands) and / or the interior runs behind
+    the sensed temperature (the test's own neighbour mean of the sensed rate)."""
+    config = FeedforwardConfig(shape=shape, compensation=compensation)
+    ff = Feedforward(config)
+    params = ActuatorParams()
+    depth = _rim_depth(shape)
+    phases = np.linspace(0.0, 1.0, shape[0] * shape[1]).reshape(shape)
+    previous = None
+    errors, commands = [], []
+    for k in range(1000):
+        t = k * PERIOD
+        T = 45.0 + 0.5 * t + 0.3 * phases * t  # every actuator warms at its own rate
+        ff.update_temperature(T, t)
+        z_set = 90e-9 + 50e-9 * np.sin(2 * np.pi * (12.0 * t + phases))
+        v = np.asarray(ff.command(z_set, t).voltage)
+        v_eff = v
+        if droop and previous is not None:
+            rate = np.minimum(np.abs(v - previous) / PERIOD, RATE_LIMIT)
+            v_eff = v + DROOP * v * rate
+        T_true = T - LAG_S * depth * _neighbour_mean(0.5 + 0.3 * phases) if lag else T
+        z = hyperbolic_forward(v_eff, T_true, params)
+        previous = v
+        if t > 0.2:
+            errors.append(z - z_set)
+        commands.append(v)
+    return float(np.sqrt(np.mean(np.square(errors)))), np.asarray(commands), ff
+
+
+def test_a_drive_term_is_solved_from_the_voltage_the_law_asks_for() -> None:
+    term = Term(DROOP, (1, 0.0), (15, RATE_LIMIT), Carrier.DRIVE)
+    with_term = CompensationParams().replaced(values_from_terms([term]))
+    rms_with, commands, ff = _run_plant(with_term, droop=True, lag=False)
+    rms_without, _, _ = _run_plant(CompensationParams(), droop=True, lag=False)
+    assert rms_without > 1e-9  # the droop matters at this drive
+    assert rms_with < 0.05 * rms_without
+    assert np.all(np.isfinite(commands))
+    assert commands.min() >= 0.0 and commands.max() <= FeedforwardConfig(shape=(4, 4)).v_limit
+    assert ff.compensation_counters() == {"discovered.drive_out_of_reach": 0}
+
+
+def test_a_temperature_term_moves_the_temperature_the_law_is_inverted_at() -> None:
+    term = Term(-LAG_S, (9, 0.0), (16, 0.0), Carrier.TEMPERATURE)
+    with_term = CompensationParams().replaced(values_from_terms([term]))
+    rms_with, commands, _ = _run_plant(with_term, droop=False, lag=True)
+    rms_without, _, _ = _run_plant(CompensationParams(), droop=False, lag=True)
+    assert rms_without > 1e-10
+    assert rms_with < 0.05 * rms_without
+    assert np.all(np.isfinite(commands))
+
+
+def test_a_drive_term_without_a_solution_sends_the_closest_command_and_counts_it() -> None:
+    shape = (2, 2)
+    # the voltage in effect is minus the command: no command near the target reaches it
+    stage = DiscoveredCompensation([Term(-2.0, (1, 0.0), None, Carrier.DRIVE)], shape)
+    target = np.full(shape, 50.0)
+    out = stage.invert_drive(target, 0.0)
+    assert np.all(np.isfinite(out))
+    np.testing.assert_allclose(out, (1.0 - SCAN_SPAN) * target)  # the closest scanned
+    assert stage.unconverged == 4
+
+
+def test_terms_keep_where_they_act_through_the_parameters_file() -> None:
+    terms = [Term(-0.7, (9, 0.0), (16, 0.0), Carrier.TEMPERATURE),
+             Term(-1e-5, (1, 0.0), (15, 4e3), Carrier.DRIVE), Term(2e-13, (11, 0.4))]
+    assert terms_from_values(values_from_terms(terms)) == terms
+    assert all(t.compensable for t in terms)
+    # of the modelled displacement, a drive or temperature term cannot be solved
+    assert not Term(1.0, (6, 0.0), None, Carrier.DRIVE).compensable
+    assert not Term(1.0, (6, 0.0), None, Carrier.TEMPERATURE).compensable
+    # the present command in a temperature or displacement term: not from the set point
+    assert not Term(1.0, (15, 0.0), None, Carrier.TEMPERATURE).compensable
+    assert not Term(1.0, (1, 0.0), (15, 0.0)).compensable

@@ -584,7 +584,8 @@ def calibrate(
         )
     timings["analysis"] = time.perf_counter() - clock
     # terms no registry effect describes, searched in the block's held-out residual
-    discovery = discover(aligned, block_grid, final_screen, after.noise_floor)
+    discovery = discover(aligned, block_grid, final_screen, after.noise_floor,
+                         placement=(idx, grid))
     timings["discovery"] = discovery.seconds
     # the run's description: the whole grid on the block's time base
     aligned = replace(aligned, grid=grid)

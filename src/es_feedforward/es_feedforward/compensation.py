@@ -82,8 +82,9 @@ class CompensationParams:
         self_heating_tau_s: time constant of the excess temperature [s].
         self_heating_mean_window_s: running-mean window of the drive [s].
         discovered_<k>_coefficient, discovered_<k>_factor_a, discovered_<k>_parameter_a,
-        discovered_<k>_factor_b, discovered_<k>_parameter_b (k = 1, 2, 3): the calibration's
-            discovered terms (es_physics.effects.discovered; coefficient 0 = unused).
+        discovered_<k>_factor_b, discovered_<k>_parameter_b, discovered_<k>_acts_on
+            (k = 1, 2, 3): the calibration's discovered terms (es_physics.effects.discovered;
+            coefficient 0 = unused; acts_on 0 displacement, 1 drive, 2 temperature).
 
     The compensation parameters of effects from other packages have no field: they are read
     as attributes too (their declared default unless :meth:`with_extra` gave them), and
@@ -120,16 +121,19 @@ class CompensationParams:
     discovered_1_parameter_a: float = 0.0
     discovered_1_factor_b: float = 0.0
     discovered_1_parameter_b: float = 0.0
+    discovered_1_acts_on: float = 0.0
     discovered_2_coefficient: float = 0.0
     discovered_2_factor_a: float = 0.0
     discovered_2_parameter_a: float = 0.0
     discovered_2_factor_b: float = 0.0
     discovered_2_parameter_b: float = 0.0
+    discovered_2_acts_on: float = 0.0
     discovered_3_coefficient: float = 0.0
     discovered_3_factor_a: float = 0.0
     discovered_3_parameter_a: float = 0.0
     discovered_3_factor_b: float = 0.0
     discovered_3_parameter_b: float = 0.0
+    discovered_3_acts_on: float = 0.0
 
     def __post_init__(self) -> None:
         """Give the parameters declared beyond the typed fields their defaults."""

@@ -228,6 +228,11 @@ class Feedforward:
         if self._temperature is not None:
             self._laws = self._laws_compiled.at(self._temperature)
 
+    def compensation_counters(self) -> dict[str, int]:
+        """Return the stages' counts of commands not compensated fully (``<effect>.<count>``)."""
+        return {f"{name}.{key}": value for name, stage in self._stages.items()
+                for key, value in stage.counters().items()}
+
     @property
     def needs_temperature(self) -> bool:
         """Whether the mode uses measured temperatures (all but ``uncompensated``)."""

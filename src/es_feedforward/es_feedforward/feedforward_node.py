@@ -412,6 +412,16 @@ class FeedforwardNode(Node):
                 },
             )
         )
+        counters = core.compensation_counters()
+        if counters:
+            missed = sum(counters.values())
+            out.append(make_status(
+                f"{NODE_NAME}: compensation",
+                Level.WARN if missed else Level.OK,
+                f"{missed} actuator command(s) beyond the compensation's reach (the closest "
+                "sent)" if missed else "every command compensated",
+                counters,
+            ))
         if self._calibration is not None:
             out.append(self._calibration[1])
         return out

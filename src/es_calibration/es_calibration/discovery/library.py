@@ -5,10 +5,16 @@ rate, the temperature (from the data's mean), its rate, the time since the start
 modelled displacement, the 4-neighbour means of the command, of the temperature (minus the
 actuator's own) and of its rate, first-order low-passes of V and V^2 at time constants
 spread from ``LOWPASS_SHORTEST_PERIODS`` command periods to a fifth of the record, the
-command delayed by ``DELAY_PERIODS`` periods, and sin / cos of the displacement over the
-interferometer's periods (``FRINGE_LENGTHS_M``). The library is every signal alone and every
-product of two (squares included); the scales are the recording's own (each column is
-divided by its training RMS for the regression, and the coefficient converted back).
+command delayed by ``DELAY_PERIODS`` periods, sin / cos of the displacement over the
+interferometer's periods (``FRINGE_LENGTHS_M``), the magnitude of the command's rate and the
+actuator's place in the whole grid (distance from the rim, x, y).
+
+A term adds where its :class:`~es_physics.effects.discovered.Carrier` says: to the
+displacement (every factor but the place, alone and every product of two, squares
+included), to the voltage in effect or to the law's temperature (the factors of
+``CARRIER_FACTORS``, alone and in pairs, times the model's sensitivity dz/dV or dz/dT at the
+sample, so the coefficient is in V or degC). The scales are the recording's own (each column
+is divided by its training RMS for the regression, and the coefficient converted back).
 """
 
 from __future__ import annotations
@@ -23,7 +29,13 @@ from es_calibration.data.align import AlignedData
 from es_calibration.discovery.terms import FactorKey
 from es_calibration.model.history import lowpass_at
 from es_common.arrays import BoolArray, FloatArray, IndexArray
-from es_physics.effects.discovered import neighbour_mean
+from es_physics.effects.discovered import (
+    POSITION,
+    Carrier,
+    grid_position,
+    neighbour_mean,
+    rate_magnitude,
+)
 
 #: Low-pass time constants: this many command periods at the shortest ...
 LOWPASS_SHORTEST_PERIODS: Final = 20.0
@@ -32,8 +44,23 @@ LOWPASS_LONGEST_FRACTION: Final = 0.2
 LOWPASS_COUNT: Final = 6
 #: Delays of the command tried, in command periods.
 DELAY_PERIODS: Final = (1, 2, 5, 10)
+#: Limits of the command's rate magnitude tried: these quantiles of its nonzero values.
+RATE_LIMIT_QUANTILES: Final = (0.5, 0.8, 0.95)
 #: Periods of an interferometer's periodic error: a HeNe laser's lambda/2 and lambda/4 [m].
 FRINGE_LENGTHS_M: Final = (316.4e-9, 158.2e-9)
+#: Factor codes of the terms that add to the drive or to the law's temperature: what an
+#: amplifier's output error follows (the command, its rate and the neighbours' commands) and
+#: what a temperature the sensors miss follows (a sensor's gain, the temperatures' rates and
+#: differences, the time, the place in the grid).
+CARRIER_FACTORS: Final = {
+    Carrier.DRIVE: (1, 2, 15, 7),  # 15: every limit tried
+    Carrier.TEMPERATURE: (3, 4, 5, 8, 9, 16, 17, 18),
+}
+#: Keys of the model's sensitivities in :meth:`Library.signals`'s result (not factors).
+SLOPE_KEYS: Final = {Carrier.DRIVE: (-1, 0.0), Carrier.TEMPERATURE: (-2, 0.0)}
+
+#: A library term: where it adds and its factors.
+LibraryTerm = tuple[Carrier, tuple[FactorKey, ...]]
 
 
 def lowpass_taus(aligned: AlignedData) -> tuple[float, ...]:
@@ -51,38 +78,70 @@ class Rows:
         rows: sample rows (n,).
         prediction: the registry model's displacement (A, n) [m] (block actuators).
         residual: measured minus ``prediction`` (A, n) [m], NaN where not usable.
+        drive_slope: the model's dz/dV there (A, n) [m/V].
+        temperature_slope: the model's dz/dT there (A, n) [m/degC].
 
     """
 
     rows: IndexArray
     prediction: FloatArray
     residual: FloatArray
+    drive_slope: FloatArray
+    temperature_slope: FloatArray
 
 
 class Library:
     """Factor signals of one block on sample rows, built once and combined into terms."""
 
     def __init__(self, aligned: AlignedData, grid: tuple[int, int],
-                 taus: tuple[float, ...] | None = None) -> None:
-        """Keep the block's record (``aligned``, actuators row-major in ``grid``)."""
+                 taus: tuple[float, ...] | None = None,
+                 placement: tuple[IndexArray, tuple[int, int]] | None = None) -> None:
+        """Keep the block's record (``aligned``, actuators row-major in ``grid``).
+
+        ``placement``: the block's actuators as row-major indices of the whole grid, and
+        that grid (default: the block is the grid).
+        """
         self.aligned = aligned
         self.grid = grid
         self.taus = lowpass_taus(aligned) if taus is None else taus
         self._command = np.nan_to_num(aligned.command)
+        where, whole = placement or (np.arange(aligned.n_actuators, dtype=np.intp), grid)
+        self._position = {c: grid_position(c, whole).ravel()[where] for c in POSITION}
 
     def keys(self) -> list[FactorKey]:
         """Return every single factor of the library, (code, parameter)."""
         a = self.aligned
         keys: list[FactorKey] = [
             (1, 0.0), (2, 0.0), (3, a.mean_temperature), (4, 0.0), (5, a.start_time),
-            (6, 0.0), (7, 0.0), (8, 0.0), (9, 0.0),
+            (6, 0.0), (7, 0.0), (8, 0.0), (9, 0.0), (15, 0.0),
         ]
+        keys += [(15, limit) for limit in self.rate_limits()]
         keys += [(10, tau) for tau in self.taus] + [(11, tau) for tau in self.taus]
         keys += [(12, j * a.command_period) for j in DELAY_PERIODS]
         keys += [(code, length) for length in FRINGE_LENGTHS_M for code in (13, 14)]
-        if a.n_actuators < 2:  # the neighbours of a single actuator are itself
-            keys = [k for k in keys if k[0] not in (7, 8, 9)]
+        keys += [(code, 0.0) for code in sorted(POSITION)]
+        if a.n_actuators < 2:  # the neighbours of a single actuator are itself; no place
+            keys = [k for k in keys if k[0] not in (7, 8, 9, *POSITION)]
         return keys
+
+    def rate_limits(self) -> tuple[float, ...]:
+        """Return the limits [V/s] of |dV/dt| tried: ``RATE_LIMIT_QUANTILES`` of the record's."""
+        rate = np.abs(np.diff(self._command, axis=0)) / self.aligned.command_period
+        moving = rate[rate > 0]
+        if moving.size == 0:
+            return ()
+        return tuple(float(q) for q in np.unique(np.quantile(moving, RATE_LIMIT_QUANTILES)))
+
+    def terms(self, singles: list[FactorKey]) -> list[LibraryTerm]:
+        """Return every term of the library (see the module docstring) from its ``singles``."""
+        out: list[LibraryTerm] = [
+            (Carrier.DISPLACEMENT, t)
+            for t in product_keys([k for k in singles if k[0] not in POSITION])
+        ]
+        for carrier, codes in CARRIER_FACTORS.items():
+            own = [k for k in singles if k[0] in codes]
+            out += [(carrier, t) for t in product_keys(own)]
+        return out
 
     @cached_property
     def _squared(self) -> FloatArray:
@@ -120,13 +179,17 @@ class Library:
         T = a.temperature_at(rows, act)
         rate = a.temperature_rate_at(rows, act)
         needed, where = np.unique(ci, return_inverse=True)  # the low-passes' command rows
-        out: dict[FactorKey, FloatArray] = {}
+        out: dict[FactorKey, FloatArray] = {
+            SLOPE_KEYS[Carrier.DRIVE]: at.drive_slope,
+            SLOPE_KEYS[Carrier.TEMPERATURE]: at.temperature_slope,
+        }
         for key in keys:
             code, p = key
             if code == 1:
                 out[key] = V
-            elif code == 2:
-                out[key] = (V - self._command[np.maximum(ci - 1, 0)].T) / a.command_period
+            elif code in (2, 15):
+                dv = (V - self._command[np.maximum(ci - 1, 0)].T) / a.command_period
+                out[key] = dv if code == 2 else rate_magnitude(dv, p)
             elif code == 3:
                 out[key] = T - p
             elif code == 4:
@@ -149,6 +212,8 @@ class Library:
             elif code in (13, 14):
                 phase = 2.0 * np.pi * at.prediction / p
                 out[key] = np.sin(phase) if code == 13 else np.cos(phase)
+            elif code in POSITION:
+                out[key] = np.broadcast_to(self._position[code][:, None], V.shape)
             else:
                 raise KeyError(f"no library factor with code {code}")
         return out
@@ -163,14 +228,21 @@ def product_keys(singles: list[FactorKey]) -> list[tuple[FactorKey, ...]]:
     return terms
 
 
-def columns(signals: dict[FactorKey, FloatArray], terms: list[tuple[FactorKey, ...]],
+def columns(signals: dict[FactorKey, FloatArray], terms: list[LibraryTerm],
             pick: tuple[IndexArray, IndexArray]) -> FloatArray:
-    """Return the terms' values (m, len(terms)) at the (actuator, row) pairs ``pick``."""
+    """Return the terms' displacements (m, len(terms)) [m] at the (actuator, row) ``pick``.
+
+    A drive or temperature term's product is taken through the model's sensitivity.
+    """
     flat = {k: v[pick] for k, v in signals.items()}
     out = np.empty((pick[0].size, len(terms)))
-    for j, term in enumerate(terms):
-        value = flat[term[0]]
-        out[:, j] = value if len(term) == 1 else value * flat[term[1]]
+    for j, (carrier, factors) in enumerate(terms):
+        value = flat[factors[0]]
+        if len(factors) > 1:
+            value = value * flat[factors[1]]
+        if carrier is not Carrier.DISPLACEMENT:
+            value = value * flat[SLOPE_KEYS[carrier]]
+        out[:, j] = value
     return out
 
 

@@ -82,13 +82,18 @@ class Selection:
 
 
 def select(train: Gram, held: Gram, n_effective: float,
-           max_terms: int = MAX_TERMS) -> Selection:
-    """Forward-select columns fitted on ``train`` and scored on ``held`` (see module doc)."""
+           max_terms: int = MAX_TERMS, allowed: np.ndarray | None = None) -> Selection:
+    """Forward-select columns fitted on ``train`` and scored on ``held`` (see module doc).
+
+    ``allowed``: the columns that may be chosen (default: all).
+    """
     chosen: list[int] = []
     beta = np.zeros(0)
     path = [held.rr]
     p = train.xr.size
     usable = np.diag(train.xx) > 0
+    if allowed is not None:
+        usable &= allowed
     while len(chosen) < max_terms:
         best: tuple[float, int, FloatArray] | None = None
         for j in range(p):

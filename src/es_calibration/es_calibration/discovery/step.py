@@ -12,15 +12,16 @@ refitted on each half of the record (time order) for its stability.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Final
 
 import numpy as np
 
 from es_calibration.data.align import AlignedData
-from es_calibration.discovery.library import Library, Rows, columns, product_keys, usable
+from es_calibration.discovery.library import Library, LibraryTerm, Rows, columns, usable
 from es_calibration.discovery.regression import Gram, select, stable
 from es_calibration.discovery.terms import DiscoveredTerm, Discovery, FactorKey
+from es_calibration.model.composite import FitInputs
 from es_calibration.search.residual import integrated_autocorrelation_time
 from es_calibration.search.state import (
     MIN_RELATIVE_GAIN,
@@ -31,6 +32,7 @@ from es_calibration.search.state import (
 )
 from es_calibration.search.unexplained import NOISE_RATIO_LIMIT
 from es_common.arrays import FloatArray, IndexArray
+from es_physics.effects.discovered import Term as PhysicsTerm
 
 MAX_ACTUATORS: Final = 16
 TRAIN_ROWS: Final = 1500
@@ -41,8 +43,12 @@ CHUNK: Final = 4096
 RIDGE_LAW: Final = 1e-10
 #: A refined time constant is tried at these factors of the library's.
 REFINE_FACTORS: Final = tuple(float(f) for f in np.geomspace(0.25, 4.0, 13))
+#: Steps of the model's sensitivities to the drive [V] and the temperature [degC] (central
+#: differences; the law is smooth on far larger scales).
+SLOPE_STEP_V: Final = 0.1
+SLOPE_STEP_DEGC: Final = 0.1
 
-Term = tuple[FactorKey, ...]
+Term = LibraryTerm
 
 
 @dataclass
@@ -60,13 +66,31 @@ class _Sets:
 
     def ensure(self, terms: list[Term]) -> None:
         """Compute the signals of factors not yet evaluated (e.g. a refined time constant)."""
-        missing = list({k for term in terms for k in term if k not in self.signals})
+        missing = list({k for _, factors in terms for k in factors if k not in self.signals})
         if missing:
             self.signals.update(self.library.signals(self.at, missing))
 
 
 def _thin(rows: IndexArray, most: int) -> IndexArray:
     return rows[:: max(1, int(np.ceil(rows.size / most)))]
+
+
+def _slopes(state: ModelState, inputs: FitInputs) -> tuple[FloatArray, FloatArray]:
+    """Return the model's dz/dV [m/V] and dz/dT [m/degC] at ``inputs`` (A, n).
+
+    The command and the temperature move alone (a play operator's or a filtered drive's
+    share of dz/dV is left out: a term on the drive is scored through the law's slope).
+    """
+    def at(moved: FitInputs) -> FloatArray:
+        return state.model.evaluate(state.fit.local, state.fit.glob, moved,
+                                    jacobian=False).prediction
+
+    dv, dt = SLOPE_STEP_V, SLOPE_STEP_DEGC
+    V, T = inputs.voltage, inputs.temperature
+    drive = (at(replace(inputs, voltage=V + dv)) - at(replace(inputs, voltage=V - dv))) / (2 * dv)
+    temperature = (at(replace(inputs, temperature=T + dt))
+                   - at(replace(inputs, temperature=T - dt))) / (2 * dt)
+    return drive, temperature
 
 
 def _residual_rows(ws: Workspace, state: ModelState
@@ -88,12 +112,17 @@ def _residual_rows(ws: Workspace, state: ModelState
     resid = np.concatenate([r_train[:, ti], r_held[:, hi]], axis=1)
     disp = np.concatenate([train_in.displacement[:, ti], held_in.displacement[:, hi]], axis=1)
     held_share = 1.0 / max(tau / thinning, 1.0)
-    parts = []
+    parts, drive, temperature = [], [], []
     for inputs, idx in ((train_in, ti), (held_in, hi)):
         ev = state.model.evaluate(state.fit.local, state.fit.glob, inputs, jacobian=True)
         parts.append(np.concatenate([ev.jac_local[:, idx], ev.jac_global[:, idx]], axis=2))
+        slopes = _slopes(state, inputs)
+        drive.append(slopes[0][:, idx])
+        temperature.append(slopes[1][:, idx])
     jac = np.concatenate(parts, axis=1)
-    return Rows(rows, disp - np.nan_to_num(resid), resid), held_share, int(ti.size), jac
+    at = Rows(rows, disp - np.nan_to_num(resid), resid, np.concatenate(drive, axis=1),
+              np.concatenate(temperature, axis=1))
+    return at, held_share, int(ti.size), jac
 
 
 def _grams(sets: _Sets, terms: list[Term], scales: FloatArray | None
@@ -141,29 +170,31 @@ def _split(grams: dict[tuple[bool, bool], Gram]) -> tuple[Gram, Gram, Gram, Gram
 
 
 def _refine(sets: _Sets, chosen: list[Term]) -> list[Term]:
-    """Return ``chosen`` with each low-pass's time constant refined on the training rows."""
+    """Return ``chosen`` with each low-pass's time constant and each rate limit refined."""
     out = list(chosen)
-    for i, term in enumerate(chosen):
+    for i, (carrier, term) in enumerate(chosen):
         for f, (code, tau) in enumerate(term):
-            if code not in (10, 11):
+            if code not in (10, 11) and not (code == 15 and tau > 0):
                 continue
             best: tuple[float, Term] | None = None
             for factor in REFINE_FACTORS:
-                factors = list(out[i])
+                factors = list(out[i][1])
                 factors[f] = (code, tau * factor)
-                trial = [*out[:i], tuple(factors), *out[i + 1:]]
+                candidate: Term = (carrier, tuple(factors))
+                trial = [*out[:i], candidate, *out[i + 1:]]
                 train, _, _, _ = _split(_grams(sets, trial, None)[0])
                 idx = list(range(len(trial)))
                 sse = train.sse(idx, train.solve(idx))
                 if best is None or sse < best[0]:
-                    best = (sse, tuple(factors))
+                    best = (sse, candidate)
             if best is not None:
                 out[i] = best[1]
     return out
 
 
 def discover(aligned: AlignedData, grid: tuple[int, int], state: ModelState,
-             noise_floor_m: float) -> Discovery:
+             noise_floor_m: float,
+             placement: tuple[IndexArray, tuple[int, int]] | None = None) -> Discovery:
     """Search the library for terms the held-out residual of ``state`` still contains.
 
     Args:
@@ -171,12 +202,14 @@ def discover(aligned: AlignedData, grid: tuple[int, int], state: ModelState,
         grid: the block's shape (actuators row-major).
         state: the registry search's final model on the block.
         noise_floor_m: the measurement noise floor [m] (of the final residual).
+        placement: the block's actuators as row-major indices of the whole grid, and that
+            grid (default: the block is the grid).
 
     """
     clock = time.perf_counter()
     ws = Workspace(aligned, np.arange(aligned.n_actuators, dtype=np.intp), grid)
     at, held_share, n_train, jac = _residual_rows(ws, state)
-    library = Library(aligned, grid)
+    library = Library(aligned, grid, placement=placement)
     singles = library.keys()
     signals = library.signals(at, singles)
     A = aligned.n_actuators
@@ -200,23 +233,36 @@ def discover(aligned: AlignedData, grid: tuple[int, int], state: ModelState,
         return Discovery(False, heldout_rms_before_m=before, heldout_rms_after_m=before,
                          note="the held-out residual is at the noise floor: no term searched",
                          seconds=time.perf_counter() - clock)
-    terms = product_keys(singles)
+    terms = library.terms(singles)
     grams, _scales = _grams(sets, terms, None)
     train, held_gram, _, _ = _split(grams)
-    selection = select(train, held_gram, n_eff)
-    chosen = _refine(sets, [terms[j] for j in selection.chosen])
-    result = _terms(sets, chosen, n_eff, before)
+    chosen = _refine(sets, [terms[j] for j in select(train, held_gram, n_eff).chosen])
+    undoable = [_compensable(t) for t in chosen]
+    if all(undoable):
+        writable = chosen
+    else:  # the parameters file gets the best set the feedforward can undo, chosen alike
+        allowed = np.array([_compensable(t) for t in terms])
+        writable = _refine(sets, [terms[j] for j in select(
+            train, held_gram, n_eff, allowed=allowed).chosen])
+    result = _terms(sets, chosen, writable, before)
     result.library_size = len(terms)
     result.seconds = time.perf_counter() - clock
     return result
 
 
-def _terms(sets: _Sets, chosen: list[Term], n_eff: float, before: float) -> Discovery:
-    """Fit the chosen terms and describe them (coefficients, shares, halves, stability)."""
-    if not chosen:
-        return Discovery(True, heldout_rms_before_m=before, heldout_rms_after_m=before,
-                         note="no term of the library generalises to the held-out blocks: "
-                              "nothing added")
+def _compensable(term: Term) -> bool:
+    """Return whether the feedforward can undo ``term`` (es_physics' rule)."""
+    carrier, factors = term
+    return PhysicsTerm(1.0, factors[0], factors[1] if len(factors) > 1 else None,
+                       carrier).compensable
+
+
+def _describe(sets: _Sets, chosen: list[Term]) -> tuple[list[DiscoveredTerm], list[float], int]:
+    """Fit ``chosen`` jointly on the training rows and describe each term.
+
+    Returns the terms (coefficient, share of the held-out error it removed in order, halves,
+    stability), the held-out SSE before any and after each, and the held-out count.
+    """
     grams, scales = _grams(sets, chosen, None)
     train, held, first, second = _split(grams)
     idx = list(range(len(chosen)))
@@ -224,20 +270,51 @@ def _terms(sets: _Sets, chosen: list[Term], n_eff: float, before: float) -> Disc
     path = [held.rr] + [held.sse(idx[: k + 1], train.solve(idx[: k + 1])) for k in idx]
     halves = (first.solve(idx) / scales, second.solve(idx) / scales)
     found = []
-    for k, factors in enumerate(chosen):
+    for k, (carrier, factors) in enumerate(chosen):
         coefficient = float(beta[k] / scales[k])
         pair = (float(halves[0][k]), float(halves[1][k]))
         found.append(DiscoveredTerm(
-            f"discovered_{k + 1}", factors, coefficient,
-            float((path[k] - path[k + 1]) / max(path[0], 1e-300)), pair,
-            stable(coefficient, pair),
+            "", factors, coefficient, float((path[k] - path[k + 1]) / max(path[0], 1e-300)),
+            pair, stable(coefficient, pair), carrier,
         ))
-    before = float(np.sqrt(path[0] / max(held.count, 1)))  # with the law refitted alike
-    after = float(np.sqrt(path[-1] / max(held.count, 1)))
-    improved = after < (1.0 - MIN_RELATIVE_GAIN) * before
-    added = improved and any(t.stable and t.compensable for t in found)
+    return found, path, held.count
+
+
+def _terms(sets: _Sets, chosen: list[Term], writable: list[Term], before: float
+           ) -> Discovery:
+    """Fit and describe the selected terms; choose what the parameters file gets.
+
+    ``chosen``: the selection from the whole library (what the residual holds, reported);
+    ``writable``: the selection among the terms the feedforward can undo (the same when
+    every chosen term is one). Its stable terms, refitted alone (and still stable), are
+    written; their description replaces ``chosen``'s, the others follow ``chosen``'s.
+    """
+    if not chosen:
+        return Discovery(True, heldout_rms_before_m=before, heldout_rms_after_m=before,
+                         note="no term of the library generalises to the held-out blocks: "
+                              "nothing added")
+    found, path, count = _describe(sets, chosen)
+    before = float(np.sqrt(path[0] / max(count, 1)))  # with the law refitted alike
+    every = float(np.sqrt(path[-1] / max(count, 1)))
+    described = found if writable == chosen else _describe(sets, writable)[0] if writable else []
+    kept = [(t.acts_on, t.factors) for t in described if t.stable and t.compensable]
+    written: list[DiscoveredTerm] = []
+    after = before
+    while kept:  # refitted alone, a term may lose its stability: refit without it
+        refit, kept_path, _ = _describe(sets, kept)
+        still = [(t.acts_on, t.factors) for t in refit if t.stable]
+        if len(still) == len(kept):
+            written = [replace(t, written=True) for t in refit]
+            after = float(np.sqrt(kept_path[-1] / max(count, 1)))
+            break
+        kept = still
+    added = bool(written) and after < (1.0 - MIN_RELATIVE_GAIN) * before
+    by_term = {(t.acts_on, t.factors): t for t in written} if added else {}
+    terms = [by_term.pop((t.acts_on, t.factors), t) for t in found] + list(by_term.values())
+    terms = [replace(t, name=f"discovered_{k}") for k, t in enumerate(terms, start=1)]
     note = "" if added else (
         "the discovered terms are not stable on both halves of the record or the feedforward "
         "cannot undo them: reported, not added"
     )
-    return Discovery(True, found, added, before, after, note)
+    return Discovery(True, terms, added, before, after if added else before, note,
+                     heldout_rms_all_terms_m=every)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from es_physics.effects.discovered import BY_CODE, Term, expression, unit
+from es_physics.effects.discovered import BY_CODE, Carrier, Term, expression, unit
 
 #: One factor of a library term: (factor code, its parameter), see es_physics FACTORS.
 FactorKey = tuple[int, float]
@@ -22,6 +22,8 @@ class DiscoveredTerm:
             selection order: the cut it added).
         halves: its coefficient fitted on each half of the record (time order).
         stable: both halves agree with ``coefficient`` (see regression.STABILITY).
+        acts_on: where the term adds (the displacement, the drive or the law's temperature).
+        written: it is one of the terms for the parameters file (when the step adds them).
 
     """
 
@@ -31,6 +33,8 @@ class DiscoveredTerm:
     share: float
     halves: tuple[float, float]
     stable: bool
+    acts_on: Carrier = Carrier.DISPLACEMENT
+    written: bool = False
 
     @property
     def expression(self) -> str:
@@ -40,26 +44,36 @@ class DiscoveredTerm:
     @property
     def unit(self) -> str:
         """Return the coefficient's unit."""
-        return unit(self.factors)
+        return unit(self.factors, self.acts_on)
 
     @property
     def side(self) -> str:
-        """Return "drive" when a factor is the present command, else "output"."""
+        """Return where the term acts: "drive", "temperature" or "output".
+
+        "drive" also for a displacement term of the present command (it needs the drive's
+        inverse).
+        """
+        if self.acts_on is Carrier.TEMPERATURE:
+            return "temperature"
+        if self.acts_on is Carrier.DRIVE:
+            return "drive"
         return "drive" if any(BY_CODE[c].side == "drive" for c, _ in self.factors) else "output"
 
     @property
     def mechanism(self) -> str:
         """Return the physical mechanism the term points to, in words."""
         words = [BY_CODE[c].mechanism for c, _ in self.factors]
-        if len(words) == 1 or words[0] == words[1]:
-            return words[0]
-        return f"a product of {words[0]}; and {words[1]}"
+        text = words[0] if len(words) == 1 or words[0] == words[1] else (
+            f"a product of {words[0]}; and {words[1]}")
+        if self.acts_on is Carrier.DISPLACEMENT:
+            return text
+        return f"an error of {self.acts_on.words} that follows {text}"
 
     @property
     def term(self) -> Term:
         """Return the term as the registry's discovered effect holds it."""
         b = self.factors[1] if len(self.factors) > 1 else None
-        return Term(self.coefficient, self.factors[0], b)
+        return Term(self.coefficient, self.factors[0], b, self.acts_on)
 
     @property
     def compensable(self) -> bool:
@@ -78,7 +92,9 @@ class DiscoveredTerm:
             "halves": list(self.halves),
             "mechanism": self.mechanism,
             "side": self.side,
+            "acts_on": self.acts_on.name.lower(),
             "compensable": self.compensable,
+            "written": self.written,
         }
 
 
@@ -89,9 +105,12 @@ class Discovery:
     Attributes:
         searched: the step ran (the residual stood above the noise floor).
         terms: the selected terms, in selection order.
-        added: stable, compensable terms were written (enabled) into the parameters file.
+        added: stable, compensable terms were written (enabled) into the parameters file
+            (they cut the held-out RMS by at least the search's least relative gain).
         heldout_rms_before_m: with the registry's effects.
-        heldout_rms_after_m: with the discovered terms too (= before when none).
+        heldout_rms_after_m: with the written terms too, refitted alone (= before when none
+            is written).
+        heldout_rms_all_terms_m: with every selected term, written or not.
         note: why nothing was searched or found, or "" (a sentence).
         library_size: terms tried.
         seconds: the step's run time.
@@ -106,11 +125,12 @@ class Discovery:
     note: str = ""
     library_size: int = 0
     seconds: float = 0.0
+    heldout_rms_all_terms_m: float = float("nan")
 
     @property
     def written(self) -> list[DiscoveredTerm]:
         """Return the terms written into the parameters file (none unless ``added``)."""
-        return [t for t in self.terms if t.stable and t.compensable] if self.added else []
+        return [t for t in self.terms if t.written] if self.added else []
 
     def as_dict(self) -> dict[str, object]:
         """Return calibration.json's ``discovered`` (es_calibration.output.schema)."""
@@ -120,6 +140,7 @@ class Discovery:
             "added": self.added,
             "heldout_rms_before_m": self.heldout_rms_before_m,
             "heldout_rms_after_m": self.heldout_rms_after_m,
+            "heldout_rms_all_terms_m": self.heldout_rms_all_terms_m,
             "note": self.note,
             "library_size": self.library_size,
             "seconds": self.seconds,

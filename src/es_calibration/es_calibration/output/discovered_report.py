@@ -16,8 +16,9 @@ def discovery_lines(discovery: Discovery | None, basic_rms_m: float, floor_m: fl
         return [*text, discovery.note + ".", ""]
     text += [
         f"Held-out RMS on the screening block: basic law {basic_rms_m * NM:.3g} nm, with the "
-        f"registry's effects {discovery.heldout_rms_before_m * NM:.3g} nm, with the discovered "
-        f"terms {discovery.heldout_rms_after_m * NM:.3g} nm (noise floor {floor_m * NM:.3g} nm); "
+        f"registry's effects {discovery.heldout_rms_before_m * NM:.3g} nm, with the terms "
+        f"written {discovery.heldout_rms_after_m * NM:.3g} nm, with every selected term "
+        f"{discovery.heldout_rms_all_terms_m * NM:.3g} nm (noise floor {floor_m * NM:.3g} nm); "
         f"{discovery.library_size} library terms searched in {discovery.seconds:.1f} s.",
         "",
     ]

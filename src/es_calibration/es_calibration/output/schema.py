@@ -53,9 +53,11 @@ residual's autocorrelation)::
       "search_span": what of the record the effect search saw ("whole record", or its
                      windows on a record longer than the search budget),
       "discovered": {"searched", "terms": [{"name", "expression", "coefficient", "unit",
-                     "share", "stable", "halves", "mechanism", "side", "compensable"}],
-                     "added", "heldout_rms_before_m", "heldout_rms_after_m" (screening
-                     block, held-out rows: registry model, + discovered terms), "note",
+                     "share", "stable", "halves", "mechanism", "side", "acts_on"
+                     ("displacement", "drive" or "temperature"), "compensable"}],
+                     "added", "heldout_rms_before_m", "heldout_rms_after_m",
+                     "heldout_rms_all_terms_m" (screening block, held-out rows: registry
+                     model, + the terms written, + every selected term), "note",
                      "library_size", "seconds"},
       "health": {"findings": [{"kind", "subject", "index", "row", "col", "start_s",
                                "end_s", "value", "unit", "sentence", "action"}]

@@ -8,17 +8,27 @@ from it and the feedforward undoes the same terms). A factor has one parameter w
 the factor states (a low-pass's time constant, a delay, a length, a reference temperature, an
 epoch).
 
+A term adds to one of three places (:class:`Carrier`): the displacement [m] (a metrology or
+an output error), the voltage in effect [V] (an amplifier's error: the law sees the command
+plus the term) or the temperature the law is evaluated at [degC] (a temperature the sensors
+miss). The calibration fits a drive or temperature term through the model's sensitivity to
+that input, so the coefficient keeps the physical unit of the place it adds to.
+
 Compensation: ``compensation.discovered_<k>_*`` for up to :data:`SLOTS` terms (coefficient
-0 = slot unused). Only terms whose every factor is known before the command is computed can
-be undone from the set point (:attr:`Factor.compensable`): functions of the set point, the
-temperatures and their rates, the time, and the drive's past (low-passes, delayed commands);
-their sum is subtracted from the set point. A term of the present command (V, dV/dt, the
-neighbours' commands) would need the numeric inverse of the augmented law: it is reported
-but never written.
+0 = slot unused). A displacement term whose every factor is known before the command is
+computed (:attr:`Factor.compensable`: functions of the set point, the temperatures and
+their rates, the time, the drive's past, the grid position) is subtracted from the set
+point; a temperature term of such factors moves the temperature the law is inverted at; a
+drive term may also depend on the present command (V, its rate, the neighbours' commands):
+the command is then solved numerically from the voltage the law asks for (per actuator: a
+scan, then the bisection of the bracket nearest the voltage asked for; where none holds
+it, the closest command scanned goes out, counted). A displacement term of the present
+command is reported but never written.
 """
 
 from __future__ import annotations
 
+import enum
 from collections import deque
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -85,10 +95,82 @@ FACTORS: Final[tuple[Factor, ...]] = (
            "sin of the displacement over a length: an interferometer's periodic nonlinearity"),
     Factor(14, "cos(2 pi z/l)", "", "length [m]", "output", True,
            "cos of the displacement over a length: an interferometer's periodic nonlinearity"),
+    Factor(15, "|dV/dt|", "V/s", "limit [V/s]", "drive", False,
+           "the magnitude of the command's rate, up to a limit (none at 0): the amplifier's "
+           "output current (a gain that droops with it, up to a current limit)"),
+    Factor(16, "rim depth", "", "", "output", True,
+           "the distance from the grid's rim (0 on the rim, 1 deepest): a profile from the "
+           "mount inwards (heat or stress reaching the centre late)"),
+    Factor(17, "x", "", "", "output", True,
+           "the position along the grid's rows (-1 .. 1): a gradient across the grid from one "
+           "side"),
+    Factor(18, "y", "", "", "output", True,
+           "the position along the grid's columns (-1 .. 1): a gradient across the grid from one "
+           "side"),
 )
 BY_CODE: Final[dict[int, Factor]] = {f.code: f for f in FACTORS}
 #: Terms the parameters file can carry.
 SLOTS: Final = 3
+#: Factors of the present command (a drive term's inverse varies them).
+PRESENT_COMMAND: Final = frozenset({1, 2, 7, 15})
+#: Factors of the modelled displacement (unknown where the law's temperature or drive is solved).
+OF_DISPLACEMENT: Final = frozenset({6, 13, 14})
+#: Factors fixed by an actuator's place in the grid.
+POSITION: Final = frozenset({16, 17, 18})
+#: A drive term's inverse: commands scanned within this share of the voltage asked for (at
+#: least ``SCAN_LEAST_V``), bisections of the bracket found, and how close [V] the command
+#: must bring the voltage in effect to the one asked for.
+SCAN_POINTS: Final = 17
+SCAN_SPAN: Final = 0.25
+SCAN_LEAST_V: Final = 5.0
+BISECTIONS: Final = 24
+SOLVE_TOLERANCE_V: Final = 1e-6
+
+
+def rate_magnitude(rate: FloatArray, limit: float) -> FloatArray:
+    """Return factor 15: |rate| up to ``limit`` (no limit when ``limit`` <= 0)."""
+    magnitude = np.abs(rate)
+    return np.minimum(magnitude, limit) if limit > 0 else magnitude
+
+
+class Carrier(enum.IntEnum):
+    """Where a discovered term adds (its code in ``compensation.discovered_<k>_acts_on``)."""
+
+    DISPLACEMENT = 0
+    DRIVE = 1
+    TEMPERATURE = 2
+
+    @property
+    def unit(self) -> str:
+        """Return the unit of what the term adds to."""
+        return ("m", "V", "degC")[self]
+
+    @property
+    def words(self) -> str:
+        """Return what the term adds to, in words."""
+        return ("the displacement", "the voltage in effect (the amplifier's output)",
+                "the temperature the law sees")[self]
+
+
+def grid_position(code: int, shape: tuple[int, int]) -> FloatArray:
+    """Return a position factor (16 rim depth, 17 x, 18 y) on a grid ``shape`` (R, C).
+
+    Raises:
+        KeyError: ``code`` is not a position factor.
+
+    """
+    rows, cols = shape
+    r = np.arange(rows, dtype=np.float64)[:, None]
+    c = np.arange(cols, dtype=np.float64)[None, :]
+    if code == 16:
+        depth = np.minimum(np.minimum(r, rows - 1 - r), np.minimum(c, cols - 1 - c))
+        deepest = float(depth.max())
+        return depth / deepest if deepest > 0 else np.zeros(shape)
+    if code == 17:
+        return np.broadcast_to(2.0 * c / (cols - 1) - 1.0 if cols > 1 else 0.0 * c, shape).copy()
+    if code == 18:
+        return np.broadcast_to(2.0 * r / (rows - 1) - 1.0 if rows > 1 else 0.0 * r, shape).copy()
+    raise KeyError(f"no position factor with code {code}")
 
 
 def neighbour_mean(x: FloatArray) -> FloatArray:
@@ -111,11 +193,16 @@ def neighbour_mean(x: FloatArray) -> FloatArray:
 
 @dataclass(frozen=True)
 class Term:
-    """A coefficient times one or two factors (each (code, parameter)); ``b`` is None alone."""
+    """A coefficient times one or two factors (each (code, parameter)); ``b`` is None alone.
+
+    ``acts_on``: where the product adds (the coefficient's unit is that place's per the
+    factors').
+    """
 
     coefficient: float
     a: tuple[int, float]
     b: tuple[int, float] | None = None
+    acts_on: Carrier = Carrier.DISPLACEMENT
 
     @property
     def factors(self) -> tuple[tuple[int, float], ...]:
@@ -124,8 +211,13 @@ class Term:
 
     @property
     def compensable(self) -> bool:
-        """Whether the feedforward can undo the term from the set point."""
-        return all(BY_CODE[c].compensable for c, _ in self.factors)
+        """Whether the feedforward can undo the term (see the module docstring)."""
+        codes = {c for c, _ in self.factors}
+        if self.acts_on is Carrier.DRIVE:
+            return not codes & OF_DISPLACEMENT
+        if self.acts_on is Carrier.TEMPERATURE and codes & OF_DISPLACEMENT:
+            return False
+        return all(BY_CODE[c].compensable for c in codes)
 
 
 def expression(factors: Sequence[tuple[int, float]]) -> str:
@@ -138,17 +230,18 @@ def expression(factors: Sequence[tuple[int, float]]) -> str:
     return " * ".join(parts)
 
 
-def unit(factors: Sequence[tuple[int, float]]) -> str:
-    """Return the coefficient's unit: m per the factors' units."""
+def unit(factors: Sequence[tuple[int, float]], acts_on: Carrier = Carrier.DISPLACEMENT) -> str:
+    """Return the coefficient's unit: ``acts_on``'s unit per the factors' units."""
     units = [BY_CODE[c].unit for c, _ in factors if BY_CODE[c].unit]
-    return "m" if not units else "m/(" + " ".join(units) + ")"
+    return acts_on.unit if not units else f"{acts_on.unit}/(" + " ".join(units) + ")"
 
 
 def _slot_parameters(k: int) -> tuple[Parameter, ...]:
     codes = float(len(FACTORS))
     return (
-        Parameter(f"discovered_{k}_coefficient", "", -1.0, 1.0, 0.0,
-                  f"term {k}: coefficient [m per the factors' units] (0 = unused)"),
+        Parameter(f"discovered_{k}_coefficient", "", -1e6, 1e6, 0.0,
+                  f"term {k}: coefficient [m, V or degC (acts_on) per the factors' units] "
+                  "(0 = unused)"),
         Parameter(f"discovered_{k}_factor_a", "", 0.0, codes, 0.0,
                   f"term {k}: first factor's code (es_physics.effects.discovered.FACTORS)"),
         Parameter(f"discovered_{k}_parameter_a", "", -1e12, 1e12, 0.0,
@@ -157,6 +250,9 @@ def _slot_parameters(k: int) -> tuple[Parameter, ...]:
                   f"term {k}: second factor's code (0 = none)"),
         Parameter(f"discovered_{k}_parameter_b", "", -1e12, 1e12, 0.0,
                   f"term {k}: second factor's parameter"),
+        Parameter(f"discovered_{k}_acts_on", "", 0.0, float(max(Carrier)), 0.0,
+                  f"term {k}: what it adds to: 0 the displacement [m], 1 the drive [V], "
+                  "2 the law's temperature [degC]"),
     )
 
 
@@ -170,7 +266,11 @@ def terms_from_values(values: Mapping[str, float]) -> list[Term]:
             continue
         code_b = round(values.get(f"discovered_{k}_factor_b", 0.0))
         b = (code_b, float(values[f"discovered_{k}_parameter_b"])) if code_b in BY_CODE else None
-        terms.append(Term(coefficient, (code_a, float(values[f"discovered_{k}_parameter_a"])), b))
+        carrier = round(values.get(f"discovered_{k}_acts_on", 0.0))
+        if carrier not in tuple(Carrier):
+            continue
+        terms.append(Term(coefficient, (code_a, float(values[f"discovered_{k}_parameter_a"])), b,
+                          Carrier(carrier)))
     return terms
 
 
@@ -185,27 +285,41 @@ def values_from_terms(terms: Sequence[Term]) -> dict[str, float]:
             f"discovered_{k}_parameter_a": term.a[1],
             f"discovered_{k}_factor_b": float(b[0]),
             f"discovered_{k}_parameter_b": b[1],
+            f"discovered_{k}_acts_on": float(term.acts_on),
         })
     return values
 
 
 class DiscoveredCompensation(Compensator):
-    """The discovered terms subtracted from the set point (vectorised over the grid).
+    """The discovered terms undone in the feedforward (vectorised over the grid).
 
-    State: the temperature rate from consecutive estimates (:meth:`measured_temperature`),
-    one low-pass per (signal, time constant) and the recent commands (for delayed ones),
-    advanced in :meth:`commit` with the command held between commands.
+    Displacement terms are subtracted from the set point (:meth:`setpoint`), temperature
+    terms added to the temperature the law is inverted at (:meth:`law_temperature`), drive
+    terms solved from the voltage the law asks for (:meth:`invert_drive`). State: the
+    temperature rate from consecutive estimates (:meth:`measured_temperature`), one low-pass
+    per (signal, time constant) and the recent commands (for delayed ones and the command's
+    rate), advanced in :meth:`commit` with the command held between commands.
+
+    Attributes:
+        unconverged: commands (actuator x command) whose drive terms could not be solved
+            and went out uncompensated (the drive terms' inverse never reaches an actuator
+            unchecked).
+
     """
 
     def __init__(self, terms: Sequence[Term], shape: tuple[int, int],
                  last_voltage: FloatArray | None = None) -> None:
-        self.terms = [t for t in terms if t.compensable]
+        compensable = [t for t in terms if t.compensable]
+        self.terms = compensable
+        self._by_carrier = {c: [t for t in compensable if t.acts_on is c] for c in Carrier}
+        self.reshapes_drive = bool(self._by_carrier[Carrier.DRIVE])
         self.shape = shape
         start = np.zeros(shape) if last_voltage is None else np.asarray(last_voltage, np.float64)
         self._lowpass: dict[tuple[int, float], FloatArray] = {
             (c, p): (start**2 if c == 11 else start.copy())
             for t in self.terms for c, p in t.factors if c in (10, 11)
         }
+        self._position = {c: grid_position(c, shape) for c in POSITION}
         delays = [p for t in self.terms for c, p in t.factors if c == 12]
         self._max_delay = max(delays, default=0.0)
         self._sent: deque[tuple[float, FloatArray]] = deque()
@@ -213,6 +327,7 @@ class DiscoveredCompensation(Compensator):
         self._last_t: float | None = None
         self._temperature: tuple[float, FloatArray] | None = None
         self._rate = np.zeros(shape)
+        self.unconverged = 0
 
     def carry_over(self, previous: DiscoveredCompensation) -> None:
         """Take ``previous``'s state (copied: it stays usable) where the terms share it."""
@@ -221,6 +336,7 @@ class DiscoveredCompensation(Compensator):
         self._sent = deque(previous._sent)
         self._last, self._last_t = previous._last.copy(), previous._last_t
         self._temperature, self._rate = previous._temperature, previous._rate.copy()
+        self.unconverged = previous.unconverged
 
     def measured_temperature(self, T: FloatArray, t: float) -> FloatArray:
         """Keep the temperature's rate from this estimate and the one before."""
@@ -247,39 +363,135 @@ class DiscoveredCompensation(Compensator):
                 break
         return chosen
 
-    def _factor(self, code: int, parameter: float, z: FloatArray, T: FloatArray,
-                t: float) -> FloatArray | float:
-        if code == 3:
-            return T - parameter
+    def _command_rate(self, v: FloatArray, t: float) -> FloatArray:
+        """Return (v - the last command) / the time since it, 0 before the first command."""
+        if self._last_t is None or t <= self._last_t:
+            return np.zeros(self.shape)
+        return np.asarray((v - self._last) / (t - self._last_t), np.float64)
+
+    def _factor(self, code: int, parameter: float, t: float, *, z: FloatArray | None = None,
+                T: FloatArray | None = None, v: FloatArray | None = None
+                ) -> FloatArray | float:
+        """Return one factor's value; ``z``, ``T``, ``v``: set point, temperature, command."""
+        if code in POSITION:
+            return self._position[code]
+        if code in PRESENT_COMMAND:
+            assert v is not None  # Term.compensable keeps these to drive terms
+            if code == 1:
+                return v
+            if code == 7:
+                return neighbour_mean(v)
+            rate = self._command_rate(v, t)
+            return rate if code == 2 else rate_magnitude(rate, parameter)
+        if code in OF_DISPLACEMENT:
+            assert z is not None  # Term.compensable keeps these to displacement terms
+            if code == 6:
+                return z
+            phase = 2.0 * np.pi * z / parameter
+            return np.sin(phase) if code == 13 else np.cos(phase)
+        if code in (3, 8):
+            assert T is not None
+            return T - parameter if code == 3 else neighbour_mean(T) - T
         if code == 4:
             return self._rate
         if code == 5:
             return t - parameter
-        if code == 6:
-            return z
-        if code == 8:
-            return neighbour_mean(T) - T
         if code == 9:
             return neighbour_mean(self._rate)
         if code in (10, 11):
             return self._lowpass_at((code, parameter), t)
-        if code == 12:
-            return self._delayed(parameter, t)
-        phase = 2.0 * np.pi * z / parameter
-        return np.sin(phase) if code == 13 else np.cos(phase)
+        return self._delayed(parameter, t)  # code 12
 
-    def setpoint(self, z: FloatArray, T: FloatArray, t: float) -> FloatArray:
-        """Return z minus the discovered terms (a non-finite term counts as 0)."""
+    def _sum(self, carrier: Carrier, t: float, **signals: FloatArray | None) -> FloatArray:
+        """Return the sum of ``carrier``'s terms (a non-finite value counts as 0).
+
+        The signals are grids (R, C), or stacks of them (K, R, C) for K candidates at once.
+        """
         total = np.zeros(self.shape)
-        for term in self.terms:
+        for term in self._by_carrier[carrier]:
             value: FloatArray | float = term.coefficient
             for code, parameter in term.factors:
-                value = value * self._factor(code, parameter, z, T, t)
+                value = value * self._factor(code, parameter, t, **signals)
             total = total + value
-        return np.asarray(z - np.where(np.isfinite(total), total, 0.0), np.float64)
+        return np.asarray(np.where(np.isfinite(total), total, 0.0), np.float64)
+
+    def law_temperature(self, T: FloatArray, t: float) -> FloatArray:
+        """Return ``T`` plus the temperature terms (the temperature the actuator really has)."""
+        if not self._by_carrier[Carrier.TEMPERATURE]:
+            return T
+        return np.asarray(T + self._sum(Carrier.TEMPERATURE, t, T=T), np.float64)
+
+    def setpoint(self, z: FloatArray, T: FloatArray, t: float) -> FloatArray:
+        """Return z minus the displacement terms."""
+        if not self._by_carrier[Carrier.DISPLACEMENT]:
+            return z
+        return np.asarray(z - self._sum(Carrier.DISPLACEMENT, t, z=z, T=T), np.float64)
+
+    def invert_drive(self, voltage: FloatArray, t: float) -> FloatArray:
+        """Return the command v with v + drive terms(v) = ``voltage``, per actuator.
+
+        The voltage in effect need not rise with the command (an amplifier that droops with
+        the rate loses more than it gains over a range of commands), so ``SCAN_POINTS``
+        commands within ``SCAN_SPAN`` of the voltage asked for are tried; per actuator, the
+        bracket nearest to the voltage asked for where the miss changes sign is bisected
+        (``BISECTIONS``) and closed by a secant. Every actuator's command moves at once (the
+        neighbours' terms count as the actuator's own). Where no bracket holds the voltage
+        asked for, the scanned command that comes closest goes out, counted in
+        :attr:`unconverged`.
+        """
+        if not self.reshapes_drive:
+            return voltage
+        T = self._temperature[1] if self._temperature is not None else None
+        target = np.asarray(voltage, np.float64)
+
+        def miss(v: FloatArray) -> FloatArray:
+            return np.asarray(v + self._sum(Carrier.DRIVE, t, v=v, T=T) - target, np.float64)
+
+        span = np.maximum(SCAN_SPAN * np.abs(target), SCAN_LEAST_V)
+        steps = np.linspace(-1.0, 1.0, SCAN_POINTS)
+        candidates = target + steps[:, None, None] * span
+        misses = miss(candidates)  # every candidate at once (the terms broadcast over them)
+        crossing = np.signbit(misses[:-1]) != np.signbit(misses[1:])
+        # the bracket nearest the voltage asked for (index distance from the scan's middle)
+        middle = abs(np.arange(SCAN_POINTS - 1) + 0.5 - (SCAN_POINTS - 1) / 2)
+        found = crossing.any(axis=0)
+        pick = np.argmin(np.where(crossing, middle[:, None, None], np.inf), axis=0)
+        low = np.take_along_axis(candidates, pick[None], axis=0)[0]
+        high = np.take_along_axis(candidates, pick[None] + 1, axis=0)[0]
+        low_miss = np.take_along_axis(misses, pick[None], axis=0)[0]
+        for _ in range(BISECTIONS):
+            mid = 0.5 * (low + high)
+            mid_miss = miss(mid)
+            same = np.signbit(mid_miss) == np.signbit(low_miss)
+            low, low_miss = np.where(same, mid, low), np.where(same, mid_miss, low_miss)
+            high = np.where(same, high, mid)
+        high_miss = miss(high)
+        denominator = high_miss - low_miss
+        secant = np.where(denominator != 0, low - low_miss * (high - low)
+                          / np.where(denominator != 0, denominator, 1.0), low)
+        v = np.where(found, secant, target)
+        closest = np.take_along_axis(
+            candidates, np.argmin(np.abs(misses), axis=0)[None], axis=0)[0]
+        bad = ~(np.abs(miss(v)) <= SOLVE_TOLERANCE_V)
+        if bad.any():
+            self.unconverged += int(bad.sum())
+            v = np.where(bad, closest, v)
+        return np.asarray(np.where(np.isfinite(v), v, target), np.float64)
+
+    def counters(self) -> dict[str, int]:
+        """Return the actuator commands whose drive terms were out of reach."""
+        return {"drive_out_of_reach": self.unconverged} if self.reshapes_drive else {}
 
     def commit(self, sent: FloatArray, drive: FloatArray, t: float) -> FloatArray:
-        """Advance the low-passes over the held command and keep ``sent``."""
+        """Advance the low-passes over the held command and keep ``sent``.
+
+        Returns ``drive`` plus the drive terms of ``sent`` (the voltage in effect).
+        """
+        out = drive
+        if self.reshapes_drive:
+            T = self._temperature[1] if self._temperature is not None else None
+            out = np.asarray(drive + self._sum(Carrier.DRIVE, t, v=np.asarray(sent), T=T),
+                             np.float64)
         for key in self._lowpass:
             self._lowpass[key] = self._lowpass_at(key, t)
         self._last = np.asarray(sent, np.float64).copy()
@@ -288,7 +500,7 @@ class DiscoveredCompensation(Compensator):
             self._sent.append((t, self._last))
             while len(self._sent) > 2 and self._sent[1][0] <= t - self._max_delay - 1e-9:
                 self._sent.popleft()
-        return drive
+        return out
 
 
 class Discovered(Effect):

@@ -154,6 +154,10 @@ class Compensator:
         """Return the drive [V] that makes this stage output ``voltage`` (command at ``t``)."""
         return voltage
 
+    def counters(self) -> dict[str, int]:
+        """Return counts of commands this stage could not compensate fully, by name."""
+        return {}
+
     def commit(self, sent: FloatArray, drive: FloatArray, t: float) -> FloatArray:
         """Advance the state with the command ``sent`` [V] at ``t`` [s].
 
