@@ -29,6 +29,7 @@ temperature, ``creep`` on the actuator's displacement (before coupling),
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Final
 
@@ -229,7 +230,8 @@ def mid_temperature(config: StandConfig) -> float:
     return float(0.5 * (base.min() + base.max()))
 
 
-def drive(config: StandConfig, program: VoltageProgram | IndependentProgram,
+def drive(config: StandConfig,
+          program: VoltageProgram | IndependentProgram | Callable[[FloatArray], FloatArray],
           t: FloatArray) -> FloatArray:
     """Return the drive reaching the actuator's strain (N, R, C).
 
@@ -313,8 +315,13 @@ def _sensor_fault(faults: Faults, t_temp: FloatArray, sensed: FloatArray) -> Flo
     return out.reshape(sensed.shape)
 
 
-def simulate(config: StandConfig) -> Recording:
+def simulate(config: StandConfig, drive_program: Callable[[FloatArray], FloatArray] | None = None
+             ) -> Recording:
     """Simulate one recording (see the module docstring).
+
+    ``drive_program``: voltages (N, R, C) at times (N,) to drive instead of the drawn program
+    (a feedforward's commands, for a closed loop on the stand); every random draw stays the
+    same, so the law, the temperatures and the noise are those of the drawn program's record.
 
     Raises:
         StandConfigError: an impossible configuration.
@@ -326,10 +333,12 @@ def simulate(config: StandConfig) -> Recording:
     dt = 1.0 / config.rate_hz
     t = np.arange(round(config.duration_s * config.rate_hz), dtype=np.float64) * dt
     law = spread_law(rng, shape, e)
-    program: VoltageProgram | IndependentProgram = (
+    program: VoltageProgram | IndependentProgram | Callable[[FloatArray], FloatArray] = (
         make_independent_program(rng, config.duration_s, shape, config.rate_hz)
         if config.independent_drive else make_program(rng, config.duration_s, shape,
                                                       config.rate_hz))
+    if drive_program is not None:
+        program = drive_program
     command = program(t)
     v = drive(config, program, t)
 

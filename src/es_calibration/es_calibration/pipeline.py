@@ -36,7 +36,7 @@ from es_calibration.data.timing import (
     receive_jitter,
     stamp_findings,
 )
-from es_calibration.discovery import Discovery, discover
+from es_calibration.discovery import Discovery, discover, refit_with_terms
 from es_calibration.grid.tiles import (
     DEFAULT_TILE,
     TEMPERATURE,
@@ -574,7 +574,25 @@ def calibrate(
     clock = time.perf_counter()
     base_full = prefix_states[0]
     after, resid_after = analysis.analyse(final_screen)
+    timings["analysis"] = time.perf_counter() - clock
+    # terms no registry effect describes, searched in the block's held-out residual
+    discovery = discover(aligned, block_grid, final_screen, after.noise_floor,
+                         placement=(idx, grid))
     final = prefix_states[-1]
+    if discovery.added:
+        clock = time.perf_counter()
+        if full_grid and not windowed:  # the model's values of the joint fit with the terms
+            final = refit_with_terms(
+                Workspace(aligned, np.arange(aligned.n_actuators, dtype=np.intp), block_grid),
+                final, discovery, placement=(idx, grid))
+            discovery.seconds += time.perf_counter() - clock
+        else:
+            discovery.added = False
+            discovery.note = (
+                "the terms were found on the screening block, and the grid beyond it (or the "
+                "record beyond the search's windows) was not refitted with them: reported, "
+                "not added")
+    timings["discovery"] = discovery.seconds
     # re-express the uncertainties with the residual's autocorrelation
     if after.tau_int > 1.0:
         final.fit = replace(
@@ -582,11 +600,6 @@ def calibrate(
             cov_local=final.fit.cov_local * after.tau_int,
             cov_global=final.fit.cov_global * after.tau_int,
         )
-    timings["analysis"] = time.perf_counter() - clock
-    # terms no registry effect describes, searched in the block's held-out residual
-    discovery = discover(aligned, block_grid, final_screen, after.noise_floor,
-                         placement=(idx, grid))
-    timings["discovery"] = discovery.seconds
     # the run's description: the whole grid on the block's time base
     aligned = replace(aligned, grid=grid)
 

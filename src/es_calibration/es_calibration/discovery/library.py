@@ -10,11 +10,13 @@ interferometer's periods (``FRINGE_LENGTHS_M``), the magnitude of the command's 
 actuator's place in the whole grid (distance from the rim, x, y).
 
 A term adds where its :class:`~es_physics.effects.discovered.Carrier` says: to the
-displacement (every factor but the place, alone and every product of two, squares
-included), to the voltage in effect or to the law's temperature (the factors of
+displacement (every factor but the place and the fringes, alone and every product of two,
+squares included), to the voltage in effect or to the law's temperature (the factors of
 ``CARRIER_FACTORS``, alone and in pairs, times the model's sensitivity dz/dV or dz/dT at the
-sample, so the coefficient is in V or degC). The scales are the recording's own (each column
-is divided by its training RMS for the regression, and the coefficient converted back).
+sample, so the coefficient is in V or degC), or to the measurement (the fringes: a metrology
+error depends on what the interferometer sees, nothing else). The scales are the recording's
+own (each column is divided by its training RMS for the regression, and the coefficient
+converted back).
 """
 
 from __future__ import annotations
@@ -48,6 +50,8 @@ DELAY_PERIODS: Final = (1, 2, 5, 10)
 RATE_LIMIT_QUANTILES: Final = (0.5, 0.8, 0.95)
 #: Periods of an interferometer's periodic error: a HeNe laser's lambda/2 and lambda/4 [m].
 FRINGE_LENGTHS_M: Final = (316.4e-9, 158.2e-9)
+#: Factor codes of the fringes (sin and cos of the displacement over those periods).
+FRINGES: Final = (13, 14)
 #: Factor codes of the terms that add to the drive or to the law's temperature: what an
 #: amplifier's output error follows (the command, its rate and the neighbours' commands) and
 #: what a temperature the sensors miss follows (a sensor's gain, the temperatures' rates and
@@ -55,6 +59,7 @@ FRINGE_LENGTHS_M: Final = (316.4e-9, 158.2e-9)
 CARRIER_FACTORS: Final = {
     Carrier.DRIVE: (1, 2, 15, 7),  # 15: every limit tried
     Carrier.TEMPERATURE: (3, 4, 5, 8, 9, 16, 17, 18),
+    Carrier.MEASUREMENT: FRINGES,
 }
 #: Keys of the model's sensitivities in :meth:`Library.signals`'s result (not factors).
 SLOPE_KEYS: Final = {Carrier.DRIVE: (-1, 0.0), Carrier.TEMPERATURE: (-2, 0.0)}
@@ -136,7 +141,7 @@ class Library:
         """Return every term of the library (see the module docstring) from its ``singles``."""
         out: list[LibraryTerm] = [
             (Carrier.DISPLACEMENT, t)
-            for t in product_keys([k for k in singles if k[0] not in POSITION])
+            for t in product_keys([k for k in singles if k[0] not in (*POSITION, *FRINGES)])
         ]
         for carrier, codes in CARRIER_FACTORS.items():
             own = [k for k in singles if k[0] in codes]
@@ -240,7 +245,7 @@ def columns(signals: dict[FactorKey, FloatArray], terms: list[LibraryTerm],
         value = flat[factors[0]]
         if len(factors) > 1:
             value = value * flat[factors[1]]
-        if carrier is not Carrier.DISPLACEMENT:
+        if carrier in SLOPE_KEYS:  # the displacement and the measurement take it as it is
             value = value * flat[SLOPE_KEYS[carrier]]
         out[:, j] = value
     return out

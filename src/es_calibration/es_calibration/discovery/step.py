@@ -27,11 +27,13 @@ from es_calibration.search.state import (
     MIN_RELATIVE_GAIN,
     ModelState,
     Workspace,
+    fit_state,
     heldout_residual,
     information_delta,
 )
 from es_calibration.search.unexplained import NOISE_RATIO_LIMIT
 from es_common.arrays import FloatArray, IndexArray
+from es_physics.effects.discovered import Carrier
 from es_physics.effects.discovered import Term as PhysicsTerm
 
 MAX_ACTUATORS: Final = 16
@@ -39,6 +41,10 @@ TRAIN_ROWS: Final = 1500
 HELD_ROWS: Final = 3000
 #: Samples per block of library columns built at once (bounds the step's memory).
 CHUNK: Final = 4096
+#: A term is searched only where at least this share of it (its training energy) is beyond
+#: what the model's own unknowns describe (see _grams): the rest of such a term is the model's
+#: and would shift its values by as much, making it a new term in name only.
+MIN_DISTINCT: Final = 0.1
 #: Relative ridge of the law's normal equations in the projection (see _grams).
 RIDGE_LAW: Final = 1e-10
 #: A refined time constant is tried at these factors of the library's.
@@ -126,14 +132,18 @@ def _residual_rows(ws: Workspace, state: ModelState
 
 
 def _grams(sets: _Sets, terms: list[Term], scales: FloatArray | None
-           ) -> tuple[dict[tuple[bool, bool], Gram], FloatArray]:
-    """Return the Grams by (held-out, second half) and the columns' scales.
+           ) -> tuple[dict[tuple[bool, bool], Gram], FloatArray, FloatArray]:
+    """Return the Grams by (held-out, second half), the columns' scales and distinct shares.
+
+    A column's distinct share: the part of its training energy the projection (below)
+    leaves, i.e. what of the term the model's own unknowns cannot describe.
 
     The model's own unknowns would take up part of any new term in a joint fit: per
     actuator, the columns and the residual have their least-squares projection on the
     model's Jacobian (the law's coefficients and the effects' shared unknowns, the latter
     conservatively as if per actuator) over the training rows taken away (on the held-out
-    rows, the same coefficients' prediction): a term is scored as if fitted jointly.
+    rows, the same coefficients' prediction): a term is scored as if fitted jointly (so the
+    model is refitted with the terms written, :func:`refit_with_terms`).
     """
     sets.ensure(terms)
     if scales is None:
@@ -143,23 +153,26 @@ def _grams(sets: _Sets, terms: list[Term], scales: FloatArray | None
         scales = np.where(scales > 0, scales, 0.0)
     safe = np.where(scales > 0, scales, 1.0)
     grams = {(h, s): Gram.empty(len(terms)) for h in (False, True) for s in (False, True)}
+    raw, left = np.zeros(len(terms)), np.zeros(len(terms))
     r = sets.residual[sets.pick]
     for actuator in np.unique(sets.pick[0]):
         sl = np.flatnonzero(sets.pick[0] == actuator)
         x = columns(sets.signals, terms, (sets.pick[0][sl], sets.pick[1][sl])) / safe
         x[:, scales == 0] = 0.0
         both = np.column_stack([x, r[sl]])
-        jac = np.nan_to_num(sets.jac[actuator, sets.pick[1][sl]])
         fit = ~sets.held[sl]
+        jac = np.nan_to_num(sets.jac[actuator, sets.pick[1][sl]])
         jt = jac[fit]
         normal = jt.T @ jt
         normal += RIDGE_LAW * np.trace(normal) / max(normal.shape[0], 1) * np.eye(normal.shape[0])
+        raw += np.einsum("ij,ij->j", x[fit], x[fit])
         both = both - jac @ np.linalg.solve(normal, jt.T @ both[fit])
+        left += np.einsum("ij,ij->j", both[fit, :-1], both[fit, :-1])
         for (h, s), gram in grams.items():
             mask = (sets.held[sl] == h) & (sets.late[sl] == s)
             if mask.any():
                 gram.add(both[mask, :-1], both[mask, -1])
-    return grams, scales
+    return grams, scales, left / np.where(raw > 0, raw, np.inf)
 
 
 def _split(grams: dict[tuple[bool, bool], Gram]) -> tuple[Gram, Gram, Gram, Gram]:
@@ -234,36 +247,41 @@ def discover(aligned: AlignedData, grid: tuple[int, int], state: ModelState,
                          note="the held-out residual is at the noise floor: no term searched",
                          seconds=time.perf_counter() - clock)
     terms = library.terms(singles)
-    grams, _scales = _grams(sets, terms, None)
+    grams, _scales, distinct = _grams(sets, terms, None)
     train, held_gram, _, _ = _split(grams)
-    chosen = _refine(sets, [terms[j] for j in select(train, held_gram, n_eff).chosen])
-    undoable = [_compensable(t) for t in chosen]
-    if all(undoable):
+    own = distinct >= MIN_DISTINCT  # what the model's unknowns describe is not a new term
+    chosen = _refine(sets, [terms[j] for j in select(train, held_gram, n_eff,
+                                                      allowed=own).chosen])
+    if all(_usable(t) for t in chosen):
         writable = chosen
-    else:  # the parameters file gets the best set the feedforward can undo, chosen alike
-        allowed = np.array([_compensable(t) for t in terms])
+    else:  # the model gets the best set the feedforward can undo (or metrology), chosen alike
+        allowed = own & np.array([_usable(t) for t in terms])
         writable = _refine(sets, [terms[j] for j in select(
             train, held_gram, n_eff, allowed=allowed).chosen])
-    result = _terms(sets, chosen, writable, before)
+    result = _terms(sets, chosen, writable)
     result.library_size = len(terms)
     result.seconds = time.perf_counter() - clock
     return result
 
 
-def _compensable(term: Term) -> bool:
-    """Return whether the feedforward can undo ``term`` (es_physics' rule)."""
+def _usable(term: Term) -> bool:
+    """Return whether the model may take ``term``.
+
+    It may when the feedforward can undo it (es_physics' rule) or when it acts on the
+    measurement (the feedforward has nothing to undo).
+    """
     carrier, factors = term
-    return PhysicsTerm(1.0, factors[0], factors[1] if len(factors) > 1 else None,
-                       carrier).compensable
+    return carrier is Carrier.MEASUREMENT or PhysicsTerm(
+        1.0, factors[0], factors[1] if len(factors) > 1 else None, carrier).compensable
 
 
 def _describe(sets: _Sets, chosen: list[Term]) -> tuple[list[DiscoveredTerm], list[float], int]:
-    """Fit ``chosen`` jointly on the training rows and describe each term.
+    """Fit ``chosen`` jointly on the training rows and describe each term (see _grams).
 
     Returns the terms (coefficient, share of the held-out error it removed in order, halves,
     stability), the held-out SSE before any and after each, and the held-out count.
     """
-    grams, scales = _grams(sets, chosen, None)
+    grams, scales, _ = _grams(sets, chosen, None)
     train, held, first, second = _split(grams)
     idx = list(range(len(chosen)))
     beta = train.solve(idx)
@@ -280,16 +298,17 @@ def _describe(sets: _Sets, chosen: list[Term]) -> tuple[list[DiscoveredTerm], li
     return found, path, held.count
 
 
-def _terms(sets: _Sets, chosen: list[Term], writable: list[Term], before: float
-           ) -> Discovery:
-    """Fit and describe the selected terms; choose what the parameters file gets.
+def _terms(sets: _Sets, chosen: list[Term], writable: list[Term]) -> Discovery:
+    """Describe the selected terms; choose what the parameters file gets.
 
     ``chosen``: the selection from the whole library (what the residual holds, reported);
-    ``writable``: the selection among the terms the feedforward can undo (the same when
-    every chosen term is one). Its stable terms, refitted alone (and still stable), are
-    written; their description replaces ``chosen``'s, the others follow ``chosen``'s.
+    ``writable``: the selection among the terms the model may take (:func:`_usable`; the
+    same when every chosen term is one). Its stable terms, refitted alone (and still
+    stable), are used; their description replaces ``chosen``'s, the others follow
+    ``chosen``'s. All RMS are as if the model were refitted with the terms (see _grams).
     """
     if not chosen:
+        before = float(np.sqrt(np.mean(sets.residual[sets.pick][sets.held] ** 2)))
         return Discovery(True, heldout_rms_before_m=before, heldout_rms_after_m=before,
                          note="no term of the library generalises to the held-out blocks: "
                               "nothing added")
@@ -297,19 +316,19 @@ def _terms(sets: _Sets, chosen: list[Term], writable: list[Term], before: float
     before = float(np.sqrt(path[0] / max(count, 1)))  # with the law refitted alike
     every = float(np.sqrt(path[-1] / max(count, 1)))
     described = found if writable == chosen else _describe(sets, writable)[0] if writable else []
-    kept = [(t.acts_on, t.factors) for t in described if t.stable and t.compensable]
-    written: list[DiscoveredTerm] = []
+    kept = [(t.acts_on, t.factors) for t in described if t.stable]
+    used: list[DiscoveredTerm] = []
     after = before
     while kept:  # refitted alone, a term may lose its stability: refit without it
         refit, kept_path, _ = _describe(sets, kept)
         still = [(t.acts_on, t.factors) for t in refit if t.stable]
         if len(still) == len(kept):
-            written = [replace(t, written=True) for t in refit]
+            used = [replace(t, used=True) for t in refit]
             after = float(np.sqrt(kept_path[-1] / max(count, 1)))
             break
         kept = still
-    added = bool(written) and after < (1.0 - MIN_RELATIVE_GAIN) * before
-    by_term = {(t.acts_on, t.factors): t for t in written} if added else {}
+    added = bool(used) and after < (1.0 - MIN_RELATIVE_GAIN) * before
+    by_term = {(t.acts_on, t.factors): t for t in used} if added else {}
     terms = [by_term.pop((t.acts_on, t.factors), t) for t in found] + list(by_term.values())
     terms = [replace(t, name=f"discovered_{k}") for k, t in enumerate(terms, start=1)]
     note = "" if added else (
@@ -318,3 +337,44 @@ def _terms(sets: _Sets, chosen: list[Term], writable: list[Term], before: float
     )
     return Discovery(True, terms, added, before, after if added else before, note,
                      heldout_rms_all_terms_m=every)
+
+
+def term_displacement(library: Library, state: ModelState, inputs: FitInputs,
+                      rows: IndexArray, terms: list[DiscoveredTerm]) -> FloatArray:
+    """Return the displacement (A, n) [m] the ``terms`` add at ``rows`` (model ``inputs``).
+
+    Drive and temperature terms through the model's sensitivities there, as the step fits
+    them; a non-finite value counts as 0.
+    """
+    prediction = state.model.evaluate(state.fit.local, state.fit.glob, inputs,
+                                      jacobian=False).prediction
+    drive, temperature = _slopes(state, inputs)
+    at = Rows(rows, prediction, np.zeros_like(prediction), drive, temperature)
+    signals = library.signals(at, list({k for t in terms for k in t.factors}))
+    A, n = prediction.shape
+    pick = (np.repeat(np.arange(A), n), np.tile(np.arange(n), A))
+    values = columns(signals, [(t.acts_on, t.factors) for t in terms], pick)
+    total = (values @ np.array([t.coefficient for t in terms])).reshape(A, n)
+    return np.asarray(np.where(np.isfinite(total), total, 0.0), np.float64)
+
+
+def refit_with_terms(ws: Workspace, state: ModelState, discovery: Discovery,
+                     placement: tuple[IndexArray, tuple[int, int]] | None = None
+                     ) -> ModelState:
+    """Return ``state`` refitted on ``ws`` with the terms used taken out of the data.
+
+    The step scores a term as if fitted jointly with the model (its coefficients would take
+    up part of it otherwise); the parameters file carries both, so the model's values must
+    be those of that joint fit: the same model refitted on the displacement minus the
+    terms. ``ws`` holds the grid's actuators (the block is the grid).
+    """
+    used = discovery.used
+    if not used:
+        return state
+    library = Library(ws.aligned, ws.grid, placement=placement)
+    train, held = ws.input_pair(state.delay_s, state.play_thresholds)
+    moved = [replace(inputs, displacement=inputs.displacement - term_displacement(
+        library, state, inputs, rows, used)) for inputs, rows in
+        ((train, ws.fit_rows), (held, ws.score_rows))]
+    return fit_state(state.model, moved[0], moved[1], state.fit.local, state.fit.glob,
+                     delay_s=state.delay_s, thresholds=state.thresholds)

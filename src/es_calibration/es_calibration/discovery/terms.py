@@ -23,7 +23,9 @@ class DiscoveredTerm:
         halves: its coefficient fitted on each half of the record (time order).
         stable: both halves agree with ``coefficient`` (see regression.STABILITY).
         acts_on: where the term adds (the displacement, the drive or the law's temperature).
-        written: it is one of the terms for the parameters file (when the step adds them).
+        used: the model is refitted with it and the RMS after counts it (when the step adds
+            the terms); it is written into the parameters file unless it acts on the
+            measurement (:attr:`written`).
 
     """
 
@@ -34,7 +36,7 @@ class DiscoveredTerm:
     halves: tuple[float, float]
     stable: bool
     acts_on: Carrier = Carrier.DISPLACEMENT
-    written: bool = False
+    used: bool = False
 
     @property
     def expression(self) -> str:
@@ -47,6 +49,11 @@ class DiscoveredTerm:
         return unit(self.factors, self.acts_on)
 
     @property
+    def written(self) -> bool:
+        """Whether it goes into the parameters file (used, and the mirror's)."""
+        return self.used and self.acts_on is not Carrier.MEASUREMENT
+
+    @property
     def side(self) -> str:
         """Return where the term acts: "drive", "temperature" or "output".
 
@@ -55,6 +62,8 @@ class DiscoveredTerm:
         """
         if self.acts_on is Carrier.TEMPERATURE:
             return "temperature"
+        if self.acts_on is Carrier.MEASUREMENT:
+            return "measurement"
         if self.acts_on is Carrier.DRIVE:
             return "drive"
         return "drive" if any(BY_CODE[c].side == "drive" for c, _ in self.factors) else "output"
@@ -94,6 +103,7 @@ class DiscoveredTerm:
             "side": self.side,
             "acts_on": self.acts_on.name.lower(),
             "compensable": self.compensable,
+            "used": self.used,
             "written": self.written,
         }
 
@@ -105,11 +115,11 @@ class Discovery:
     Attributes:
         searched: the step ran (the residual stood above the noise floor).
         terms: the selected terms, in selection order.
-        added: stable, compensable terms were written (enabled) into the parameters file
-            (they cut the held-out RMS by at least the search's least relative gain).
+        added: stable terms the feedforward can undo (or that act on the measurement) cut the
+            held-out RMS by at least the search's least relative gain: the model is refitted
+            with them, and those of the mirror are written (enabled) into the parameters file.
         heldout_rms_before_m: with the registry's effects.
-        heldout_rms_after_m: with the written terms too, refitted alone (= before when none
-            is written).
+        heldout_rms_after_m: with the terms used too, refitted alone (= before when none).
         heldout_rms_all_terms_m: with every selected term, written or not.
         note: why nothing was searched or found, or "" (a sentence).
         library_size: terms tried.
@@ -128,9 +138,14 @@ class Discovery:
     heldout_rms_all_terms_m: float = float("nan")
 
     @property
+    def used(self) -> list[DiscoveredTerm]:
+        """Return the terms the model is refitted with (none unless ``added``)."""
+        return [t for t in self.terms if t.used] if self.added else []
+
+    @property
     def written(self) -> list[DiscoveredTerm]:
         """Return the terms written into the parameters file (none unless ``added``)."""
-        return [t for t in self.terms if t.written] if self.added else []
+        return [t for t in self.used if t.written]
 
     def as_dict(self) -> dict[str, object]:
         """Return calibration.json's ``discovered`` (es_calibration.output.schema)."""

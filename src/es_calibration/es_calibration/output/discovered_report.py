@@ -40,4 +40,10 @@ def discovery_lines(discovery: Discovery | None, basic_rms_m: float, floor_m: fl
         f"{', '.join(t.expression for t in written)}." if written
         else f"Nothing written to the parameters file: {discovery.note or 'no term'}."
     )
+    metrology = [t for t in discovery.used if not t.written]
+    if metrology:
+        text.append(
+            f"Errors of the measurement, not of the mirror (the model is fitted without them, "
+            f"the feedforward leaves them; correct the metrology): "
+            f"{', '.join(t.expression for t in metrology)}.")
     return [*text, ""]

@@ -54,7 +54,9 @@ residual's autocorrelation)::
                      windows on a record longer than the search budget),
       "discovered": {"searched", "terms": [{"name", "expression", "coefficient", "unit",
                      "share", "stable", "halves", "mechanism", "side", "acts_on"
-                     ("displacement", "drive" or "temperature"), "compensable"}],
+                     ("displacement", "drive", "temperature" or "measurement"),
+                     "compensable", "used" (the model is refitted with it), "written"
+                     (in the parameters file: used, and not of the measurement)}],
                      "added", "heldout_rms_before_m", "heldout_rms_after_m",
                      "heldout_rms_all_terms_m" (screening block, held-out rows: registry
                      model, + the terms written, + every selected term), "note",
