@@ -175,23 +175,29 @@ def markdown(results: Sequence[LoopResult]) -> list[str]:
     return lines
 
 
+def write_outputs(results: Sequence[LoopResult], out: Path) -> Path:
+    """Write ``unlisted_loop.md`` and ``.json`` into ``out``; return the markdown's path."""
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / "unlisted_loop.md"
+    path.write_text("\n".join(markdown(results)) + "\n")
+    document: dict[str, Any] = {"results": [asdict(r) for r in results]}
+    (out / "unlisted_loop.json").write_text(json.dumps(document, indent=2) + "\n")
+    return path
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the families and write the table."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("-o", "--output", type=Path, default=Path("out/unlisted_loop"))
     parser.add_argument("--families", nargs="+", default=list(FAMILIES), choices=FAMILIES)
     args = parser.parse_args(argv)
-    args.output.mkdir(parents=True, exist_ok=True)
     results = []
     with tempfile.TemporaryDirectory(prefix="bench_unlisted_loop_") as tmp:
         for family in (None, *args.families):
             results.append(run_family(family, Path(tmp)))
             print("\n".join(markdown(results)[-1:]), flush=True)
-    table = markdown(results)
-    (args.output / "unlisted_loop.md").write_text("\n".join(table) + "\n")
-    document: dict[str, Any] = {"results": [asdict(r) for r in results]}
-    (args.output / "unlisted_loop.json").write_text(json.dumps(document, indent=2) + "\n")
-    print("\n".join(table))
+    write_outputs(results, args.output)
+    print("\n".join(markdown(results)))
     return 0
 
 

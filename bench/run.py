@@ -10,14 +10,16 @@ Sections (``--only``): ``kernels`` (bench_kernels.py), ``convert`` (bench_conver
 ``recorder`` (the recorder's memory while it records a 32 x 32 lockstep run),
 ``calibrate`` (bench_calibrate.py), ``thermal`` (bench_thermal.py), ``calibration_loop``
 (bench_calibration_loop.py: characterise, calibrate, closed loop per effect family; writes
-``calibration_loop.md``/``.json``), ``import`` (bench_import.py: lab recordings into bags,
-time and peak memory), ``scale`` (bench_scale.py: the feedforward node at 66 x 66 / 2 kHz and
-128 x 128 / 1 kHz), ``lockstep_scale`` (bench_lockstep_scale.py: the closed loop at 32 x 32 and
-64 x 64), ``multihost`` (bench_multihost.py: 64 x 64 at 1 kHz across two network namespaces;
-needs root), ``selfsensing`` (bench_selfsensing.py, offline cores). Peak memory of every
-node process comes with the sections that start them. ``identify`` (the identification sweep
-of standgen.identify on standgen bags, its own report in OUT/identify) is not in the default
-selection: run it with ``--only identify``; nor is ``calibrate_stream``
+``calibration_loop.md``/``.json``), ``unlisted_loop`` (bench_unlisted_loop.py: the same on the
+independent stand with an effect in no registry list, the law alone, the registry, the
+discovered terms; writes ``unlisted_loop.md``/``.json``), ``import`` (bench_import.py: lab
+recordings into bags, time and peak memory), ``scale`` (bench_scale.py: the feedforward node at
+66 x 66 / 2 kHz and 128 x 128 / 1 kHz), ``lockstep_scale`` (bench_lockstep_scale.py: the closed
+loop at 32 x 32 and 64 x 64), ``multihost`` (bench_multihost.py: 64 x 64 at 1 kHz across two
+network namespaces; needs root), ``selfsensing`` (bench_selfsensing.py, offline cores). Peak
+memory of every node process comes with the sections that start them. ``identify`` (the
+identification sweep of standgen.identify on standgen bags, its own report in OUT/identify) is
+not in the default selection: run it with ``--only identify``; nor is ``calibrate_stream``
 (bench_calibrate_stream.py: streamed calibration of 64 x 64 and 128 x 128 bags of many GB).
 
 Every figure is the median of repeated runs with their min and max (``summary.md``: the
@@ -64,6 +66,7 @@ SECTIONS: dict[str, str] = {
     "calibrate": "sections.calibrate",
     "thermal": "sections.thermal",
     "calibration_loop": "sections.calibration_loop",
+    "unlisted_loop": "sections.unlisted_loop",
     "import": "sections.lab_import",
     "scale": "sections.scale",
     "lockstep_scale": "sections.lockstep_scale",
