@@ -18,7 +18,7 @@ from functools import cache
 
 import numpy as np
 import pytest
-from standgen import StandConfig, simulate
+from standgen import Recording, StandConfig, simulate
 from standgen.unlisted import AmplifierDroop, ThermalGradient, Unlisted
 
 from es_calibration.data.align import align
@@ -46,13 +46,8 @@ def _lowpass(x: np.ndarray, dt: float, tau: float) -> np.ndarray:
     return y
 
 
-@cache
-def _discovery(unlisted: bool) -> tuple[Discovery, float]:
-    record = simulate(CONFIG)
-    if unlisted:
-        extra = COEFFICIENT * _lowpass(record.command**2, 1.0 / CONFIG.rate_hz, TAU_S)
-        record = type(record)(**{**record.__dict__,
-                                 "displacement": record.displacement + extra})
+def _discover_on(record: Recording) -> Discovery:
+    """Run the discovery step on the residual of the basic law fitted on ``record``."""
     aligned = choose_stamp_convention(align(measured(record)))
     ws = Workspace(aligned, np.arange(aligned.n_actuators), aligned.grid)
     state = base_state(ws)
@@ -60,7 +55,17 @@ def _discovery(unlisted: bool) -> tuple[Discovery, float]:
     resid = held.displacement - state.model.evaluate(
         state.fit.local, state.fit.glob, held, jacobian=False).prediction
     floor = noise_floor(np.where(held.valid, resid, np.nan), np.diff(ws.score_rows) == 1)
-    return discover(aligned, aligned.grid, state, floor), CONFIG.noise_rms_m
+    return discover(aligned, aligned.grid, state, floor)
+
+
+@cache
+def _discovery(unlisted: bool) -> tuple[Discovery, float]:
+    record = simulate(CONFIG)
+    if unlisted:
+        extra = COEFFICIENT * _lowpass(record.command**2, 1.0 / CONFIG.rate_hz, TAU_S)
+        record = type(record)(**{**record.__dict__,
+                                 "displacement": record.displacement + extra})
+    return _discover_on(record), CONFIG.noise_rms_m
 
 
 def test_an_unlisted_lowpass_of_v_squared_is_found_stable_and_added() -> None:
@@ -91,14 +96,7 @@ def test_nothing_is_discovered_on_a_clean_record() -> None:
 def _unlisted_discovery(unlisted: Unlisted) -> tuple[Discovery, float]:
     """Discovery on a 4 x 4 stand record with an effect of standgen.unlisted (its own code)."""
     config = replace(CONFIG, rows=4, cols=4, seed=11, unlisted=unlisted)
-    aligned = choose_stamp_convention(align(measured(simulate(config))))
-    ws = Workspace(aligned, np.arange(aligned.n_actuators), aligned.grid)
-    state = base_state(ws)
-    _, held = ws.input_pair(0.0, None)
-    resid = held.displacement - state.model.evaluate(
-        state.fit.local, state.fit.glob, held, jacobian=False).prediction
-    floor = noise_floor(np.where(held.valid, resid, np.nan), np.diff(ws.score_rows) == 1)
-    return discover(aligned, aligned.grid, state, floor), config.noise_rms_m
+    return _discover_on(simulate(config)), config.noise_rms_m
 
 
 def test_a_thermal_gradient_is_found_as_a_temperature_term_across_the_grid() -> None:
