@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 
 from es_node_runtime.middleware import (
+    HEARTBEAT_PERIOD_S,
     PROFILES_VARIABLE,
     SHM_SEGMENT_BYTES,
     configure_middleware,
@@ -34,6 +35,20 @@ def test_the_profile_adds_a_shared_memory_transport_of_the_segment_size() -> Non
     used = [e.text for e in participant.iter(f"{NS}transport_id")]
     assert used == [descriptor.findtext(f"{NS}transport_id")]
     assert SHM_SEGMENT_BYTES >= 100 * GRID_128_BYTES  # 100 ms of 128 x 128 at 1 kHz
+
+
+def test_every_writer_of_the_profile_sends_heartbeats_within_the_period() -> None:
+    root = ET.fromstring(profile_xml())
+    (writer,) = root.iter(f"{NS}data_writer")
+    assert writer.get("is_default_profile") == "true"
+    period = writer.find(f"{NS}times/{NS}heartbeatPeriod")
+    assert period is not None
+    sec, nanosec = (int(period.findtext(f"{NS}{unit}") or -1) for unit in ("sec", "nanosec"))
+    seconds = sec + nanosec * 1e-9
+    assert seconds == pytest.approx(HEARTBEAT_PERIOD_S)
+    # a repair must come while a writer still holds the sample: the contract's history of
+    # 1,000 samples lasts 1 s at 1 kHz, Fast DDS's default heartbeat comes every 3 s
+    assert HEARTBEAT_PERIOD_S <= 0.1
 
 
 def test_a_segment_size_that_is_not_positive_is_refused() -> None:

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from es_msgs_py.diagnostics import Level
-from es_sim_plant.lockstep import BATCH_WALL, Lockstep, Phase
+from es_sim_plant.lockstep import BATCH_WALL, DELIVERY_WINDOW, LAGGING_SHARE, Lockstep, Phase
 from es_sim_plant.node_config import LockstepSettings
 from es_sim_plant.plant import Plant
 from es_sim_plant.scenario import load_scenario
@@ -47,6 +47,10 @@ class FakeIo:
     diagnostics: int = 0
     resumes: int = 0
     finishes: int = 0
+    #: What each wait for the readers' acknowledgements answers, in turn (then: delivered).
+    acknowledged: list[bool] = field(default_factory=list)
+    #: (step, limit) of each wait for the readers.
+    deliveries: list[tuple[int, float]] = field(default_factory=list)
 
     def publish_state(self) -> bool:
         due = not self.plant.done and self.plant.sensor_due()
@@ -73,6 +77,10 @@ class FakeIo:
 
     def resume_later(self) -> None:
         self.resumes += 1
+
+    def delivered(self, limit: float) -> bool:
+        self.deliveries.append((self.plant.k, limit))
+        return self.acknowledged.pop(0) if self.acknowledged else True
 
     def finished(self) -> None:
         self.finishes += 1
@@ -279,3 +287,45 @@ def test_real_time_steps_each_tick_and_counts_command_timeouts() -> None:
     core.realtime_tick()
     core.realtime_tick()
     assert phase(core) is Phase.DONE and io.finishes == 1 and core.plant.k == 3
+
+
+def _test_stand_over(windows: int, **settings: Any) -> tuple[Lockstep, FakeIo]:
+    """Return a test stand (no controller to pace it) of ``windows`` delivery windows + 1 step."""
+    rate = load_scenario("characterisation").control_rate
+    duration = (windows * DELIVERY_WINDOW + 1) / rate
+    core, io, _ = make("characterisation", duration, sync_temperature=False, **settings)
+    return core, io
+
+
+def test_a_free_running_plant_waits_for_its_readers_every_window() -> None:
+    core, io = _test_stand_over(3, delivery_timeout=2.0)
+    started(core)
+    while phase(core) is not Phase.DONE:
+        core.resume()
+    assert io.deliveries == [(k * DELIVERY_WINDOW, 2.0) for k in (1, 2, 3)]
+    assert core.counts["delivery_timeouts"] == 0 and not io.warnings
+
+
+def test_a_reader_that_does_not_acknowledge_is_counted_warned_of_once_and_waited_less() -> None:
+    core, io = _test_stand_over(4, delivery_timeout=2.0)
+    io.acknowledged = [False, False, True, True]
+    started(core)
+    while phase(core) is not Phase.DONE:
+        core.resume()
+    short = 2.0 * LAGGING_SHARE
+    # one full wait, brief checks while the reader lags, the full wait once it caught up
+    assert [limit for _, limit in io.deliveries] == [2.0, short, short, 2.0]
+    assert core.counts["delivery_timeouts"] == 2
+    assert [kind for kind, _ in io.warnings] == ["delivery"]
+    assert "did not acknowledge the last 250 steps within 2 s" in io.warnings[0][1]
+    (delivery,) = [row for row in core.statuses() if row[0] == "delivery"]
+    assert delivery[1] is Level.WARN and delivery[3]["delivery_timeouts"] == 2
+    assert "delivery_timeouts 2" in core.summary("stand")
+
+
+def test_a_delivery_timeout_of_zero_never_waits() -> None:
+    core, io = _test_stand_over(2, delivery_timeout=0.0)
+    started(core)
+    while phase(core) is not Phase.DONE:
+        core.resume()
+    assert not io.deliveries and core.plant.k == 2 * DELIVERY_WINDOW + 1

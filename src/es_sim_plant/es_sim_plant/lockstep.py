@@ -9,6 +9,14 @@ step waits up to ``start_timeout`` for the peers and the nodes in ``wait_ready``
 that nothing publishes is not waited for (WARN). A test stand (scenario with an excitation)
 plays its own voltage program instead of waiting for commands.
 
+Flow control: nothing else holds a plant back to its slowest reader (a test stand waits for
+no controller, a recorder for nothing), and a reliable writer keeps only the contract's
+newest ``DM_DEPTH`` samples, so a reader that falls further behind has lost the rest for good.
+Every :data:`DELIVERY_WINDOW` steps the plant therefore waits (``delivery_timeout`` wall s)
+until every reader has acknowledged what it published; a reader that does not (a stopped or
+dead process) is counted and warned of, and until one wait succeeds again the plant only
+checks briefly (:data:`LAGGING_SHARE` of the timeout), so a dead peer costs one timeout.
+
 :class:`Lockstep` holds the protocol's state and counts; the node feeds it events
 (:meth:`Lockstep.command`, :meth:`Lockstep.reject`, :meth:`Lockstep.temperature`,
 :meth:`Lockstep.watchdog`, :meth:`Lockstep.realtime_tick`, :meth:`Lockstep.resume`) and
@@ -27,13 +35,24 @@ import numpy as np
 
 from es_common.arrays import FloatArray
 from es_msgs_py.diagnostics import Level
-from es_sim_plant.node_config import LockstepSettings
+from es_sim_plant.node_config import DELIVERY_WINDOW, LockstepSettings
 from es_sim_plant.plant import Plant
 
-__all__ = ["BATCH_WALL", "GRAPH_PERIOD", "Lockstep", "LockstepIo", "Phase", "StatusRow"]
+__all__ = [
+    "BATCH_WALL",
+    "DELIVERY_WINDOW",
+    "GRAPH_PERIOD",
+    "LAGGING_SHARE",
+    "Lockstep",
+    "LockstepIo",
+    "Phase",
+    "StatusRow",
+]
 
 #: Longest stretch [s wall] the plant steps without returning to the executor.
 BATCH_WALL = 0.02
+#: Share of ``delivery_timeout`` the plant waits while a reader is known to lag.
+LAGGING_SHARE = 0.05
 #: How often the watchdog refreshes who publishes commands and temperatures [s wall].
 GRAPH_PERIOD = 0.2
 #: One diagnostic aspect: (aspect, level, message, key/values).
@@ -78,6 +97,9 @@ class LockstepIo(Protocol):
     def resume_later(self) -> None:
         """Call :meth:`Lockstep.resume` once the executor has served other callbacks."""
 
+    def delivered(self, limit: float) -> bool:
+        """Wait up to ``limit`` wall s until every reader acknowledged everything published."""
+
     def finished(self) -> None:
         """Wrap up the ended scenario: summary, final diagnostics and (maybe) exit."""
 
@@ -118,6 +140,7 @@ class Lockstep:
             "command_timeouts": 0,
             "no_command_source": 0,
             "sync_timeouts": 0,
+            "delivery_timeouts": 0,
         }
         self.last_reject = ""
         #: What each awaited node said last about its readiness.
@@ -129,6 +152,8 @@ class Lockstep:
         self._graph_checked = 0.0
         self._deadline = 0.0
         self._paced = False
+        self._delivered_at = 0
+        self._readers_lagging = False
         self._start_wall = clock()
         self._last_command_wall = self._start_wall
         self.run_wall_start = 0.0
@@ -248,6 +273,8 @@ class Lockstep:
                 if self._ahead_of_max_speed():
                     self._paced = True  # the watchdog resumes
                     return
+                if self.plant.k - self._delivered_at >= DELIVERY_WINDOW:
+                    self._wait_for_readers()
                 due = self.io.publish_state()
                 if due and settings.sync_temperature:
                     if self._has_temperature_source:
@@ -276,6 +303,26 @@ class Lockstep:
             if self._clock() > budget_end:
                 self.io.resume_later()  # continue after the executor served other callbacks
                 return
+
+    def _wait_for_readers(self) -> None:
+        """Let every reader acknowledge the last window before the plant publishes more."""
+        self._delivered_at = self.plant.k
+        timeout = self.settings.delivery_timeout
+        if timeout <= 0.0:
+            return
+        limit = timeout * LAGGING_SHARE if self._readers_lagging else timeout
+        if self.io.delivered(limit):
+            self._readers_lagging = False
+            return
+        self.counts["delivery_timeouts"] += 1
+        self._report_problem("delivery")
+        if not self._readers_lagging:
+            self.io.warn(
+                "delivery",
+                f"a reader did not acknowledge the last {DELIVERY_WINDOW} steps within "
+                f"{limit:g} s: stepping on (it may miss messages; its counts will say)",
+            )
+        self._readers_lagging = True
 
     def _ahead_of_max_speed(self) -> bool:
         if self.settings.max_speed <= 0.0:
@@ -371,6 +418,14 @@ class Lockstep:
                     "sim_time_s": float(self.plant.time),
                     "effects": ",".join(scenario.effects.enabled_names()) or "none",
                 },
+            ),
+            (
+                "delivery",
+                Level.WARN if new["delivery_timeouts"] else Level.OK,
+                "a reader did not acknowledge in time: it may miss messages"
+                if new["delivery_timeouts"] else "every reader keeping up",
+                {"delivery_timeouts": c["delivery_timeouts"],
+                 "delivery_timeout_s": self.settings.delivery_timeout},
             ),
         ]  # fmt: skip
         for aspect, level, _message, _kv in rows:

@@ -11,11 +11,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
+from es_msgs_py.topic_names import DM_DEPTH
 from es_node_runtime.param_spec import ParameterSpec, ParameterValues
 from es_sim_plant.effects import EFFECT_NAMES
 from es_sim_plant.scenario import Scenario, load_scenario, resolve_scenario
 
 __all__ = [
+    "DELIVERY_WINDOW",
     "SPECS",
     "LockstepSettings",
     "base_scenario",
@@ -29,6 +31,9 @@ __all__ = [
 RESONANCE_PARAMETER = "resonance"
 #: Prefix of the per-effect switches ``effects.<name>``.
 EFFECT_PREFIX = "effects."
+#: Lockstep steps between two waits for the readers' acknowledgements: a quarter of a
+#: writer's history, so a reader that acknowledges within the wait has lost nothing.
+DELIVERY_WINDOW = DM_DEPTH // 4
 
 
 def _check_scenario(value: object) -> str | None:
@@ -132,6 +137,16 @@ SPECS: tuple[ParameterSpec, ...] = (
         1.0,
         "Lockstep: wall seconds to wait for /dm/temperature before continuing.",
         low=0.001,
+        high=60.0,
+        read_only=True,
+    ),
+    ParameterSpec(
+        "delivery_timeout",
+        2.0,
+        f"Lockstep: every {DELIVERY_WINDOW} steps wait up to this many wall seconds for every "
+        "reader (a recorder) to acknowledge what the plant published, so that no writer's "
+        "history drops a message a reader still lacks (0: never wait).",
+        low=0.0,
         high=60.0,
         read_only=True,
     ),
@@ -281,6 +296,7 @@ class LockstepSettings:
     sync_temperature: bool = True
     command_timeout: float = 1.0
     sync_timeout: float = 1.0
+    delivery_timeout: float = 2.0
     start_timeout: float = 10.0
     wait_ready: tuple[str, ...] = ()
     start_subscribers: int = 0
@@ -303,6 +319,7 @@ def settings_from_parameters(values: ParameterValues) -> LockstepSettings:
         sync_temperature=values.get_bool("sync_temperature"),
         command_timeout=values.get_float("command_timeout"),
         sync_timeout=values.get_float("sync_timeout"),
+        delivery_timeout=values.get_float("delivery_timeout"),
         start_timeout=values.get_float("start_timeout"),
         wait_ready=tuple(values.get_strs("wait_ready")),
         start_subscribers=values.get_int("start_subscribers"),

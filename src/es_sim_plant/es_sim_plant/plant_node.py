@@ -15,7 +15,9 @@ Lockstep (default ``lockstep: true``), per control step k, exactly as docs/archi
 first step waits (up to ``start_timeout``) for the peers' endpoints and for every node in
 ``wait_ready`` to report "<node>: ready" OK on /diagnostics. When
 nothing publishes the awaited topic at all, the plant does not wait for it (WARN), so a
-crashed controller costs no timeouts. After the last step it publishes the final clock and
+crashed controller costs no timeouts. Every 250 steps it waits (``delivery_timeout`` wall s)
+for every reader to acknowledge what it published, so a lagging recorder is never outrun by
+more than a writer's history. After the last step it publishes the final clock and
 displacement, logs a summary and, with ``exit_when_done``, exits 0.
 
 Real time (``lockstep: false``): once the peers are present as in lockstep (or after
@@ -50,6 +52,7 @@ from es_msgs_py.diagnostics import make_array, make_status, published_status, re
 from es_node_runtime.node_main import (
     PublishCounter,
     deliver_and_report,
+    deliver_pending,
     executor_spec,
     run_node,
     usage_text,
@@ -291,6 +294,10 @@ class PlantNode(Node):
     def resume_later(self) -> None:
         """Resume stepping after the executor served other callbacks."""
         self._kick.reset()
+
+    def delivered(self, limit: float) -> bool:
+        """Wait up to ``limit`` wall s until every reader acknowledged everything published."""
+        return not deliver_pending(self, limit)
 
     def finished(self) -> None:
         """Log the summary, publish the final diagnostics and, if asked, exit."""
