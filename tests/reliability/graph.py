@@ -17,6 +17,7 @@ import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import IO
 
 import numpy as np
@@ -32,8 +33,10 @@ from rosgraph_msgs.msg import Clock as ClockMsg
 from std_msgs.msg import Float64MultiArray
 from support.ros import READY_TIMEOUT, STOP_TIMEOUT, NotReadyError, poll_until, unmatched
 
+from es_bringup.invariants import recorder_counts_from_log
 from es_msgs_py import topics
 from es_msgs_py.arrays import LayoutError, msg_to_grid
+from es_msgs_py.bag import read_bag
 from es_physics.laws import DEFAULT_V_LIMIT
 
 #: Estimates outside this range [degC] are nonsense for a mirror (the thermal node's sensor
@@ -86,6 +89,24 @@ class Proc:
             if f"published {topic}: " in line:
                 return int(line.rsplit(":", 1)[1])
         return None
+
+
+def assert_recorded_everything(
+    bag: Path, plant: Proc, recorder: Proc, recorded: Sequence[str], context: str = ""
+) -> None:
+    """Assert that the bag holds every message of ``recorded`` the plant logged it published.
+
+    The recorder's closing lines must name no hole either: it knows of one from the counts
+    the plant announced on /diagnostics, which sequence numbers cannot show at a run's end.
+    """
+    closing = recorder_counts_from_log(recorder.output().splitlines())
+    assert all(t in closing and not closing[t].not_received for t in recorded), (
+        f"{context}\n{recorder.output()[-1200:]}")
+    counts = read_bag(bag, recorded)
+    held = {t: (plant.published(t), len(counts[t])) for t in recorded}
+    assert all(sent == got for sent, got in held.values()), (
+        f"{context}\n(published, recorded): {held}\nplant: {plant.output()[-800:]}\n"
+        f"recorder: {recorder.output()[-1200:]}")
 
 
 @dataclass
