@@ -25,6 +25,12 @@ For each grid size N (a near-square R x C grid with per-actuator parameter maps,
 - ``observer_numpy`` (``--numpy-too``): the observer on the pure-numpy path
   (``kernels.Backend.NUMPY``) beside the default (fused when numba is importable; see
   ``ES_DM_FEEDFORWARD_KERNELS`` in :mod:`es_feedforward.kernels`);
+- ``discovered_none_10hz``, ``discovered_output_10hz`` and ``discovered_drive_10hz``: the
+  hyperbolic inverse following the 10 Hz sine at 2 kHz (time advancing, so rates are real)
+  without a discovered term, with an output-side one (a low-pass of V^2, undone from the set
+  point) and with a drive-side one (an amplifier droop with the commands' rate, solved by
+  the fixed-point inverse of the augmented law, up to ``FIXED_POINT_STEPS`` steps of the
+  terms over the grid);
 - ``update_temperature``: ``Feedforward.update_temperature`` (once per temperature message).
 
 Each figure is the best of several repeats of this thread's CPU time (so other processes on
@@ -45,8 +51,10 @@ from functools import partial
 
 import numpy as np
 
+from es_feedforward.compensation import CompensationParams
 from es_feedforward.feedforward import Feedforward, FeedforwardConfig, Mode
 from es_feedforward.kernels import Backend, observer_command
+from es_physics.effects.discovered import Carrier, Term, values_from_terms
 from es_physics.laws import DEFAULT_V_LIMIT, CompiledLaws
 from es_physics.params import ActuatorParams
 
@@ -55,6 +63,14 @@ DEFAULT_SIZES = (1, 144, 1024, 4096, 16384)
 FLOOR_SUFFIX = "_floor"
 #: CPU time of this thread: time the process waits for a core (other load) does not count.
 CPU_TIMER = time.thread_time
+#: Set-point period of the moving workloads [s] (2 kHz).
+FRAME_PERIOD = 1.0 / 2000.0
+#: Discovered terms of the compensation kernels: an output-side low-pass of V^2 [m/V^2,
+#: tau 0.4 s] and a drive-side amplifier droop [V/(V V/s)] that stops growing at 4 kV/s.
+DISCOVERED = {
+    "output": Term(2e-13, (11, 0.4)),
+    "drive": Term(-1.2e-5, (1, 0.0), (15, 4000.0), Carrier.DRIVE),
+}
 
 
 @dataclass(frozen=True)
@@ -119,6 +135,18 @@ def _cycling(ff: Feedforward, trajectory: np.ndarray) -> Callable[[], object]:
     frames = itertools.cycle(list(trajectory))
     ff.command(trajectory[-1], 0.0)  # start from the frame before the first
     return lambda: ff.command(next(frames), 0.0)
+
+
+def _cycling_in_time(ff: Feedforward, trajectory: np.ndarray) -> Callable[[], object]:
+    """Return a call that commands the next frame of ``trajectory``, one FRAME_PERIOD later."""
+    frames = itertools.cycle(list(trajectory))
+    clock = itertools.count(1)
+    ff.command(trajectory[-1], 0.0)
+
+    def call() -> object:
+        return ff.command(next(frames), next(clock) * FRAME_PERIOD)
+
+    return call
 
 
 def _update_counts(config: FeedforwardConfig, T: np.ndarray, trajectory: np.ndarray) -> list[int]:
@@ -212,6 +240,13 @@ def bench_kernels(
                 plain = Feedforward(ff.config, backend=Backend.NUMPY)
                 plain.update_temperature(T, 0.0)
                 kernels[f"{mode.value}_numpy"] = partial(plain.command, z, 0.0)
+        sine = _moving_setpoints(rng, shape)["10hz"]
+        for kind, terms in (("none", []), *((k, [t]) for k, t in DISCOVERED.items())):
+            compensation = CompensationParams().replaced(values_from_terms(terms))
+            ff = Feedforward(FeedforwardConfig(shape=shape, params=params,
+                                               compensation=compensation))
+            ff.update_temperature(T, 0.0)
+            kernels[f"discovered_{kind}_10hz"] = _cycling_in_time(ff, sine)
         ff = Feedforward(FeedforwardConfig(shape=shape, params=params))
         kernels["update_temperature"] = partial(ff.update_temperature, T, 0.0)
         for name, call in kernels.items():

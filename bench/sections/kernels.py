@@ -31,5 +31,8 @@ def run(context: Context) -> None:
         "kernel_observer_*_floor: the numpy SIMD passes its arithmetic needs for the same "
         "updates (sqrt, a tanh per update, a divide per step and for the model error), "
         "nothing else. "
+        "kernel_discovered_<none|output|drive>_10hz: the hyperbolic inverse following a "
+        "10 Hz sine at 2 kHz without a discovered term, with an output-side one and with a "
+        "drive-side one (the fixed-point inverse of the augmented law). "
         "ratio = time / one np.sqrt over the same N, measured alternately in the same run."
     )
