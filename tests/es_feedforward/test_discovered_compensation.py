@@ -14,6 +14,7 @@ import numpy as np
 from es_feedforward.compensation import CompensationParams
 from es_feedforward.feedforward import Feedforward, FeedforwardConfig
 from es_physics.effects.discovered import (
+    SOLVE_TOLERANCE_V,
     Carrier,
     DiscoveredCompensation,
     Term,
@@ -156,6 +157,29 @@ def test_a_drive_term_that_does_not_settle_sends_the_first_step_and_counts_it() 
     np.testing.assert_allclose(out, 3.0 * target)  # target - (-2 target): the first step
     assert stage.unconverged == 4
     assert stage.counters() == {"drive_out_of_reach": 4}
+
+
+def test_a_drive_term_that_settles_is_solved_within_the_tolerance() -> None:
+    shape = (2, 3)
+    # the voltage in effect is 0.95 of the command: each step shrinks the miss 20-fold, so
+    # the steps settle (within 1e-6 V of a 6 V first miss) in 6 of FIXED_POINT_STEPS
+    gain = -0.05
+    stage = DiscoveredCompensation([Term(gain, (1, 0.0), None, Carrier.DRIVE)], shape)
+    target = np.linspace(10.0, 120.0, 6).reshape(shape)
+    out = stage.invert_drive(target, 0.0)
+    np.testing.assert_allclose(out + gain * out, target, rtol=0.0, atol=SOLVE_TOLERANCE_V)
+    assert stage.unconverged == 0
+
+
+def test_a_term_of_non_finite_value_counts_as_zero() -> None:
+    shape = (2, 2)
+    # 1 nm per degC above 45 degC: an inf or NaN temperature makes the term non-finite,
+    # and the set point passes unchanged there
+    stage = DiscoveredCompensation([Term(1e-9, (3, 45.0))], shape)
+    z = np.full(shape, 80e-9)
+    T = np.array([[50.0, np.inf], [np.nan, 46.0]])
+    out = stage.setpoint(z, T, 0.0)
+    np.testing.assert_allclose(out, z - 1e-9 * np.array([[5.0, 0.0], [0.0, 1.0]]))
 
 
 def test_terms_keep_where_they_act_through_the_parameters_file() -> None:

@@ -446,9 +446,10 @@ class DiscoveredCompensation(Compensator):
         one's term (a per-sample loop of gain c V / dt, near 1 for a strong droop): on the
         independent stand that amplified the slightest mismatch of the rate's definition
         (closed-loop error 2.2 x that of no compensation). The rest of the terms (V, the
-        neighbours' commands) are solved by ``FIXED_POINT_STEPS`` fixed-point steps; where
-        they do not settle within ``SOLVE_TOLERANCE_V`` (a term of gain near or beyond 1),
-        the first step's command goes out, counted in :attr:`unconverged`.
+        neighbours' commands) are solved by fixed-point steps, at most ``FIXED_POINT_STEPS``
+        (fewer once every actuator settled within ``SOLVE_TOLERANCE_V``); where they do not
+        settle (a term of gain near or beyond 1), the first step's command goes out, counted
+        in :attr:`unconverged`.
         """
         if not self.reshapes_drive:
             return voltage
@@ -461,9 +462,13 @@ class DiscoveredCompensation(Compensator):
         self._law = (t, target.copy())
         first = target - self._sum(Carrier.DRIVE, t, v=target, T=T, rate=rate)
         v = first
-        for _ in range(FIXED_POINT_STEPS - 1):
-            v = target - self._sum(Carrier.DRIVE, t, v=v, T=T, rate=rate)
-        miss = v + self._sum(Carrier.DRIVE, t, v=v, T=T, rate=rate) - target
+        for step in range(FIXED_POINT_STEPS):
+            following = target - self._sum(Carrier.DRIVE, t, v=v, T=T, rate=rate)
+            miss = v - following  # v + terms(v) - voltage: how far v is from the solution
+            # a step's change is the last iterate's miss: stop once every actuator settled
+            if step == FIXED_POINT_STEPS - 1 or np.all(np.abs(miss) <= SOLVE_TOLERANCE_V):
+                break
+            v = following
         bad = ~(np.abs(miss) <= SOLVE_TOLERANCE_V)
         if bad.any():
             self.unconverged += int(bad.sum())
