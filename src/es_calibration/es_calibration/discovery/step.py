@@ -315,12 +315,16 @@ def _terms(sets: _Sets, chosen: list[Term], writable: list[Term]) -> Discovery:
     found, path, count = _describe(sets, chosen)
     before = float(np.sqrt(path[0] / max(count, 1)))  # with the law refitted alike
     every = float(np.sqrt(path[-1] / max(count, 1)))
-    described = found if writable == chosen else _describe(sets, writable)[0] if writable else []
+    described, described_path = (
+        (found, path) if writable == chosen
+        else _describe(sets, writable)[:2] if writable else ([], []))
     kept = [(t.acts_on, t.factors) for t in described if t.stable]
     used: list[DiscoveredTerm] = []
     after = before
     while kept:  # refitted alone, a term may lose its stability: refit without it
-        refit, kept_path, _ = _describe(sets, kept)
+        refit, kept_path = (
+            (described, described_path) if len(kept) == len(described)  # all: the same fit
+            else _describe(sets, kept)[:2])
         still = [(t.acts_on, t.factors) for t in refit if t.stable]
         if len(still) == len(kept):
             used = [replace(t, used=True) for t in refit]
