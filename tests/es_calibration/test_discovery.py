@@ -8,7 +8,8 @@ near 0.5 s), find it stable on both halves, cut the held-out error towards the n
 and mark it for the parameters file; on the clean record it must find nothing. Two effects of
 standgen.unlisted (the stand's own code): a thermal gradient (the interior's temperature
 behind its neighbours' rate, deeper from the rim) must come out as a temperature term of the
-neighbours' dT/dt and the rim depth, an amplifier's droop as a drive term of V |dV/dt|.
+neighbours' dT/dt and the rim depth, an amplifier's droop as a drive term of V |dV/dt|, a
+slew-rate limit as the law refitted behind a rate limiter of the right limit.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ from functools import cache
 import numpy as np
 import pytest
 from standgen import Recording, StandConfig, simulate
-from standgen.unlisted import AmplifierDroop, ThermalGradient, Unlisted
+from standgen.unlisted import AmplifierDroop, SlewLimit, ThermalGradient, Unlisted
 
 from es_calibration.data.align import align
 from es_calibration.discovery import Discovery, discover
@@ -121,3 +122,18 @@ def test_an_amplifier_droop_is_found_on_the_drive_and_written() -> None:
     assert {c for c, _ in drive[0].factors} == {1, 15}  # V x |dV/dt|
     assert drive[0].coefficient < 0 and drive[0].unit == "V/(V V/s)"
     assert found.heldout_rms_after_m < 0.8 * found.heldout_rms_before_m
+
+
+def test_a_slew_rate_limit_is_found_behind_the_drive_and_the_law_refitted() -> None:
+    limit = 4000.0
+    found, noise = _unlisted_discovery(Unlisted(slew_limit=SlewLimit(limit)))
+    assert found.added, found.note
+    term = found.written[0]
+    assert term.factors[0][0] == 19 and term.acts_on is Carrier.DRIVE
+    assert term.factors[0][1] == pytest.approx(limit, rel=0.02)
+    assert term.stable and term.parameter_halves is not None
+    assert all(h == pytest.approx(limit, rel=0.05) for h in term.parameter_halves)
+    assert not term.compensable and "slew-rate limit" in term.mechanism
+    # measured: 2.16 x the true noise before, 1.00 x after (limit 4001 V/s)
+    assert found.heldout_rms_before_m > 1.5 * noise
+    assert found.heldout_rms_after_m < 1.1 * noise

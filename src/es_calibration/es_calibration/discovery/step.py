@@ -6,7 +6,9 @@ stands above the noise floor by ``NOISE_RATIO_LIMIT`` (where the residual counts
 and by the search's information criterion. Terms are fitted on the
 training rows and chosen on the held-out ones (regression.py); the time constants of the
 selected low-passes are then refined on the training rows. Every term's coefficient is
-refitted on each half of the record (time order) for its stability.
+refitted on each half of the record (time order) for its stability. Where the terms leave
+the held-out RMS above the floor, a slew-rate limit behind the drive is searched too (the
+law refitted behind it, limit.py) and takes the terms' place where it explains more.
 """
 
 from __future__ import annotations
@@ -19,6 +21,12 @@ import numpy as np
 
 from es_calibration.data.align import AlignedData
 from es_calibration.discovery.library import Library, LibraryTerm, Rows, columns, usable
+from es_calibration.discovery.limit import (
+    behind_limit,
+    limit_terms,
+    rate_limited_command,
+    search_rate_limit,
+)
 from es_calibration.discovery.regression import Gram, select, stable
 from es_calibration.discovery.terms import DiscoveredTerm, Discovery, FactorKey
 from es_calibration.model.composite import FitInputs
@@ -260,8 +268,25 @@ def discover(aligned: AlignedData, grid: tuple[int, int], state: ModelState,
             train, held_gram, n_eff, allowed=allowed).chosen])
     result = _terms(sets, chosen, writable)
     result.library_size = len(terms)
+    if not (result.added and result.heldout_rms_after_m <= NOISE_RATIO_LIMIT * noise_floor_m):
+        result = _with_rate_limit(ws, state, result)
     result.seconds = time.perf_counter() - clock
     return result
+
+
+def _with_rate_limit(ws: Workspace, state: ModelState, linear: Discovery) -> Discovery:
+    """Return ``linear``, or the slew-rate limit where it explains more (limit.py).
+
+    The limit wins when accepted and its held-out RMS after, relative to before, is lower
+    than the library terms' (each on its own rows); the library's terms stay reported.
+    """
+    found = search_rate_limit(ws, state)
+    if found is None or not found.accepted:
+        return linear
+    ratio = found.heldout_rms_after_m / found.heldout_rms_before_m
+    if linear.added and linear.heldout_rms_after_m / linear.heldout_rms_before_m <= ratio:
+        return linear
+    return found.discovery(linear)
 
 
 def _usable(term: Term) -> bool:
@@ -370,15 +395,22 @@ def refit_with_terms(ws: Workspace, state: ModelState, discovery: Discovery,
     The step scores a term as if fitted jointly with the model (its coefficients would take
     up part of it otherwise); the parameters file carries both, so the model's values must
     be those of that joint fit: the same model refitted on the displacement minus the
-    terms. ``ws`` holds the grid's actuators (the block is the grid).
+    terms. ``ws`` holds the grid's actuators (the block is the grid). A slew-rate limit
+    moves the voltage instead (the model sees the command through the limiter).
     """
     used = discovery.used
     if not used:
         return state
     library = Library(ws.aligned, ws.grid, placement=placement)
     train, held = ws.input_pair(state.delay_s, state.play_thresholds)
+    limits = limit_terms(discovery)
+    if limits:  # a rate limit moves the model's voltage (limit.py)
+        limited = rate_limited_command(ws.aligned, limits[0].factors[0][1])
+        train, held = (behind_limit(ws.aligned, train, ws.fit_rows, limited),
+                       behind_limit(ws.aligned, held, ws.score_rows, limited))
+    others = [t for t in used if t not in limits]
     moved = [replace(inputs, displacement=inputs.displacement - term_displacement(
-        library, state, inputs, rows, used)) for inputs, rows in
-        ((train, ws.fit_rows), (held, ws.score_rows))]
+        library, state, inputs, rows, others)) if others else inputs
+        for inputs, rows in ((train, ws.fit_rows), (held, ws.score_rows))]
     return fit_state(state.model, moved[0], moved[1], state.fit.local, state.fit.glob,
                      delay_s=state.delay_s, thresholds=state.thresholds)

@@ -26,6 +26,8 @@ class DiscoveredTerm:
         used: the model is refitted with it and the RMS after counts it (when the step adds
             the terms); it is written into the parameters file unless it acts on the
             measurement (:attr:`written`).
+        parameter_halves: its factor's parameter fitted on each half of the record, where
+            the step searches it there (a slew-rate limit [V/s]), else None.
 
     """
 
@@ -37,6 +39,7 @@ class DiscoveredTerm:
     stable: bool
     acts_on: Carrier = Carrier.DISPLACEMENT
     used: bool = False
+    parameter_halves: tuple[float, float] | None = None
 
     @property
     def expression(self) -> str:
@@ -105,6 +108,8 @@ class DiscoveredTerm:
             "compensable": self.compensable,
             "used": self.used,
             "written": self.written,
+            "parameter_halves": (None if self.parameter_halves is None
+                                 else list(self.parameter_halves)),
         }
 
 

@@ -56,7 +56,9 @@ residual's autocorrelation)::
                      "share", "stable", "halves", "mechanism", "side", "acts_on"
                      ("displacement", "drive", "temperature" or "measurement"),
                      "compensable", "used" (the model is refitted with it), "written"
-                     (in the parameters file: used, and not of the measurement)}],
+                     (in the parameters file: used, and not of the measurement),
+                     "parameter_halves" (a slew-rate limit's [V/s] on each half, else
+                     null)}],
                      "added", "heldout_rms_before_m", "heldout_rms_after_m",
                      "heldout_rms_all_terms_m" (screening block, held-out rows: registry
                      model, + the terms written, + every selected term), "note",

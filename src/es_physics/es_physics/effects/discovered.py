@@ -26,7 +26,10 @@ drive term may also depend on the present command (V, its rate, the neighbours' 
 the command is then solved numerically from the voltage the law asks for (fixed-point steps
 per actuator, with the rate taken on the law's voltages; where they do not settle, the
 first step's command goes out, counted). A displacement term of the present
-command is reported but never written.
+command is reported but never written. A drive term of a slew-rate limit (factor 19, the
+command through a rate limiter minus the command, coefficient 1) is written for the model
+(the law is fitted to the voltage the amplifier really gave) and never undone: within the
+limit there is nothing to undo, beyond it no command makes the amplifier faster.
 """
 
 from __future__ import annotations
@@ -111,6 +114,9 @@ FACTORS: Final[tuple[Factor, ...]] = (
     Factor(18, "y", "", "", "output", True,
            "the position along the grid's columns (-1 .. 1): a gradient across the grid from one "
            "side"),
+    Factor(19, "RL(V)-V", "V", "limit [V/s]", "drive", False,
+           "the command through a rate limiter minus the command: an amplifier's slew-rate "
+           "limit (its output follows the command at most this fast)"),
 )
 BY_CODE: Final[dict[int, Factor]] = {f.code: f for f in FACTORS}
 #: Terms the parameters file can carry.
@@ -119,6 +125,8 @@ SLOTS: Final = 3
 PRESENT_COMMAND: Final = frozenset({1, 2, 7, 15})
 #: Factors of the modelled displacement (unknown where the law's temperature or drive is solved).
 OF_DISPLACEMENT: Final = frozenset({6, 13, 14})
+#: Factors of a limit no command beats (see :attr:`Term.compensable`).
+LIMITS: Final = frozenset({19})
 #: Factors fixed by an actuator's place in the grid.
 POSITION: Final = frozenset({16, 17, 18})
 #: A drive term's inverse: fixed-point steps, and how close [V] the command must bring the
@@ -131,6 +139,25 @@ def rate_magnitude(rate: FloatArray, limit: float) -> FloatArray:
     """Return factor 15: |rate| up to ``limit`` (no limit when ``limit`` <= 0)."""
     magnitude = np.abs(rate)
     return np.minimum(magnitude, limit) if limit > 0 else magnitude
+
+
+def rate_limited(command: FloatArray, period: float, limit: float) -> FloatArray:
+    """Return ``command`` (N, ...) through a rate limiter: each sample moves at most limit x period.
+
+    The limiter starts on the first sample (factor 19 is this minus the command). A Python
+    loop over the samples, vectorised over the rest; the calibration runs a compiled twin
+    on long records (es_calibration.model.rate_limit_loop, the same numbers).
+    """
+    x = np.asarray(command, np.float64)
+    out = np.empty_like(x)
+    if x.shape[0] == 0:
+        return out
+    step = limit * period
+    state = x[0].copy()
+    for i in range(x.shape[0]):
+        state += np.clip(x[i] - state, -step, step)
+        out[i] = state
+    return out
 
 
 class Carrier(enum.IntEnum):
@@ -216,6 +243,8 @@ class Term:
         """Whether the feedforward can undo the term (see the module docstring)."""
         codes = {c for c, _ in self.factors}
         if self.acts_on is Carrier.MEASUREMENT:  # the mirror is right: nothing to undo
+            return False
+        if codes & LIMITS:  # within the limit nothing to undo, beyond it no command is faster
             return False
         if self.acts_on is Carrier.DRIVE:
             return not codes & OF_DISPLACEMENT
