@@ -43,8 +43,10 @@ from es_feedforward.feedforward import Feedforward, FeedforwardConfig, Mode
 from es_feedforward.param_file import read_params_file
 from es_physics.effects.discovered import Carrier, terms_from_values
 
-#: Unlisted families the feedforward can undo (issue 34's "where the term is compensable").
-FAMILIES: Final = ("amplifier_droop", "thermal_gradient", "creep")
+#: Unlisted families the feedforward can undo (issue 34's "where the term is compensable"),
+#: and the slew-rate limit: nothing to undo within the limit, but the law calibrated
+#: behind it (its row shows what the refitted law brings; both ways have the same law).
+FAMILIES: Final = ("amplifier_droop", "thermal_gradient", "creep", "slew_limit")
 GRID: Final = (4, 4)
 RATE_HZ: Final = 500.0
 DURATION_S: Final = 30.0

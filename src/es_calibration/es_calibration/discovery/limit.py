@@ -94,7 +94,8 @@ def behind_limit(aligned: AlignedData, inputs: FitInputs, rows: IndexArray,
     return replace(inputs, voltage=inputs.voltage + (limited[at] - command[at]).T)
 
 
-def _rms(residual: FloatArray) -> float:
+def rms(residual: FloatArray) -> float:
+    """Return the RMS of the finite values (NaN when none)."""
     finite = residual[np.isfinite(residual)]
     return float(np.sqrt(np.mean(finite**2))) if finite.size else float("nan")
 
@@ -162,7 +163,7 @@ def search_rate_limit(ws: Workspace, state: ModelState) -> LimitFit | None:
     if typical <= 0.0:
         return None
     train_in, held_in = ws.input_pair(state.delay_s, state.play_thresholds)
-    plain = _rms(heldout_residual(state, train_in))
+    plain = rms(heldout_residual(state, train_in))
 
     def moved(limit: float) -> tuple[FitInputs, FitInputs]:
         limited = rate_limited_command(aligned, limit)
@@ -170,7 +171,7 @@ def search_rate_limit(ws: Workspace, state: ModelState) -> LimitFit | None:
                 behind_limit(aligned, held_in, ws.score_rows, limited))
 
     grid = typical * np.asarray(GRID_FACTORS)
-    screen = [_rms(heldout_residual(state, moved(limit)[0])) for limit in grid]
+    screen = [rms(heldout_residual(state, moved(limit)[0])) for limit in grid]
     best = int(np.nanargmin(screen))
     if best == grid.size - 1 or not screen[best] < (1.0 - MIN_RELATIVE_GAIN) * plain:
         return None
@@ -186,7 +187,7 @@ def search_rate_limit(ws: Workspace, state: ModelState) -> LimitFit | None:
 
     def training_rms(log_limit: float) -> float:
         new, train, _ = refit(float(np.exp(log_limit)))
-        return _rms(heldout_residual(new, train))
+        return rms(heldout_residual(new, train))
 
     found = minimize_scalar(
         training_rms, bounds=(float(np.log(lo)), float(np.log(hi))), method="bounded",
@@ -197,7 +198,7 @@ def search_rate_limit(ws: Workspace, state: ModelState) -> LimitFit | None:
     new, _, held = refit(limit)
     before_res = heldout_residual(state, held_in)
     after_res = heldout_residual(new, held)
-    before, after = _rms(before_res), _rms(after_res)
+    before, after = rms(before_res), rms(after_res)
     n_eff = effective_count(ws, state, held_in)
     sse = (float(np.nansum(before_res**2)), float(np.nansum(after_res**2)))
     accepted = (information_delta(sse[0], sse[1], n_eff, 1) < 0
@@ -232,7 +233,7 @@ def _halves(ws: Workspace, state: ModelState, train_in: FitInputs, limit: float
     limits, scales = [], []
     for half in (~late, late):
         def half_rms(x: float, half: np.ndarray = half) -> float:
-            return _rms((measured - behind(float(np.exp(x))))[:, half])
+            return rms((measured - behind(float(np.exp(x))))[:, half])
 
         found = minimize_scalar(half_rms, bounds=(float(np.log(limit / HALF_BRACKET)),
                                                   float(np.log(limit * HALF_BRACKET))),
@@ -246,6 +247,6 @@ def _halves(ws: Workspace, state: ModelState, train_in: FitInputs, limit: float
     return (limits[0], limits[1]), (scales[0], scales[1])
 
 
-def limit_terms(discovery: Discovery) -> list[DiscoveredTerm]:
-    """Return the used terms of a rate limit (they move the model's voltage)."""
-    return [t for t in discovery.used if any(c in LIMITS for c, _ in t.factors)]
+def limit_terms(terms: list[DiscoveredTerm]) -> list[DiscoveredTerm]:
+    """Return the terms of a rate limit among ``terms`` (they move the model's voltage)."""
+    return [t for t in terms if any(c in LIMITS for c, _ in t.factors)]

@@ -25,6 +25,7 @@ from es_calibration.discovery.limit import (
     behind_limit,
     limit_terms,
     rate_limited_command,
+    rms,
     search_rate_limit,
 )
 from es_calibration.discovery.regression import Gram, select, stable
@@ -268,10 +269,34 @@ def discover(aligned: AlignedData, grid: tuple[int, int], state: ModelState,
             train, held_gram, n_eff, allowed=allowed).chosen])
     result = _terms(sets, chosen, writable)
     result.library_size = len(terms)
+    if result.added and any(t.acts_on is Carrier.DRIVE for t in result.used):
+        result = _judged_exactly(ws, state, result, placement)
     if not (result.added and result.heldout_rms_after_m <= NOISE_RATIO_LIMIT * noise_floor_m):
         result = _with_rate_limit(ws, state, result)
     result.seconds = time.perf_counter() - clock
     return result
+
+
+def _judged_exactly(ws: Workspace, state: ModelState, result: Discovery,
+                    placement: tuple[IndexArray, tuple[int, int]] | None) -> Discovery:
+    """Return ``result`` with its RMS before and after taken with the drive terms exact.
+
+    The selection scores a drive term through the law's slope; the feedforward undoes it
+    exactly (V plus the terms), so the terms are judged that way: the law refitted on the
+    moved voltage, every held-out row of the block (on the independent stand's amplifier
+    droop: 1.06 nm through the slope, see docs/calibration.md for the exact figure).
+    """
+    plain = ws.input_pair(state.delay_s, state.play_thresholds)[1]
+    train, held = moved_inputs(ws, state, result.used, placement)
+    new = fit_state(state.model, train, held, state.fit.local, state.fit.glob,
+                    delay_s=state.delay_s, thresholds=state.thresholds)
+    before = rms(heldout_residual(state, plain))
+    after = rms(heldout_residual(new, held))
+    if after < (1.0 - MIN_RELATIVE_GAIN) * before:
+        return replace(result, heldout_rms_before_m=before, heldout_rms_after_m=after)
+    return replace(result, added=False, heldout_rms_after_m=result.heldout_rms_before_m,
+                   note="the drive terms, undone exactly with the law refitted, do not cut "
+                        "the held-out error: reported, not added")
 
 
 def _with_rate_limit(ws: Workspace, state: ModelState, linear: Discovery) -> Discovery:
@@ -387,6 +412,47 @@ def term_displacement(library: Library, state: ModelState, inputs: FitInputs,
     return np.asarray(np.where(np.isfinite(total), total, 0.0), np.float64)
 
 
+def _drive_values(library: Library, inputs: FitInputs, rows: IndexArray,
+                  terms: list[DiscoveredTerm]) -> FloatArray:
+    """Return what the drive ``terms`` add to the voltage (A, n) [V] at ``rows``."""
+    A, n = inputs.voltage.shape
+    zeros = np.zeros((A, n))
+    signals = library.signals(Rows(rows, zeros, zeros, zeros, zeros),
+                              list({k for t in terms for k in t.factors}))
+    total = np.zeros((A, n))
+    for t in terms:
+        value = t.coefficient * signals[t.factors[0]]
+        total += value * signals[t.factors[1]] if len(t.factors) > 1 else value
+    return np.asarray(np.where(np.isfinite(total), total, 0.0), np.float64)
+
+
+def moved_inputs(ws: Workspace, state: ModelState, terms: list[DiscoveredTerm],
+                 placement: tuple[IndexArray, tuple[int, int]] | None = None
+                 ) -> tuple[FitInputs, FitInputs]:
+    """Return ``ws``'s (training, held-out) inputs with ``terms`` taken out of the data.
+
+    A drive term moves the voltage as the feedforward undoes it (exactly: V plus the terms,
+    a slew-rate limit as the command through the limiter, limit.py); the others move the
+    displacement (temperature terms through the model's dz/dT, as the step fits them).
+    """
+    library = Library(ws.aligned, ws.grid, placement=placement)
+    train, held = ws.input_pair(state.delay_s, state.play_thresholds)
+    pairs = [(train, ws.fit_rows), (held, ws.score_rows)]
+    limits = limit_terms(terms)
+    if limits:
+        limited = rate_limited_command(ws.aligned, limits[0].factors[0][1])
+        pairs = [(behind_limit(ws.aligned, i, rows, limited), rows) for i, rows in pairs]
+    drive = [t for t in terms if t.acts_on is Carrier.DRIVE and t not in limits]
+    if drive:
+        pairs = [(replace(i, voltage=i.voltage + _drive_values(library, i, rows, drive)), rows)
+                 for i, rows in pairs]
+    others = [t for t in terms if t.acts_on is not Carrier.DRIVE]
+    if others:
+        pairs = [(replace(i, displacement=i.displacement - term_displacement(
+            library, state, i, rows, others)), rows) for i, rows in pairs]
+    return pairs[0][0], pairs[1][0]
+
+
 def refit_with_terms(ws: Workspace, state: ModelState, discovery: Discovery,
                      placement: tuple[IndexArray, tuple[int, int]] | None = None
                      ) -> ModelState:
@@ -394,23 +460,11 @@ def refit_with_terms(ws: Workspace, state: ModelState, discovery: Discovery,
 
     The step scores a term as if fitted jointly with the model (its coefficients would take
     up part of it otherwise); the parameters file carries both, so the model's values must
-    be those of that joint fit: the same model refitted on the displacement minus the
-    terms. ``ws`` holds the grid's actuators (the block is the grid). A slew-rate limit
-    moves the voltage instead (the model sees the command through the limiter).
+    be those of that joint fit: the same model refitted on the data without the terms
+    (:func:`moved_inputs`). ``ws`` holds the grid's actuators (the block is the grid).
     """
-    used = discovery.used
-    if not used:
+    if not discovery.used:
         return state
-    library = Library(ws.aligned, ws.grid, placement=placement)
-    train, held = ws.input_pair(state.delay_s, state.play_thresholds)
-    limits = limit_terms(discovery)
-    if limits:  # a rate limit moves the model's voltage (limit.py)
-        limited = rate_limited_command(ws.aligned, limits[0].factors[0][1])
-        train, held = (behind_limit(ws.aligned, train, ws.fit_rows, limited),
-                       behind_limit(ws.aligned, held, ws.score_rows, limited))
-    others = [t for t in used if t not in limits]
-    moved = [replace(inputs, displacement=inputs.displacement - term_displacement(
-        library, state, inputs, rows, others)) if others else inputs
-        for inputs, rows in ((train, ws.fit_rows), (held, ws.score_rows))]
-    return fit_state(state.model, moved[0], moved[1], state.fit.local, state.fit.glob,
+    train, held = moved_inputs(ws, state, discovery.used, placement)
+    return fit_state(state.model, train, held, state.fit.local, state.fit.glob,
                      delay_s=state.delay_s, thresholds=state.thresholds)

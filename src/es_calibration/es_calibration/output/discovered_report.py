@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from es_calibration.discovery import Discovery
+from es_physics.effects.discovered import LIMITS
 
 NM = 1e9
 
@@ -28,9 +29,11 @@ def discovery_lines(discovery: Discovery | None, basic_rms_m: float, floor_m: fl
             "|---|---|---|---|---|---|---|",
         ]
         for t in discovery.terms:
+            limits = ("" if t.parameter_halves is None else
+                      f" (limit {t.parameter_halves[0]:.4g}, {t.parameter_halves[1]:.4g})")
             text.append(
                 f"| {t.expression} | {t.coefficient:.4g} {t.unit} | {100 * t.share:.0f} % | "
-                f"{t.halves[0]:.3g}, {t.halves[1]:.3g} | {'yes' if t.stable else 'no'} | "
+                f"{t.halves[0]:.3g}, {t.halves[1]:.3g}{limits} | {'yes' if t.stable else 'no'} | "
                 f"{t.side} | {t.mechanism} |"
             )
         text.append("")
@@ -40,6 +43,12 @@ def discovery_lines(discovery: Discovery | None, basic_rms_m: float, floor_m: fl
         f"{', '.join(t.expression for t in written)}." if written
         else f"Nothing written to the parameters file: {discovery.note or 'no term'}."
     )
+    limits = [t for t in written if any(c in LIMITS for c, _ in t.factors)]
+    if limits:
+        text.append(
+            f"A limit no command beats (the law is fitted behind it; the feedforward leaves "
+            f"it: set points that ask the drive to move faster are followed at the limit): "
+            f"{', '.join(t.expression for t in limits)} [V/s].")
     metrology = [t for t in discovery.used if not t.written]
     if metrology:
         text.append(
