@@ -24,6 +24,7 @@ from standgen.unlisted import AmplifierDroop, SlewLimit, ThermalGradient, Unlist
 
 from es_calibration.data.align import align
 from es_calibration.discovery import Discovery, discover
+from es_calibration.output.discovered_report import discovery_lines
 from es_calibration.search.residual import noise_floor
 from es_calibration.search.state import Workspace, base_state, choose_stamp_convention
 from es_physics.effects.discovered import Carrier
@@ -134,6 +135,8 @@ def test_a_slew_rate_limit_is_found_behind_the_drive_and_the_law_refitted() -> N
     assert term.stable and term.parameter_halves is not None
     assert all(h == pytest.approx(limit, rel=0.05) for h in term.parameter_halves)
     assert not term.compensable and "slew-rate limit" in term.mechanism
+    report = "\n".join(discovery_lines(found, found.heldout_rms_before_m, noise))
+    assert "A limit no command beats" in report and "(limit " in report
     # measured: 2.16 x the true noise before, 1.00 x after (limit 4001 V/s)
     assert found.heldout_rms_before_m > 1.5 * noise
     assert found.heldout_rms_after_m < 1.1 * noise

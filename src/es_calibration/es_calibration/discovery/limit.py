@@ -106,19 +106,18 @@ class LimitFit:
 
     Attributes:
         limit_v_per_s: the limit [V/s].
-        state: the model refitted on the voltage through the limiter.
         heldout_rms_before_m: the registry model's held-out RMS (every screening row).
         heldout_rms_after_m: the refitted model's behind the limit (the same rows).
         halves_limit: the limit [V/s] best on each half of the record (time order).
         halves_scale: the limiter's correction fitted on each half (1: a pure limiter).
         stable: both halves' limits within ``LIMIT_STABILITY`` of the whole record's and
             their scales within regression.STABILITY of 1.
-        accepted: it passes the information criterion and the least relative gain.
+        accepted: it passes the information criterion and the least relative gain, and
+            it is stable.
 
     """
 
     limit_v_per_s: float
-    state: ModelState
     heldout_rms_before_m: float
     heldout_rms_after_m: float
     halves_limit: tuple[float, float]
@@ -172,6 +171,8 @@ def search_rate_limit(ws: Workspace, state: ModelState) -> LimitFit | None:
 
     grid = typical * np.asarray(GRID_FACTORS)
     screen = [rms(heldout_residual(state, moved(limit)[0])) for limit in grid]
+    if not np.isfinite(screen).any():
+        return None
     best = int(np.nanargmin(screen))
     if best == grid.size - 1 or not screen[best] < (1.0 - MIN_RELATIVE_GAIN) * plain:
         return None
@@ -206,7 +207,7 @@ def search_rate_limit(ws: Workspace, state: ModelState) -> LimitFit | None:
     halves_limit, halves_scale = _halves(ws, new, train_in, limit)
     steady = (all(abs(h / limit - 1.0) <= LIMIT_STABILITY for h in halves_limit)
               and stable(1.0, halves_scale))
-    return LimitFit(limit, new, before, after, halves_limit, halves_scale, steady,
+    return LimitFit(limit, before, after, halves_limit, halves_scale, steady,
                     accepted and steady)
 
 

@@ -29,12 +29,12 @@ def discovery_lines(discovery: Discovery | None, basic_rms_m: float, floor_m: fl
             "|---|---|---|---|---|---|---|",
         ]
         for t in discovery.terms:
-            limits = ("" if t.parameter_halves is None else
-                      f" (limit {t.parameter_halves[0]:.4g}, {t.parameter_halves[1]:.4g})")
+            halves = f"{t.halves[0]:.3g}, {t.halves[1]:.3g}" + (
+                "" if t.parameter_halves is None else
+                f" (limit {t.parameter_halves[0]:.4g}, {t.parameter_halves[1]:.4g})")
             text.append(
                 f"| {t.expression} | {t.coefficient:.4g} {t.unit} | {100 * t.share:.0f} % | "
-                f"{t.halves[0]:.3g}, {t.halves[1]:.3g}{limits} | {'yes' if t.stable else 'no'} | "
-                f"{t.side} | {t.mechanism} |"
+                f"{halves} | {'yes' if t.stable else 'no'} | {t.side} | {t.mechanism} |"
             )
         text.append("")
     written = discovery.written
