@@ -37,6 +37,7 @@ from es_calibration.data.timing import (
     stamp_findings,
 )
 from es_calibration.discovery import Discovery, discover, refit_with_terms
+from es_calibration.discovery.standins import drop_stand_ins
 from es_calibration.grid.tiles import (
     DEFAULT_TILE,
     TEMPERATURE,
@@ -542,7 +543,25 @@ def calibrate(
     kept = aligned.kept_fraction()
     analysis = _Analysis(aligned)
     before, resid_before = analysis.analyse(base_screen)
+    after, resid_after = analysis.analyse(final_screen)
     timings["residual analysis"] = time.perf_counter() - clock
+    # terms no registry effect describes, searched in the block's held-out residual
+    discovery = discover(aligned, block_grid, final_screen, after.noise_floor,
+                         placement=(idx, grid))
+    if discovery.added and full_grid and not windowed:  # the terms will be added: stand-ins?
+        clock = time.perf_counter()
+        narrow = Workspace(aligned, np.arange(aligned.n_actuators, dtype=np.intp), block_grid)
+        added, discovery, stand_ins = drop_stand_ins(
+            narrow, base_screen, added, discovery,
+            lambda state: discover(aligned, block_grid, state, after.noise_floor,
+                                   placement=(idx, grid)))
+        if stand_ins is not None:
+            rounds.append(stand_ins)
+            final_screen = added[-1][2] if added else base_screen
+            unconfirmed &= {name for name, _, _ in added}
+            if stand_ins.removed:
+                after, resid_after = analysis.analyse(final_screen)
+        discovery.seconds += time.perf_counter() - clock
 
     clock = time.perf_counter()
     grid_edges: EdgeExclusion | None = None
@@ -573,11 +592,6 @@ def calibrate(
     timings["grid refit"] = time.perf_counter() - clock
     clock = time.perf_counter()
     base_full = prefix_states[0]
-    after, resid_after = analysis.analyse(final_screen)
-    timings["analysis"] = time.perf_counter() - clock
-    # terms no registry effect describes, searched in the block's held-out residual
-    discovery = discover(aligned, block_grid, final_screen, after.noise_floor,
-                         placement=(idx, grid))
     final = prefix_states[-1]
     if discovery.added:
         clock = time.perf_counter()

@@ -87,11 +87,14 @@ def behind_limit(aligned: AlignedData, inputs: FitInputs, rows: IndexArray,
     """Return ``inputs`` at ``rows`` with the voltage moved by the limiter's correction.
 
     ``limited``: :func:`rate_limited_command` of the record. The correction RL(V) - V is
-    taken at each row's command sample (a fraction of a sample's delay left aside).
+    read through the same command taps as the voltage (its fractional delay); without
+    taps, at each row's command sample.
     """
-    at = np.maximum(aligned.command_index(rows, 0.0), 0)
-    command = np.nan_to_num(aligned.command)
-    return replace(inputs, voltage=inputs.voltage + (limited[at] - command[at]).T)
+    correction = np.asarray(limited) - np.nan_to_num(aligned.command)
+    taps = (inputs.drive.taps if inputs.drive is not None
+            else ((np.maximum(aligned.command_index(rows, 0.0), 0), 1.0),))
+    moved = sum((weight * correction[at] for at, weight in taps), np.zeros(correction.shape[1]))
+    return replace(inputs, voltage=inputs.voltage + np.asarray(moved).T)
 
 
 def rms(residual: FloatArray) -> float:

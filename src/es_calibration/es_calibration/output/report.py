@@ -12,6 +12,7 @@ import numpy as np
 
 from es_calibration.data.align import AlignedData
 from es_calibration.data.gaps import COMMAND_SETTLING_S, GAP_FACTOR
+from es_calibration.discovery.standins import STEP as STAND_IN_STEP
 from es_calibration.output.discovered_report import discovery_lines
 from es_calibration.output.schema import law_uncertainty
 from es_calibration.pipeline import NOISE_RATIO_LIMIT, Calibration
@@ -306,10 +307,12 @@ def write_report(cal: Calibration, out: Path, notes: list[str]) -> Path:
         "",
     ]
     for i, rnd in enumerate(cal.rounds, 1):
-        if rnd.step == "backward":
+        if rnd.step in ("backward", STAND_IN_STEP):
             title = f"removed **{rnd.removed}**" if rnd.removed else "every effect still needed"
+            check = ("backward check" if rnd.step == "backward"
+                     else "stand-in check with the discovered terms")
             text += [
-                f"Round {i}, backward check: {title}",
+                f"Round {i}, {check}: {title}",
                 "",
                 "| effect | RMS without [nm] | RMS with [nm] | dBIC | verdict | parameters |",
                 "|---|---|---|---|---|---|",
@@ -325,7 +328,8 @@ def write_report(cal: Calibration, out: Path, notes: list[str]) -> Path:
         for s in rnd.scores:
             params = ", ".join(f"{k} = {_fmt(v)}" for k, v in s.parameters.items())
             verdict = (
-                s.reason if rnd.step == "backward" else ("accepted" if s.accepted else s.reason)
+                s.reason if rnd.step in ("backward", STAND_IN_STEP)
+                else ("accepted" if s.accepted else s.reason)
             )
             text.append(
                 f"| {s.name} | {_fmt(s.rms_before_m * NM)} | {_fmt(s.rms_after_m * NM)} "

@@ -45,6 +45,10 @@ residual's autocorrelation)::
       # (rms_before_m / rms_after_m: each half's held-out RMS; accepted = the effect's
       # parameters agree between the halves, else reason "stand-in: ..." and the effect
       # is written with "enabled": false)
+      # "stand_in": with discovered terms added, each accepted effect taken out and the
+      # discovery run again without it (rms_before_m: without it and its own terms,
+      # rms_after_m: with it and the terms; accepted = it stays, else it was a stand-in
+      # and is gone from the model)
       "heldout_rms_before_m", "heldout_rms_after_m",         # whole grid, held-out rows
       "heldout_max_before_m", "heldout_max_after_m",         # analysed actuators, full rate
       "noise_floor_m": white measurement noise estimated from the final residual,

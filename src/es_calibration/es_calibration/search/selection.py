@@ -105,7 +105,7 @@ def subset_state(ws: Workspace, state: ModelState, keep: Sequence[str]) -> Model
     )
 
 
-def _unknowns(state: ModelState, name: str, n_actuators: int) -> int:
+def effect_unknowns(state: ModelState, name: str, n_actuators: int) -> int:
     """Return how many unknowns effect ``name`` has in ``state`` (play: per operator)."""
     effect = get(name)
     order = state.model.operators if effect is state.model.play else 1
@@ -174,7 +174,7 @@ def _forward_round(
         train_new, held_new = ws.input_pair(new.delay_s, new.play_thresholds)
         n_new = max(n_eff, effective_count(ws, new, held_new))
         delta = information_delta(
-            state.heldout_sse, new.heldout_sse, n_new, _unknowns(new, name, A)
+            state.heldout_sse, new.heldout_sse, n_new, effect_unknowns(new, name, A)
         )
         reason = _verdict(name, params, state, new, delta, span=span)
         if reason == "passes" and (offset := offset_stand_in(new, name, train_new, ws.aligned)):
@@ -209,7 +209,7 @@ def _backward_round(ws: Workspace, state: ModelState) -> tuple[RoundRecord, Mode
         without = subset_state(ws, state, keep)
         params = effect_parameters(state, name, ws.aligned)
         delta = information_delta(
-            without.heldout_sse, state.heldout_sse, n_eff, _unknowns(state, name, A)
+            without.heldout_sse, state.heldout_sse, n_eff, effect_unknowns(state, name, A)
         )
         reason = _verdict(name, params, without, state, delta, span=span)
         needed = reason == "passes"
