@@ -128,3 +128,19 @@ def test_filter_effects_must_be_determined() -> None:
     assert comp["self_heating_gain"] == 1e-5
     assert comp["self_heating_mean_window_s"] == pytest.approx(np.exp(0.4))  # the fitted one
     assert dispersion.problem({"fraction": 0.95, "corner_hz": 5.0}) is not None
+
+
+def test_a_play_operator_whose_weight_the_fit_cannot_tell_from_none_is_no_finding() -> None:
+    from es_physics.effects.hysteresis import Hysteresis
+
+    hysteresis = Hysteresis()
+    found = FittedEffect({"weight": 0.05, "decay_per_degc": 0.1},
+                         {"weight": 0.002, "decay_per_degc": 0.05})
+    assert hysteresis.undetermined(found) is None
+    # the independent stand's thermal gradient, taken by an operator at the drive's top
+    loose = FittedEffect({"weight": 2.5e-4, "decay_per_degc": -0.16},
+                         {"weight": 3.7e-4, "decay_per_degc": 0.5})
+    assert str(hysteresis.undetermined(loose)) == "weight not determined (1-sigma 0.00037)"
+    second = FittedEffect({"weight": 0.05, "weight_2": -1e-3, "decay_per_degc": 0.0},
+                          {"weight": 0.002, "weight_2": 0.004, "decay_per_degc": 0.0})
+    assert "weight_2 not determined" in str(hysteresis.undetermined(second))

@@ -347,6 +347,18 @@ class Hysteresis(Effect):
             return f"weights sum to {sum(weights.values()):.3g} >= 1"
         return None
 
+    def undetermined(self, fit: FittedEffect) -> str | None:
+        """Reject a weight not known to better than 100 % at 1 sigma.
+
+        Such an operator is one the data cannot tell from none: its cut of the error comes
+        from the law refitted beside it (on the independent stand: a thermal gradient taken
+        by an operator of weight 2e-4 +- 4e-4 at the drive's top).
+        """
+        for key, value in fit.values.items():
+            if key.startswith("weight") and key in fit.sigma and not fit.sigma[key] < abs(value):
+                return f"{key} not determined (1-sigma {fit.sigma[key]:.3g})"
+        return None
+
     def compensation_values(
         self, reported: dict[str, float], start_time: float
     ) -> dict[str, float]:
