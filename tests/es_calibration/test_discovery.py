@@ -82,10 +82,10 @@ def test_an_unlisted_lowpass_of_v_squared_is_found_stable_and_added() -> None:
     assert first.share > 0.8
     assert found.added and first in found.written
     assert found.heldout_rms_before_m > 5 * noise
-    # with the terms written (a third, unstable one is not): measured 1.86 x the true noise
-    # (0.93 nm vs 0.50 nm; 1.60 x with every selected term): the goal of 1.3 x is not met yet
-    assert found.heldout_rms_after_m < 2.0 * noise
-    assert found.heldout_rms_all_terms_m <= found.heldout_rms_after_m
+    # the law refitted with the terms written, every held-out row: measured 1.04 x the true
+    # noise (0.52 nm vs 0.50 nm); the unstable terms left out would make it worse (0.61 nm)
+    assert found.heldout_rms_after_m < 1.3 * noise
+    assert found.heldout_rms_all_terms_m >= found.heldout_rms_after_m
 
 
 def test_nothing_is_discovered_on_a_clean_record() -> None:

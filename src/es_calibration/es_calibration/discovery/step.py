@@ -242,7 +242,7 @@ def discover(aligned: AlignedData, grid: tuple[int, int], state: ModelState,
             train, held_gram, n_eff, allowed=allowed).chosen])
     result = _terms(sets, chosen, writable)
     result.library_size = len(terms)
-    if result.added and any(t.acts_on is Carrier.DRIVE for t in result.used):
+    if result.added:
         result = judged_exactly(ws, state, refined_drive(ws, state, result, placement),
                                  placement)
     if not (result.added and result.heldout_rms_after_m <= NOISE_RATIO_LIMIT * noise_floor_m):
