@@ -20,7 +20,7 @@ from functools import cache
 import numpy as np
 import pytest
 from standgen import Recording, StandConfig, simulate
-from standgen.unlisted import AmplifierDroop, SlewLimit, ThermalGradient, Unlisted
+from standgen.unlisted import AmplifierDroop, Creep, SlewLimit, ThermalGradient, Unlisted
 
 from es_calibration.data.align import align
 from es_calibration.discovery import Discovery, discover
@@ -139,4 +139,20 @@ def test_a_slew_rate_limit_is_found_behind_the_drive_and_the_law_refitted() -> N
     assert "A limit no command beats" in report and "(limit " in report
     # measured: 2.16 x the true noise before, 1.00 x after (limit 4001 V/s)
     assert found.heldout_rms_before_m > 1.5 * noise
+    assert found.heldout_rms_after_m < 1.1 * noise
+
+
+def test_a_logarithmic_creep_is_found_with_the_law_refitted_and_written() -> None:
+    creep = Creep(0.02)  # 2 % per decade, lags at 0.01 .. 10 s (the stand's own code)
+    config = replace(CONFIG, rows=2, cols=2, seed=17, unlisted=Unlisted(creep=creep))
+    found, noise = _discover_on(simulate(config)), config.noise_rms_m
+    assert found.added, found.note
+    term = found.written[0]
+    assert term.factors[0][0] == 20 and term.acts_on is Carrier.DISPLACEMENT
+    assert term.compensable and "logarithmic creep" in term.mechanism
+    assert term.factors[0][1] == pytest.approx(creep.taus_s[0], rel=0.3)
+    # the law absorbs part of the weight per decade (1.22 % for 1.31 % on a 1 x 1 record)
+    assert term.coefficient == pytest.approx(creep.gamma_per_decade, rel=0.2)
+    assert term.stable
+    assert found.heldout_rms_before_m > 2.0 * noise
     assert found.heldout_rms_after_m < 1.1 * noise

@@ -193,3 +193,39 @@ def test_terms_keep_where_they_act_through_the_parameters_file() -> None:
     # the present command in a temperature or displacement term: not from the set point
     assert not Term(1.0, (15, 0.0), None, Carrier.TEMPERATURE).compensable
     assert not Term(1.0, (1, 0.0), (15, 0.0)).compensable
+
+
+def _creep_plant(x: np.ndarray, x_old: np.ndarray, lags: np.ndarray, h: float,
+                 shortest: float) -> np.ndarray:
+    """Advance the plant's creep lags over a step ``h`` (x held linearly from ``x_old``)."""
+    taus = shortest * 10.0 ** np.arange(lags.shape[0])
+    d = np.exp(-h / taus).reshape(-1, 1, 1)
+    c = ((1.0 - np.exp(-h / taus)) * taus / h).reshape(-1, 1, 1)
+    return d * lags + (1.0 - c) * x + (c - d) * x_old
+
+
+def test_a_creep_term_is_undone_exactly_from_the_displacement_the_law_gives() -> None:
+    gamma, shortest = 0.02, 0.01
+    stage = DiscoveredCompensation([Term(gamma, (20, shortest))], SHAPE)
+    rng = np.random.default_rng(3)
+    lags: np.ndarray | None = None
+    x_old = np.zeros(SHAPE)
+    for k in range(400):
+        t = k * PERIOD
+        z_set = np.full(SHAPE, 80e-9) + (20e-9 if (k // 50) % 2 else 0.0) + 1e-9 * rng.random(
+            SHAPE)
+        x = stage.setpoint(z_set, np.zeros(SHAPE), t)  # what the law must give
+        if lags is None:
+            lags = np.broadcast_to(x, (4, *SHAPE)).copy()
+        else:
+            lags = _creep_plant(x, x_old, lags, PERIOD, shortest)
+        measured = x + gamma * np.sum(lags - x, axis=0)
+        np.testing.assert_allclose(measured, z_set, rtol=0, atol=1e-18)
+        stage.commit(np.zeros(SHAPE), np.zeros(SHAPE), t)
+        x_old = x
+
+
+def test_a_creep_term_is_compensable_only_alone_on_the_displacement() -> None:
+    assert Term(0.02, (20, 0.01)).compensable
+    assert not Term(0.02, (20, 0.01), (3, 45.0)).compensable
+    assert not Term(0.02, (20, 0.01), None, Carrier.DRIVE).compensable

@@ -72,9 +72,9 @@ from es_calibration.search.state import (
     Workspace,
     base_state,
     choose_stamp_convention,
-    fit_state,
     fitted_effect,
     heldout_residual,
+    refit_state,
     screen_block,
 )
 from es_calibration.search.unexplained import NOISE_RATIO_LIMIT
@@ -453,8 +453,7 @@ def _timing_health(recording: Recording) -> tuple[AlignedData, list[Finding], fl
 def _refitted(ws: Workspace, state: ModelState) -> ModelState:
     """Return ``state``'s model (per-actuator parameters kept) refitted on ``ws``, from it."""
     train, held = ws.input_pair(state.delay_s, state.play_thresholds)
-    return fit_state(state.model, train, held, state.fit.local, state.fit.glob,
-                     delay_s=state.delay_s, thresholds=state.thresholds)
+    return refit_state(state, train, held)
 
 
 def _with_delay(aligned: AlignedData, delay_s: float) -> AlignedData:

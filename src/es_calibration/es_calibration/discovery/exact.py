@@ -18,7 +18,12 @@ from typing import Final
 import numpy as np
 from scipy.optimize import minimize
 
-from es_calibration.discovery.library import Library, Rows, columns
+from es_calibration.discovery.library import (
+    Library,
+    Rows,
+    columns,
+    displacement_series,
+)
 from es_calibration.discovery.limit import (
     behind_limit,
     limit_terms,
@@ -31,11 +36,11 @@ from es_calibration.search.state import (
     MIN_RELATIVE_GAIN,
     ModelState,
     Workspace,
-    fit_state,
     heldout_residual,
+    refit_state,
 )
 from es_common.arrays import FloatArray, IndexArray
-from es_physics.effects.discovered import Carrier
+from es_physics.effects.discovered import CREEP, Carrier
 
 #: Steps of the model's sensitivities to the drive [V] and the temperature [degC] (central
 #: differences; the law is smooth on far larger scales).
@@ -63,6 +68,30 @@ def slopes(state: ModelState, inputs: FitInputs) -> tuple[FloatArray, FloatArray
     temperature = (at(replace(inputs, temperature=T + dt))
                    - at(replace(inputs, temperature=T - dt))) / (2 * dt)
     return drive, temperature
+
+
+def modelled_displacement(ws: Workspace, state: ModelState) -> FloatArray:
+    """Return ``state``'s displacement at every command of ``ws``'s block (Nc, A) [m].
+
+    From its prediction on the training and held-out rows (:func:`displacement_series`):
+    what the low-passes of the modelled displacement filter.
+    """
+    train, held = ws.input_pair(state.delay_s, state.play_thresholds)
+    predicted = [state.model.evaluate(state.fit.local, state.fit.glob, i, jacobian=False
+                                      ).prediction for i in (train, held)]
+    rows = np.concatenate([ws.fit_rows, ws.score_rows])
+    return displacement_series(ws.aligned, rows, np.concatenate(predicted, axis=1))
+
+
+def library_for(ws: Workspace, state: ModelState, terms: list[DiscoveredTerm] | None,
+                placement: tuple[IndexArray, tuple[int, int]] | None) -> Library:
+    """Return the block's library, with the model's displacement where ``terms`` need it.
+
+    ``terms`` None: the whole library (the displacement's low-passes included).
+    """
+    needs = terms is None or any(c == CREEP for t in terms for c, _ in t.factors)
+    return Library(ws.aligned, ws.grid, placement=placement,
+                   displacement=modelled_displacement(ws, state) if needs else None)
 
 
 def term_displacement(library: Library, state: ModelState, inputs: FitInputs,
@@ -107,7 +136,7 @@ def moved_inputs(ws: Workspace, state: ModelState, terms: list[DiscoveredTerm],
     a slew-rate limit as the command through the limiter, limit.py); the others move the
     displacement (temperature terms through the model's dz/dT, as the step fits them).
     """
-    library = Library(ws.aligned, ws.grid, placement=placement)
+    library = library_for(ws, state, terms, placement)
     train, held = ws.input_pair(state.delay_s, state.play_thresholds)
     pairs = [(train, ws.fit_rows), (held, ws.score_rows)]
     limits = limit_terms(terms)
@@ -138,8 +167,7 @@ def refit_with_terms(ws: Workspace, state: ModelState, discovery: Discovery,
     if not discovery.used:
         return state
     train, held = moved_inputs(ws, state, discovery.used, placement)
-    return fit_state(state.model, train, held, state.fit.local, state.fit.glob,
-                     delay_s=state.delay_s, thresholds=state.thresholds)
+    return refit_state(state, train, held)
 
 
 def refined_drive(ws: Workspace, state: ModelState, result: Discovery,
@@ -177,8 +205,7 @@ def refined_drive(ws: Workspace, state: ModelState, result: Discovery,
 
     def training_rms(x: FloatArray) -> float:
         train, held = moved_inputs(ws, state, others + terms_at(x), placement)
-        new = fit_state(state.model, train, held, state.fit.local, state.fit.glob,
-                        delay_s=state.delay_s, thresholds=state.thresholds)
+        new = refit_state(state, train, held)
         return rms(heldout_residual(new, train))
 
     start = np.array([0.0] * len(drive) + [
@@ -219,8 +246,7 @@ def judged_exactly(ws: Workspace, state: ModelState, result: Discovery,
     """
     def refitted_rms(terms: list[DiscoveredTerm]) -> float:
         train, held = moved_inputs(ws, state, terms, placement)
-        new = fit_state(state.model, train, held, state.fit.local, state.fit.glob,
-                        delay_s=state.delay_s, thresholds=state.thresholds)
+        new = refit_state(state, train, held)
         return rms(heldout_residual(new, held))
 
     plain = ws.input_pair(state.delay_s, state.play_thresholds)[1]

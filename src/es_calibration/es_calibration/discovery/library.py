@@ -6,15 +6,18 @@ modelled displacement, the 4-neighbour means of the command, of the temperature 
 actuator's own) and of its rate, first-order low-passes of V and V^2 at time constants
 spread from ``LOWPASS_SHORTEST_PERIODS`` command periods to a fifth of the record, the
 command delayed by ``DELAY_PERIODS`` periods, sin / cos of the displacement over the
-interferometer's periods (``FRINGE_LENGTHS_M``), the magnitude of the command's rate and the
-actuator's place in the whole grid (distance from the rim, x, y).
+interferometer's periods (``FRINGE_LENGTHS_M``), the magnitude of the command's rate, the
+actuator's place in the whole grid (distance from the rim, x, y) and, where the model's
+displacement at every command is given (:func:`displacement_series`), its logarithmic creep
+(low-passes of it, one per decade from ``CREEP_SHORTEST_PERIODS`` command periods).
 
 A term adds where its :class:`~es_physics.effects.discovered.Carrier` says: to the
 displacement (every factor but the place and the fringes, alone and every product of two,
-squares included), to the voltage in effect or to the law's temperature (the factors of
-``CARRIER_FACTORS``, alone and in pairs, times the model's sensitivity dz/dV or dz/dT at the
-sample, so the coefficient is in V or degC), or to the measurement (the fringes: a metrology
-error depends on what the interferometer sees, nothing else). The scales are the recording's
+squares included; the creep alone), to the voltage in effect or to the
+law's temperature (the factors of ``CARRIER_FACTORS``, alone and in pairs, times the model's
+sensitivity dz/dV or dz/dT at the sample, so the coefficient is in V or degC), or to the
+measurement (the fringes: a metrology error depends on what the interferometer sees,
+nothing else). The scales are the recording's
 own (each column is divided by its training RMS for the regression, and the coefficient
 converted back).
 """
@@ -32,8 +35,10 @@ from es_calibration.discovery.terms import FactorKey
 from es_calibration.model.history import lowpass_at
 from es_common.arrays import BoolArray, FloatArray, IndexArray
 from es_physics.effects.discovered import (
+    CREEP,
     POSITION,
     Carrier,
+    creep_time_constants,
     grid_position,
     neighbour_mean,
     rate_magnitude,
@@ -52,6 +57,8 @@ RATE_LIMIT_QUANTILES: Final = (0.5, 0.8, 0.95)
 FRINGE_LENGTHS_M: Final = (316.4e-9, 158.2e-9)
 #: Factor codes of the fringes (sin and cos of the displacement over those periods).
 FRINGES: Final = (13, 14)
+#: The creep's shortest time constant tried, in command periods (then refined).
+CREEP_SHORTEST_PERIODS: Final = (3.0, 10.0, 30.0)
 #: Factor codes of the terms that add to the drive or to the law's temperature: what an
 #: amplifier's output error follows (the command, its rate and the neighbours' commands) and
 #: what a temperature the sensors miss follows (a sensor's gain, the temperatures' rates and
@@ -100,13 +107,17 @@ class Library:
 
     def __init__(self, aligned: AlignedData, grid: tuple[int, int],
                  taus: tuple[float, ...] | None = None,
-                 placement: tuple[IndexArray, tuple[int, int]] | None = None) -> None:
+                 placement: tuple[IndexArray, tuple[int, int]] | None = None,
+                 displacement: FloatArray | None = None) -> None:
         """Keep the block's record (``aligned``, actuators row-major in ``grid``).
 
         ``placement``: the block's actuators as row-major indices of the whole grid, and
-        that grid (default: the block is the grid).
+        that grid (default: the block is the grid). ``displacement``: the model's
+        displacement at every command (Nc, A) [m] (:func:`displacement_series`) for the
+        creep (None: no creep in the library).
         """
         self.aligned = aligned
+        self._displacement = displacement
         self.grid = grid
         self.taus = lowpass_taus(aligned) if taus is None else taus
         self._command = np.nan_to_num(aligned.command)
@@ -122,6 +133,8 @@ class Library:
         ]
         keys += [(15, limit) for limit in self.rate_limits()]
         keys += [(10, tau) for tau in self.taus] + [(11, tau) for tau in self.taus]
+        if self._displacement is not None:
+            keys += [(CREEP, periods * a.command_period) for periods in CREEP_SHORTEST_PERIODS]
         keys += [(12, j * a.command_period) for j in DELAY_PERIODS]
         keys += [(code, length) for length in FRINGE_LENGTHS_M for code in (13, 14)]
         keys += [(code, 0.0) for code in sorted(POSITION)]
@@ -141,8 +154,10 @@ class Library:
         """Return every term of the library (see the module docstring) from its ``singles``."""
         out: list[LibraryTerm] = [
             (Carrier.DISPLACEMENT, t)
-            for t in product_keys([k for k in singles if k[0] not in (*POSITION, *FRINGES)])
+            for t in product_keys([k for k in singles
+                                   if k[0] not in (*POSITION, *FRINGES, CREEP)])
         ]
+        out += [(Carrier.DISPLACEMENT, (k,)) for k in singles if k[0] == CREEP]
         for carrier, codes in CARRIER_FACTORS.items():
             own = [k for k in singles if k[0] in codes]
             out += [(carrier, t) for t in product_keys(own)]
@@ -154,14 +169,22 @@ class Library:
         return np.asarray(self._command**2, np.float64)
 
     def _lowpass(self, key: FactorKey, rows: IndexArray) -> FloatArray:
-        """Return LP_tau(V) or LP_tau(V^2) at the command ``rows`` (increasing), (len(rows), A).
+        """Return LP_tau(V), LP_tau(V^2) or the creep at command ``rows`` (len(rows), A).
 
         Only those rows are kept (one compiled pass where the kernels are fused, see
         :func:`~es_calibration.model.history.lowpass_at`): a full-rate series per time
         constant was about 1 s and 77 MB on an 8 x 8 block of 5 minutes at 500 Hz.
         """
+        period = self.aligned.command_period
+        if key[0] == CREEP:
+            if self._displacement is None:
+                raise KeyError("the creep without the model's displacement")
+            z = self._displacement[rows]
+            return np.asarray(sum(lowpass_at(self._displacement, period, float(tau), rows,
+                                             with_slope=False)[0] - z
+                                  for tau in creep_time_constants(key[1])), np.float64)
         x = self._command if key[0] == 10 else self._squared
-        return lowpass_at(x, self.aligned.command_period, key[1], rows, with_slope=False)[0]
+        return lowpass_at(x, period, key[1], rows, with_slope=False)[0]
 
     def _grid_mean(self, x: FloatArray) -> FloatArray:
         """Return the 4-neighbour mean of (A, n) values on the block's grid."""
@@ -209,7 +232,7 @@ class Library:
                 out[key] = self._grid_mean(T) - T
             elif code == 9:
                 out[key] = self._grid_mean(rate)
-            elif code in (10, 11):
+            elif code in (10, 11, CREEP):
                 out[key] = self._lowpass(key, needed)[where].T
             elif code == 12:
                 shift = round(p / a.command_period)
@@ -222,6 +245,28 @@ class Library:
             else:
                 raise KeyError(f"no library factor with code {code}")
         return out
+
+
+def displacement_series(aligned: AlignedData, rows: IndexArray, values: FloatArray
+                        ) -> FloatArray:
+    """Return ``values`` (A, n) at displacement ``rows`` as a series at every command (Nc, A).
+
+    Each command takes the value of the last sample while it was in effect; a command with
+    none (a dropped sample, an excluded row) keeps the one before (the first ones, the first
+    value): a low-pass of it then sees the displacement held, as the strain is.
+    """
+    order = np.argsort(rows, kind="stable")
+    index = np.maximum(aligned.command_index(np.asarray(rows)[order], 0.0), 0)
+    held = np.asarray(values, np.float64)[:, order].T
+    finite = np.all(np.isfinite(held), axis=1)
+    index, held = index[finite], held[finite]
+    n_commands = aligned.command.shape[0]
+    if index.size == 0:
+        return np.zeros((n_commands, aligned.n_actuators))
+    last = np.full(n_commands, -1, np.intp)
+    np.maximum.at(last, index, np.arange(index.size))  # the latest sample of a command wins
+    filled = np.maximum.accumulate(last)
+    return np.asarray(held[np.where(filled >= 0, filled, 0)], np.float64)
 
 
 def product_keys(singles: list[FactorKey]) -> list[tuple[FactorKey, ...]]:

@@ -41,9 +41,9 @@ from es_calibration.search.state import (
     ModelState,
     Workspace,
     effective_count,
-    fit_state,
     heldout_residual,
     information_delta,
+    refit_state,
 )
 from es_common.arrays import FloatArray, IndexArray
 from es_feedforward.kernels import Backend, default_backend
@@ -182,8 +182,7 @@ def search_rate_limit(ws: Workspace, state: ModelState) -> LimitFit | None:
 
     def refit(limit: float) -> tuple[ModelState, FitInputs, FitInputs]:
         train, held = moved(limit)
-        new = fit_state(state.model, train, held, state.fit.local, state.fit.glob,
-                        delay_s=state.delay_s, thresholds=state.thresholds)
+        new = refit_state(state, train, held)
         return new, train, held
 
     lo = grid[max(best - BRACKET_STEPS, 0)]

@@ -20,11 +20,10 @@ from typing import Final
 import numpy as np
 
 from es_calibration.data.align import AlignedData
-from es_calibration.discovery.exact import judged_exactly, refined_drive, slopes
+from es_calibration.discovery.creep import CreepFit, search_creep
+from es_calibration.discovery.exact import judged_exactly, library_for, refined_drive, slopes
 from es_calibration.discovery.library import Library, LibraryTerm, Rows, columns, usable
-from es_calibration.discovery.limit import (
-    search_rate_limit,
-)
+from es_calibration.discovery.limit import LimitFit, search_rate_limit
 from es_calibration.discovery.regression import Gram, select, stable
 from es_calibration.discovery.terms import DiscoveredTerm, Discovery, FactorKey
 from es_calibration.search.residual import integrated_autocorrelation_time
@@ -37,7 +36,7 @@ from es_calibration.search.state import (
 )
 from es_calibration.search.unexplained import NOISE_RATIO_LIMIT
 from es_common.arrays import FloatArray, IndexArray
-from es_physics.effects.discovered import Carrier
+from es_physics.effects.discovered import CREEP, Carrier
 from es_physics.effects.discovered import Term as PhysicsTerm
 
 MAX_ACTUATORS: Final = 16
@@ -51,7 +50,8 @@ CHUNK: Final = 4096
 MIN_DISTINCT: Final = 0.1
 #: Relative ridge of the law's normal equations in the projection (see _grams).
 RIDGE_LAW: Final = 1e-10
-#: A refined time constant is tried at these factors of the library's.
+#: A refined time constant (a low-pass's, the creep's shortest) is tried at these factors of
+#: the library's.
 REFINE_FACTORS: Final = tuple(float(f) for f in np.geomspace(0.25, 4.0, 13))
 
 Term = LibraryTerm
@@ -169,7 +169,7 @@ def _refine(sets: _Sets, chosen: list[Term]) -> list[Term]:
     out = list(chosen)
     for i, (carrier, term) in enumerate(chosen):
         for f, (code, tau) in enumerate(term):
-            if code not in (10, 11) and not (code == 15 and tau > 0):
+            if code not in (10, 11, CREEP) and not (code == 15 and tau > 0):
                 continue
             best: tuple[float, Term] | None = None
             for factor in REFINE_FACTORS:
@@ -204,7 +204,7 @@ def discover(aligned: AlignedData, grid: tuple[int, int], state: ModelState,
     clock = time.perf_counter()
     ws = Workspace(aligned, np.arange(aligned.n_actuators, dtype=np.intp), grid)
     at, held_share, n_train, jac = _residual_rows(ws, state)
-    library = Library(aligned, grid, placement=placement)
+    library = library_for(ws, state, None, placement)
     singles = library.keys()
     signals = library.signals(at, singles)
     A = aligned.n_actuators
@@ -245,19 +245,20 @@ def discover(aligned: AlignedData, grid: tuple[int, int], state: ModelState,
     if result.added:
         result = judged_exactly(ws, state, refined_drive(ws, state, result, placement),
                                  placement)
-    if not (result.added and result.heldout_rms_after_m <= NOISE_RATIO_LIMIT * noise_floor_m):
-        result = _with_rate_limit(ws, state, result)
+    for search in (search_rate_limit, search_creep):
+        if not (result.added
+                and result.heldout_rms_after_m <= NOISE_RATIO_LIMIT * noise_floor_m):
+            result = _with_search(result, search(ws, state))
     result.seconds = time.perf_counter() - clock
     return result
 
 
-def _with_rate_limit(ws: Workspace, state: ModelState, linear: Discovery) -> Discovery:
-    """Return ``linear``, or the slew-rate limit where it explains more (limit.py).
+def _with_search(linear: Discovery, found: LimitFit | CreepFit | None) -> Discovery:
+    """Return ``linear``, or a search's term where it explains more (limit.py, creep.py).
 
-    The limit wins when accepted and its held-out RMS after, relative to before, is lower
-    than the library terms' (each on its own rows); the library's terms stay reported.
+    The search's term wins when accepted and its held-out RMS after, relative to before, is
+    lower than the library terms' (each on its own rows); the library's terms stay reported.
     """
-    found = search_rate_limit(ws, state)
     if found is None or not found.accepted:
         return linear
     ratio = found.heldout_rms_after_m / found.heldout_rms_before_m

@@ -326,6 +326,15 @@ def fit_state(
     )
 
 
+def refit_state(state: ModelState, train: FitInputs, heldout: FitInputs) -> ModelState:
+    """Return ``state``'s model refitted on ``train`` from its values, scored on ``heldout``.
+
+    The delay and play thresholds stay as found (e.g. the data moved by discovered terms).
+    """
+    return fit_state(state.model, train, heldout, state.fit.local, state.fit.glob,
+                     delay_s=state.delay_s, thresholds=state.thresholds)
+
+
 def information_delta(
     sse_before: float, sse_after: float, n_effective: float, n_added: int
 ) -> float:

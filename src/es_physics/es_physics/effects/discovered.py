@@ -25,11 +25,13 @@ point; a temperature term of such factors moves the temperature the law is inver
 drive term may also depend on the present command (V, its rate, the neighbours' commands):
 the command is then solved numerically from the voltage the law asks for (fixed-point steps
 per actuator, with the rate taken on the law's voltages; where they do not settle, the
-first step's command goes out, counted). A displacement term of the present
-command is reported but never written. A drive term of a slew-rate limit (factor 19, the
-command through a rate limiter minus the command, coefficient 1) is written for the model
-(the law is fitted to the voltage the amplifier really gave) and never undone: within the
-limit there is nothing to undo, beyond it no command makes the amplifier faster.
+first step's command goes out, counted). A displacement term of the present command is
+reported but never written. A creep term (factor 20, alone on the displacement) is linear
+in the displacement the law is asked for, so that displacement is solved in closed form
+(:func:`creep_step`). A drive term of a slew-rate limit (factor 19, the command through a
+rate limiter minus the command, coefficient 1) is written for the model (the law is fitted
+to the voltage the amplifier really gave) and never undone: within the limit there is
+nothing to undo, beyond it no command makes the amplifier faster.
 """
 
 from __future__ import annotations
@@ -117,6 +119,9 @@ FACTORS: Final[tuple[Factor, ...]] = (
     Factor(19, "RL(V)-V", "V", "limit [V/s]", "drive", False,
            "the command through a rate limiter minus the command: an amplifier's slew-rate "
            "limit (its output follows the command at most this fast)"),
+    Factor(20, "creep(z)", "m", "shortest time constant [s]", "output", True,
+           "low-passes of the modelled displacement minus it, one per decade of time: "
+           "logarithmic creep of the actuator's strain after each change"),
 )
 BY_CODE: Final[dict[int, Factor]] = {f.code: f for f in FACTORS}
 #: Terms the parameters file can carry.
@@ -127,12 +132,36 @@ PRESENT_COMMAND: Final = frozenset({1, 2, 7, 15})
 OF_DISPLACEMENT: Final = frozenset({6, 13, 14})
 #: Factors of a limit no command beats (see :attr:`Term.compensable`).
 LIMITS: Final = frozenset({19})
+#: The creep factor: low-passes of the modelled displacement z minus z, summed; their time
+#: constants are the shortest x 1, 10, 100, ... over ``CREEP_DECADES`` decades (a Prony
+#: series of equal steps per decade, the usual form of a piezo's logarithmic creep
+#: z (1 + gamma log10(t / t0))). Each low-pass holds z linearly between commands (first-order
+#: hold, as the calibration's filters).
+CREEP: Final = 20
+CREEP_DECADES: Final = 4
 #: Factors fixed by an actuator's place in the grid.
 POSITION: Final = frozenset({16, 17, 18})
 #: A drive term's inverse: fixed-point steps, and how close [V] the command must bring the
 #: voltage in effect to the one asked for (see DiscoveredCompensation.invert_drive).
 FIXED_POINT_STEPS: Final = 8
 SOLVE_TOLERANCE_V: Final = 1e-6
+
+
+def creep_time_constants(shortest: float) -> FloatArray:
+    """Return the creep factor's low-pass time constants [s] from the shortest one."""
+    return np.asarray(shortest * 10.0 ** np.arange(CREEP_DECADES), np.float64)
+
+
+def creep_step(step_s: float, shortest: float) -> tuple[FloatArray, FloatArray]:
+    """Return the creep's low-passes' (D, c) over a step of ``step_s`` [s], each (CREEP_DECADES,).
+
+    First-order hold: y_new = D y + (1 - c) x_new + (c - D) x_old with D = exp(-h / tau)
+    and c = (1 - D) tau / h; a step of 0 moves nothing (D = c = 1).
+    """
+    a = max(step_s, 0.0) / creep_time_constants(shortest)
+    if not a[0] > 0.0:
+        return np.ones(CREEP_DECADES), np.ones(CREEP_DECADES)
+    return np.exp(-a), -np.expm1(-a) / a
 
 
 def rate_magnitude(rate: FloatArray, limit: float) -> FloatArray:
@@ -246,6 +275,8 @@ class Term:
             return False
         if codes & LIMITS:  # within the limit nothing to undo, beyond it no command is faster
             return False
+        if CREEP in codes:  # solved in closed form from the set point (see the module)
+            return self.acts_on is Carrier.DISPLACEMENT and self.b is None
         if self.acts_on is Carrier.DRIVE:
             return not codes & OF_DISPLACEMENT
         if self.acts_on is Carrier.TEMPERATURE and codes & OF_DISPLACEMENT:
@@ -344,7 +375,9 @@ class DiscoveredCompensation(Compensator):
                  last_voltage: FloatArray | None = None) -> None:
         compensable = [t for t in terms if t.compensable]
         self.terms = compensable
-        self._by_carrier = {c: [t for t in compensable if t.acts_on is c] for c in Carrier}
+        self._creep_terms = [t for t in compensable if t.a[0] == CREEP]
+        self._by_carrier = {c: [t for t in compensable if t.acts_on is c
+                                and t not in self._creep_terms] for c in Carrier}
         self.reshapes_drive = bool(self._by_carrier[Carrier.DRIVE])
         self.shape = shape
         start = np.zeros(shape) if last_voltage is None else np.asarray(last_voltage, np.float64)
@@ -361,6 +394,10 @@ class DiscoveredCompensation(Compensator):
         self._temperature: tuple[float, FloatArray] | None = None
         self._rate = np.zeros(shape)
         self._law: tuple[float, FloatArray] | None = None  # the last voltage the law asked for
+        # creep: the last displacement the law was asked for and when, the low-passes then
+        # (CREEP_DECADES, R, C) per term; and this command's, kept by commit()
+        self._creep: tuple[float, FloatArray, list[FloatArray]] | None = None
+        self._creep_asked: tuple[float, FloatArray, list[FloatArray]] | None = None
         self.unconverged = 0
 
     def carry_over(self, previous: DiscoveredCompensation) -> None:
@@ -371,6 +408,9 @@ class DiscoveredCompensation(Compensator):
         self._last, self._last_t = previous._last.copy(), previous._last_t
         self._temperature, self._rate = previous._temperature, previous._rate.copy()
         self._law = previous._law
+        if previous._creep is not None and [t.a for t in previous._creep_terms] == [
+                t.a for t in self._creep_terms]:
+            self._creep = previous._creep
         self.unconverged = previous.unconverged
 
     def measured_temperature(self, T: FloatArray, t: float) -> FloatArray:
@@ -461,10 +501,38 @@ class DiscoveredCompensation(Compensator):
         return np.asarray(T + self._sum(Carrier.TEMPERATURE, t, T=T), np.float64)
 
     def setpoint(self, z: FloatArray, T: FloatArray, t: float) -> FloatArray:
-        """Return z minus the displacement terms."""
-        if not self._by_carrier[Carrier.DISPLACEMENT]:
+        """Return z minus the displacement terms, the creep's solved (see the module)."""
+        if self._by_carrier[Carrier.DISPLACEMENT]:
+            z = np.asarray(z - self._sum(Carrier.DISPLACEMENT, t, z=z, T=T), np.float64)
+        return self._without_creep(z, t) if self._creep_terms else z
+
+    def _without_creep(self, z: FloatArray, t: float) -> FloatArray:
+        """Return the displacement x the law must give so that x + the creep terms is ``z``.
+
+        Each term is gamma sum_k (LP_k(x) - x) with LP_k(x) = D y_k + (1 - c) x + (c - D) x_old
+        (:func:`creep_step`), so x (1 - sum gamma sum_k c_k) = z - sum gamma sum_k (D y_k +
+        (c - D) x_old). The low-passes start settled at the first set point; where the
+        denominator is not positive (a creep the command cannot undo) z goes as it is.
+        """
+        z = np.asarray(z, np.float64)
+        if self._creep is None:
+            self._creep_asked = (t, z.copy(), [np.broadcast_to(z, (CREEP_DECADES, *z.shape))
+                                               .copy() for _ in self._creep_terms])
             return z
-        return np.asarray(z - self._sum(Carrier.DISPLACEMENT, t, z=z, T=T), np.float64)
+        last_t, old, states = self._creep
+        known, slope, steps = np.zeros_like(z), 1.0, []
+        for term, y in zip(self._creep_terms, states, strict=True):
+            D, c = creep_step(t - last_t, term.a[1])
+            shape = (-1, *(1,) * z.ndim)
+            known = known + term.coefficient * np.sum(D.reshape(shape) * y
+                                                      + (c - D).reshape(shape) * old, axis=0)
+            slope -= term.coefficient * float(np.sum(c))
+            steps.append((D.reshape(shape), c.reshape(shape)))
+        x = (z - known) / slope if slope > 0.0 else z
+        x = np.asarray(np.where(np.isfinite(x), x, z), np.float64)
+        self._creep_asked = (t, x, [D * y + (1.0 - c) * x + (c - D) * old
+                                    for (D, c), y in zip(steps, states, strict=True)])
+        return x
 
     def invert_drive(self, voltage: FloatArray, t: float) -> FloatArray:
         """Return the command v with v + drive terms(v) = ``voltage``, per actuator.
@@ -520,6 +588,8 @@ class DiscoveredCompensation(Compensator):
                              np.float64)
         for key in self._lowpass:
             self._lowpass[key] = self._lowpass_at(key, t)
+        if self._creep_asked is not None:
+            self._creep, self._creep_asked = self._creep_asked, None
         self._last = np.asarray(sent, np.float64).copy()
         self._last_t = t
         if self._max_delay > 0.0:
