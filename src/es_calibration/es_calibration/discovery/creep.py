@@ -32,8 +32,8 @@ from scipy.optimize import minimize
 from es_calibration.discovery.exact import library_for, moved_inputs
 from es_calibration.discovery.library import Rows
 from es_calibration.discovery.limit import rms
-from es_calibration.discovery.regression import stable
-from es_calibration.discovery.terms import DiscoveredTerm, Discovery
+from es_calibration.discovery.regression import scale_fit, stable
+from es_calibration.discovery.terms import DiscoveredTerm, Discovery, with_searched_term
 from es_calibration.model.composite import FitInputs
 from es_calibration.search.state import (
     MIN_RELATIVE_GAIN,
@@ -82,34 +82,17 @@ class CreepFit:
     stable: bool
     accepted: bool
 
-    def term(self, name: str = "discovered_1") -> DiscoveredTerm:
-        """Return the creep as a used displacement term."""
-        before, after = self.heldout_rms_before_m, self.heldout_rms_after_m
-        return DiscoveredTerm(
-            name, ((CREEP, self.shortest_s),), self.gamma,
-            float(1.0 - (after / before) ** 2) if before > 0 else 0.0,
-            self.halves, self.stable, Carrier.DISPLACEMENT, used=True)
-
     def discovery(self, linear: Discovery) -> Discovery:
         """Return the step's outcome with the creep added; ``linear``'s terms stay reported."""
-        others = [replace(t, name=f"discovered_{k}", used=False)
-                  for k, t in enumerate(linear.terms, start=2)]
-        return Discovery(
-            True, [self.term(), *others], True, self.heldout_rms_before_m,
-            self.heldout_rms_after_m, "", linear.library_size,
-            heldout_rms_all_terms_m=self.heldout_rms_after_m)
+        term = replace(_term(self.shortest_s, self.gamma), halves=self.halves, stable=self.stable)
+        return with_searched_term(term, self.heldout_rms_before_m, self.heldout_rms_after_m,
+                                  linear)
 
 
 def _term(shortest: float, gamma: float) -> DiscoveredTerm:
+    """Return a used creep term of ``gamma`` per decade from ``shortest`` [s]."""
     return DiscoveredTerm("creep", ((CREEP, shortest),), gamma, 0.0, (gamma, gamma), True,
                           Carrier.DISPLACEMENT, used=True)
-
-
-def _least_squares(column: FloatArray, residual: FloatArray) -> float:
-    """Return the scale of ``column`` that fits ``residual`` best (over finite pairs)."""
-    ok = np.isfinite(column) & np.isfinite(residual)
-    denominator = float(column[ok] @ column[ok])
-    return float(column[ok] @ residual[ok]) / denominator if denominator > 0 else 0.0
 
 
 def search_creep(ws: Workspace, state: ModelState) -> CreepFit | None:
@@ -133,7 +116,7 @@ def search_creep(ws: Workspace, state: ModelState) -> CreepFit | None:
     for periods in SHORTEST_PERIODS:
         shortest = periods * ws.aligned.command_period
         c = column(shortest)
-        gamma = _least_squares(c, residual)
+        gamma = scale_fit(c, residual)
         screen.append((rms(residual - gamma * c), shortest, gamma))
     best, shortest, gamma = min(screen)
     if not (gamma > 0.0 and best < (1.0 - MIN_RELATIVE_GAIN) * plain):
@@ -172,6 +155,6 @@ def _halves(ws: Workspace, state: ModelState, train_in: FitInputs, column: Float
     """Return gamma fitted on each half of the training rows, ``state``'s law held."""
     late = ws.aligned.t[ws.fit_rows] >= 0.5 * float(ws.aligned.t[-1])
     residual = heldout_residual(state, train_in)
-    first, second = (_least_squares(column[:, half], residual[:, half])
+    first, second = (scale_fit(column[:, half], residual[:, half])
                      for half in (~late, late))
     return first, second

@@ -33,8 +33,8 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from es_calibration.data.align import AlignedData
-from es_calibration.discovery.regression import stable
-from es_calibration.discovery.terms import DiscoveredTerm, Discovery
+from es_calibration.discovery.regression import scale_fit, stable
+from es_calibration.discovery.terms import DiscoveredTerm, Discovery, with_searched_term
 from es_calibration.model.composite import FitInputs
 from es_calibration.search.state import (
     MIN_RELATIVE_GAIN,
@@ -128,23 +128,16 @@ class LimitFit:
     stable: bool
     accepted: bool
 
-    def term(self) -> DiscoveredTerm:
-        """Return the limit as a used drive term (coefficient 1: RL(V) - V adds to V)."""
-        before, after = self.heldout_rms_before_m, self.heldout_rms_after_m
-        return DiscoveredTerm(
-            "discovered_1", ((LIMIT_FACTOR, self.limit_v_per_s),), 1.0,
-            float(1.0 - (after / before) ** 2) if before > 0 else 0.0,
-            self.halves_scale, self.stable, Carrier.DRIVE, used=True,
-            parameter_halves=self.halves_limit)
-
     def discovery(self, linear: Discovery) -> Discovery:
-        """Return the step's outcome with the limit added; ``linear``'s terms stay reported."""
-        others = [replace(t, name=f"discovered_{k}", used=False)
-                  for k, t in enumerate(linear.terms, start=2)]
-        return Discovery(
-            True, [self.term(), *others], True, self.heldout_rms_before_m,
-            self.heldout_rms_after_m, "", linear.library_size,
-            heldout_rms_all_terms_m=self.heldout_rms_after_m)
+        """Return the step's outcome with the limit added; ``linear``'s terms stay reported.
+
+        The limit is a used drive term, coefficient 1 (RL(V) - V adds to V).
+        """
+        term = DiscoveredTerm("limit", ((LIMIT_FACTOR, self.limit_v_per_s),), 1.0, 0.0,
+                              self.halves_scale, self.stable, Carrier.DRIVE, used=True,
+                              parameter_halves=self.halves_limit)
+        return with_searched_term(term, self.heldout_rms_before_m, self.heldout_rms_after_m,
+                                  linear)
 
 
 def _rate_quantile(aligned: AlignedData) -> float:
@@ -242,11 +235,7 @@ def _halves(ws: Workspace, state: ModelState, train_in: FitInputs, limit: float
                                                   float(np.log(limit * HALF_BRACKET))),
                                 method="bounded", options={"xatol": LIMIT_TOLERANCE})
         limits.append(float(np.exp(found.x)))
-        r = (measured - plain)[:, half].ravel()
-        c = correction[:, half].ravel()
-        ok = np.isfinite(r) & np.isfinite(c)
-        denominator = float(c[ok] @ c[ok])
-        scales.append(float(c[ok] @ r[ok]) / denominator if denominator > 0 else 0.0)
+        scales.append(scale_fit(correction[:, half], (measured - plain)[:, half]))
     return (limits[0], limits[1]), (scales[0], scales[1])
 
 

@@ -115,6 +115,14 @@ def select(train: Gram, held: Gram, n_effective: float,
     return Selection(chosen, beta, path)
 
 
+def scale_fit(column: FloatArray, residual: FloatArray) -> float:
+    """Return the least-squares scale of ``column`` for ``residual`` (finite pairs; 0: none)."""
+    c, r = np.ravel(column), np.ravel(residual)
+    ok = np.isfinite(c) & np.isfinite(r)
+    denominator = float(c[ok] @ c[ok])
+    return float(c[ok] @ r[ok]) / denominator if denominator > 0 else 0.0
+
+
 def stable(full: float, halves: tuple[float, float]) -> bool:
     """Return whether both halves' coefficients lie within STABILITY of ``full``."""
     return full != 0.0 and all(abs(h - full) <= STABILITY * abs(full) for h in halves)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from es_physics.effects.discovered import BY_CODE, Carrier, Term, expression, unit
 
@@ -165,3 +165,17 @@ class Discovery:
             "library_size": self.library_size,
             "seconds": self.seconds,
         }
+
+
+def with_searched_term(term: DiscoveredTerm, before_m: float, after_m: float,
+                       linear: Discovery) -> Discovery:
+    """Return the step's outcome with a searched ``term`` added (a slew-rate limit, a creep).
+
+    ``term`` takes the first name and the share its cut of the held-out RMS (``before_m`` to
+    ``after_m``) makes; ``linear``'s terms (the library's) stay reported, unused.
+    """
+    share = float(1.0 - (after_m / before_m) ** 2) if before_m > 0 else 0.0
+    others = [replace(t, name=f"discovered_{k}", used=False)
+              for k, t in enumerate(linear.terms, start=2)]
+    return Discovery(True, [replace(term, name="discovered_1", share=share), *others], True,
+                     before_m, after_m, "", linear.library_size, heldout_rms_all_terms_m=after_m)
