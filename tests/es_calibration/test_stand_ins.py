@@ -71,3 +71,23 @@ def test_nothing_is_compared_without_added_terms() -> None:
     kept, discovery, record = drop_stand_ins(ws, base, added, nothing,
                                              lambda state: _answer(0.1e-9))
     assert record is None and kept == added and discovery is nothing
+
+
+def test_after_a_removal_the_other_effects_are_judged_again() -> None:
+    ws, base, added = _models()
+    with_drift = added[0][2]
+    both = subset_state(ws, with_drift, ("drift", "coupling"))
+    two: list[Added] = [*added, ("coupling", with_drift, both)]
+    answers = iter([0.9e-9, 0.8e-9])
+    seen: list[tuple[str, ...]] = []
+
+    def rediscover(state: ModelState) -> Discovery:
+        seen.append(state.model.effects)
+        return _answer(next(answers))
+
+    kept, discovery, record = drop_stand_ins(ws, base, two, _answer(1.0e-9), rediscover)
+    # the last effect first; then the drift, judged against the answer without the coupling
+    assert seen == [("drift",), ()]
+    assert record is not None and record.removed == "coupling, drift"
+    assert kept == [] and discovery.heldout_rms_after_m == 0.8e-9
+    assert [s.name for s in record.scores] == ["coupling", "drift"]

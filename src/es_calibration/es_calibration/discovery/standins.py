@@ -7,8 +7,10 @@ only the rest. So once the discovery has added terms, each accepted effect is ta
 turn, the discovery run again on the model without it, and the two answers compared on the
 held-out rows by the same criterion: the effect's unknowns against the difference in terms.
 Where the model without the effect, with its own terms, wins, the effect was a stand-in and
-goes. A registry effect that explains the same structure with fewer unknowns wins the
-comparison and stays (a discovered term never replaces it).
+goes, and the others are judged again against the new answer (on the stand's creep, 4 x 4:
+frequency dispersion went first, then coupling, which had been judged beside it). A registry
+effect that explains the same structure with fewer unknowns wins the comparison and stays (a
+discovered term never replaces it).
 """
 
 from __future__ import annotations
@@ -68,28 +70,53 @@ def drop_stand_ins(ws: Workspace, base: ModelState, added: list[Added],
     if not (discovery.added and added):
         return added, discovery, None
     scores: list[CandidateScore] = []
-    removed: str | None = None
-    for index in reversed(range(len(added))):
-        name, _, _ = added[index]
-        final = added[-1][2]
-        reduced = _without(ws, added, index)
-        without = reduced[-1][2] if reduced else base
-        other = rediscover(without)
-        with_rms = discovery.heldout_rms_after_m
-        without_rms = other.heldout_rms_after_m if other.added else other.heldout_rms_before_m
-        _, held = ws.input_pair(final.delay_s, final.play_thresholds)
-        n_eff = effective_count(ws, final, held)
-        extra = (len(other.used) - len(discovery.used)
-                 - effect_unknowns(final, name, len(ws.actuators)))
-        delta = information_delta(without_rms**2, with_rms**2, n_eff, -extra)
-        stays = not (np.isfinite(delta) and delta > 0.0)
-        reason = ("still needed with the discovered terms" if stays else
-                  "removed: a stand-in (the model without it and its own discovered terms "
-                  f"explains the held-out rows better: dBIC of keeping it {delta:+.1f})")
-        scores.append(CandidateScore(name, without_rms, with_rms, delta, stays, reason,
-                                     {"terms_without": float(len(other.used)),
-                                      "terms_with": float(len(discovery.used))}))
-        if not stays:
-            added, discovery, removed = reduced, other, name
-            break  # one at a time, as the backward check; the rest were judged with it
-    return added, discovery, RoundRecord(scores, None, step=STEP, removed=removed)
+    removed: list[str] = []
+    judged: set[str] = set()
+    while True:  # after a removal the rest are judged again, against the new answer
+        pending = [i for i in reversed(range(len(added))) if added[i][0] not in judged]
+        for index in pending:
+            name = added[index][0]
+            score, reduced, other = _judge(ws, base, added, index, discovery=discovery,
+                                           rediscover=rediscover)
+            scores.append(score)
+            if not score.accepted:
+                added, discovery = reduced, other
+                removed.append(name)
+                judged = set()
+                break
+            judged.add(name)
+        else:
+            break
+        if not (discovery.added and added):
+            break
+    return added, discovery, RoundRecord(scores, None, step=STEP,
+                                         removed=", ".join(removed) or None)
+
+
+def _judge(ws: Workspace, base: ModelState, added: list[Added], index: int, *,
+           discovery: Discovery, rediscover: Callable[[ModelState], Discovery]
+           ) -> tuple[CandidateScore, list[Added], Discovery]:
+    """Compare the model with effect ``index`` and without it, each with its own terms.
+
+    Returns the score (accepted: the effect stays), the effects without it and the
+    discovery's answer on the model without it.
+    """
+    name = added[index][0]
+    final = added[-1][2]
+    reduced = _without(ws, added, index)
+    without = reduced[-1][2] if reduced else base
+    other = rediscover(without)
+    with_rms = discovery.heldout_rms_after_m
+    without_rms = other.heldout_rms_after_m if other.added else other.heldout_rms_before_m
+    _, held = ws.input_pair(final.delay_s, final.play_thresholds)
+    n_eff = effective_count(ws, final, held)
+    extra = (len(other.used) - len(discovery.used)
+             - effect_unknowns(final, name, len(ws.actuators)))
+    delta = information_delta(without_rms**2, with_rms**2, n_eff, -extra)
+    stays = not (np.isfinite(delta) and delta > 0.0)
+    reason = ("still needed with the discovered terms" if stays else
+              "removed: a stand-in (the model without it and its own discovered terms "
+              f"explains the held-out rows better: dBIC of keeping it {delta:+.1f})")
+    return CandidateScore(name, without_rms, with_rms, delta, stays, reason,
+                          {"terms_without": float(len(other.used)),
+                           "terms_with": float(len(discovery.used))}), reduced, other
