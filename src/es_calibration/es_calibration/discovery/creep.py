@@ -124,7 +124,7 @@ def search_creep(ws: Workspace, state: ModelState) -> CreepFit | None:
 
     def training_rms(x: FloatArray) -> float:
         """Return the training RMS with the law refitted, creep at (log shortest, log gamma)."""
-        train, held = moved_inputs(ws, state, [_term(*np.exp(x))], None)
+        train, held = moved_inputs(ws, state, [_term(*np.exp(x))], None, library)
         new = refit_state(state, train, held)
         return rms(heldout_residual(new, train))
 
@@ -133,10 +133,10 @@ def search_creep(ws: Workspace, state: ModelState) -> CreepFit | None:
     found = minimize(training_rms, start, method="Nelder-Mead", options={
         "maxfev": REFINE_EVALUATIONS, "initial_simplex": simplex, "xatol": REFINE_TOLERANCE,
         "fatol": 0.0})
-    shortest, gamma = (float(v) for v in np.exp(found.x))
-    if not gamma > 0.0 or not np.isfinite(found.fun):
+    if not np.isfinite(found.fun):
         return None
-    train, held = moved_inputs(ws, state, [_term(shortest, gamma)], None)
+    shortest, gamma = (float(v) for v in np.exp(found.x))
+    train, held = moved_inputs(ws, state, [_term(shortest, gamma)], None, library)
     new = refit_state(state, train, held)
     before_res = heldout_residual(state, held_in)
     after_res = heldout_residual(new, held)

@@ -128,15 +128,18 @@ def _drive_values(library: Library, inputs: FitInputs, rows: IndexArray,
 
 
 def moved_inputs(ws: Workspace, state: ModelState, terms: list[DiscoveredTerm],
-                 placement: tuple[IndexArray, tuple[int, int]] | None = None
-                 ) -> tuple[FitInputs, FitInputs]:
+                 placement: tuple[IndexArray, tuple[int, int]] | None = None,
+                 library: Library | None = None) -> tuple[FitInputs, FitInputs]:
     """Return ``ws``'s (training, held-out) inputs with ``terms`` taken out of the data.
 
     A drive term moves the voltage as the feedforward undoes it (exactly: V plus the terms,
     a slew-rate limit as the command through the limiter, limit.py); the others move the
     displacement (temperature terms through the model's dz/dT, as the step fits them).
+    ``library``: the block's, built for ``state`` (:func:`library_for`), where a search
+    moves the data many times (default: built here).
     """
-    library = library_for(ws, state, terms, placement)
+    if library is None:
+        library = library_for(ws, state, terms, placement)
     train, held = ws.input_pair(state.delay_s, state.play_thresholds)
     pairs = [(train, ws.fit_rows), (held, ws.score_rows)]
     limits = limit_terms(terms)
