@@ -229,3 +229,26 @@ def test_a_creep_term_is_compensable_only_alone_on_the_displacement() -> None:
     assert Term(0.02, (20, 0.01)).compensable
     assert not Term(0.02, (20, 0.01), (3, 45.0)).compensable
     assert not Term(0.02, (20, 0.01), None, Carrier.DRIVE).compensable
+
+
+def test_a_creep_the_command_cannot_undo_passes_the_set_point_as_it_is() -> None:
+    # gamma x the decades' weights >= 1: no displacement solves it; the set point goes on
+    stage = DiscoveredCompensation([Term(0.3, (20, 0.01))], SHAPE)
+    z = np.full(SHAPE, 80e-9)
+    stage.setpoint(z, np.zeros(SHAPE), 0.0)
+    stage.commit(np.zeros(SHAPE), np.zeros(SHAPE), 0.0)
+    np.testing.assert_array_equal(stage.setpoint(z + 20e-9, np.zeros(SHAPE), PERIOD), z + 20e-9)
+
+
+def test_a_creep_term_keeps_bad_set_points_from_the_actuators() -> None:
+    term = Term(0.02, (20, 0.01))
+    config = FeedforwardConfig(shape=SHAPE, compensation=CompensationParams().replaced(
+        values_from_terms([term])))
+    ff = Feedforward(config)
+    T = np.full(SHAPE, config.reference_temperature)
+    for k, value in enumerate((80e-9, np.nan, np.inf, -5e-9, 80e-9)):
+        ff.update_temperature(T, k * PERIOD)
+        z = np.full(SHAPE, 80e-9)
+        z[0, 0] = value
+        v = np.asarray(ff.command(z, k * PERIOD).voltage)
+        assert np.all(np.isfinite(v)) and np.all((v >= 0.0) & (v <= config.v_limit))
